@@ -1,0 +1,1 @@
+"""Composition root of ennc-ql: the command line, configuration loading, launchers and experiment commands."""

@@ -1,0 +1,93 @@
+"""The ``ennc-ql`` command line: eval and bench print what the library measures."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from ennc_ql.cli import main
+from sim import HAND_MADE, evaluate, scenario
+
+
+def run_json(capsys: pytest.CaptureFixture[str], *argv: str) -> dict:
+    assert main(list(argv)) == 0
+    out = capsys.readouterr().out
+    assert out.count("\n") == 1  # exactly one JSON object on stdout
+    return json.loads(out)
+
+
+@pytest.mark.parametrize("policy", sorted(HAND_MADE))
+def test_eval_json_reports_the_library_result(capsys: pytest.CaptureFixture[str], policy: str) -> None:
+    out = run_json(capsys, "eval", "--policy", policy, "--trials", "3", "--steps", "150", "--seed", "4", "--json")
+    expected = evaluate(scenario(), HAND_MADE[policy], trials=3, steps=150, seed=4)
+    assert out["policy"] == policy and out["scenario"] == "cmommt-v1"
+    assert (out["trials"], out["steps"], out["seed"]) == (3, 150, 4)
+    np.testing.assert_allclose(out["coverage_per_trial"], expected.coverage_per_trial, atol=1e-4)
+    assert out["coverage_mean"] == pytest.approx(np.mean(out["coverage_per_trial"]), abs=1e-3)
+    assert out["coverage_std"] == pytest.approx(np.std(out["coverage_per_trial"]), abs=1e-3)
+
+
+def test_eval_table_lists_every_trial(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["eval", "--policy", "random", "--trials", "4", "--steps", "50"]) == 0
+    text = capsys.readouterr().out
+    assert sum(line.strip().startswith("trial") for line in text.splitlines()) == 4
+    assert "mean" in text
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["eval", "--trials", "0"], "positive integer"),
+        (["eval", "--steps", "x"], "positive integer"),
+        (["eval", "--scenario", "nope"], "invalid choice"),
+        (["bench", "everything"], "invalid choice"),
+    ],
+)
+def test_bad_flags_get_a_clear_error(capsys: pytest.CaptureFixture[str], argv: list[str], message: str) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_unknown_policy_is_named_in_the_error() -> None:
+    with pytest.raises(SystemExit, match="unknown policy 'greedy'"):
+        main(["eval", "--policy", "greedy"])
+
+
+def test_bench_sim_reports_measured_rates(capsys: pytest.CaptureFixture[str]) -> None:
+    out = run_json(capsys, "bench", "sim", "--seconds", "0.05", "--json")
+    assert set(out["robot_steps_per_s"]) == {"random", "a_cmommt"}
+    assert all(rate > 0 for rate in out["robot_steps_per_s"].values())
+    best = out["by_batch_size"]["random"][str(out["arenas"])]
+    assert out["robot_steps_per_s"]["random"] == max(out["by_batch_size"]["random"].values()) == best
+    assert (out["robots"], out["targets"]) == (10, 10)
+
+
+def test_console_script_runs_as_a_process() -> None:
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "ennc_ql.cli",
+            "eval",
+            "--policy",
+            "a-cmommt",
+            "--trials",
+            "2",
+            "--steps",
+            "100",
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    )
+    out = json.loads(proc.stdout)
+    assert len(out["coverage_per_trial"]) == 2
+    assert 0.0 < out["coverage_mean"] <= 100.0
