@@ -12,9 +12,10 @@ import logging
 import sys
 import time
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
-from sim import HAND_MADE, SCENARIOS, evaluate, scenario
+from sim import HAND_MADE, SCENARIOS, Controller, ScenarioConfig, evaluate, scenario
 
 log = logging.getLogger("ennc_ql")
 
@@ -36,14 +37,34 @@ def _emit(result: dict[str, Any], as_json: bool, table: str) -> None:
         print(table)
 
 
+def _controller(policy: str, scenario_name: str) -> tuple[Controller, ScenarioConfig, dict[str, Any]]:
+    """A hand-made controller by name, or a learned policy from a policy file."""
+    if policy in HAND_MADE:
+        return HAND_MADE[policy], scenario(scenario_name), {}
+    path = Path(policy)
+    if not path.exists():
+        raise SystemExit(
+            f"ennc-ql eval: {policy!r} is neither a hand-made policy ({', '.join(HAND_MADE)}) nor a policy file"
+        )
+    from learner.policy import PolicyController
+    from learner.policy_file import PolicyFileError, load_policy, scenario_from_header
+
+    try:
+        learned, header = load_policy(path)
+        cfg = scenario_from_header(header)
+    except (PolicyFileError, TypeError, ValueError) as exc:
+        raise SystemExit(f"ennc-ql eval: {exc}") from None
+    info = {"method": learned.method, "prototypes_per_action": header["prototypes_per_action"]}
+    return PolicyController(learned), cfg, info
+
+
 def cmd_eval(args: argparse.Namespace) -> int:
-    cfg = scenario(args.scenario)
-    if args.policy not in HAND_MADE:
-        raise SystemExit(f"ennc-ql eval: unknown policy {args.policy!r}; choose one of {', '.join(HAND_MADE)}")
+    controller, cfg, info = _controller(args.policy, args.scenario)
     start = time.perf_counter()
-    result = evaluate(cfg, HAND_MADE[args.policy], trials=args.trials, steps=args.steps, seed=args.seed)
+    result = evaluate(cfg, controller, trials=args.trials, steps=args.steps, seed=args.seed)
     out = {
         "policy": args.policy,
+        **info,
         "scenario": cfg.name,
         "trials": args.trials,
         "steps": args.steps,
@@ -77,19 +98,42 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    from ennc_ql.experiments import Budget
+    from ennc_ql.reproduce import markdown_table, reproduce
+
+    budget = Budget.quick() if args.quick else Budget()
+    processes = args.processes or (1 if args.quick else 5)
+    out_dir = Path(args.out) if args.out else Path("runs") / ("reproduce-quick" if args.quick else "reproduce")
+    report = reproduce(budget, processes, out_dir, methods=args.methods or None)
+    report["output"] = str(out_dir)
+    _emit(
+        report, args.json, markdown_table(report) + f"\nwritten to {out_dir}/ (results.md, results.json, figure5.png)"
+    )
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="ennc-ql", description=__doc__.splitlines()[0])
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging on stderr")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("eval", help="evaluate a policy on seeded test trials (metric A)")
-    p.add_argument("--policy", default="a-cmommt", help=f"one of {', '.join(HAND_MADE)}")
+    p.add_argument("--policy", default="a-cmommt", help=f"one of {', '.join(HAND_MADE)}, or a policy file (.npz)")
     p.add_argument("--scenario", default="cmommt-v1", choices=sorted(SCENARIOS))
     p.add_argument("--trials", type=_positive_int, default=10, help="independent test trials (default 10)")
     p.add_argument("--steps", type=_positive_int, default=1000, help="steps per trial (default 1000)")
     p.add_argument("--seed", type=int, default=0, help="seed of the test trials (default 0)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_eval)
+
+    p = sub.add_parser("reproduce", help="the paper's Figure 5 and 6: every method, tables and a bar chart")
+    p.add_argument("--quick", action="store_true", help="reduced budget: 1 process per method, shorter learning")
+    p.add_argument("--processes", type=_positive_int, help="learning processes per method (default 5, quick 1)")
+    p.add_argument("--methods", nargs="+", help="run only these methods (names as in the results table)")
+    p.add_argument("--out", help="output folder (default runs/reproduce[-quick])")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=cmd_reproduce)
 
     p = sub.add_parser("bench", help="measure performance figures")
     p.add_argument("what", choices=["sim"], help="sim: simulator robot-steps per second")

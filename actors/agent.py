@@ -1,0 +1,96 @@
+"""Phase-2 tabular Q-learning agent over a fixed discretization (ENNC-QL phase 2, VQQL).
+
+Usage::
+
+    agent = TabularAgent.from_policy(policy, Phase2Config())
+    actions = agent.act(states, robots, cells, rng, explore=True)     # ε-greedy
+    agent.learn(robots, cell_sa, next_cells, rewards, dones)           # Eq. 1 on each robot's own table
+    snapshot = agent.policy()
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from learner.policy import Policy
+from learner.qtable import q_update
+from sim import N_ACTIONS
+
+
+@dataclass(frozen=True, slots=True)
+class Phase2Config:
+    """On-line Q-learning parameters [choice: α = 0.1, γ = 0.9, ε = 0.1]."""
+
+    alpha: float = 0.1
+    gamma: float = 0.9
+    epsilon: float = 0.1
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.alpha <= 1.0:
+            raise ValueError(f"alpha must lie in (0, 1], got {self.alpha}")
+        if not 0.0 <= self.gamma < 1.0:
+            raise ValueError(f"gamma must lie in [0, 1), got {self.gamma}")
+        if not 0.0 <= self.epsilon <= 1.0:
+            raise ValueError(f"epsilon must lie in [0, 1], got {self.epsilon}")
+
+
+class TabularAgent:
+    """Owns mutable Q tables (R, Σ P_a) and visit counts; robot i reads and writes row ``robot_table[i]``."""
+
+    def __init__(self, policy: Policy, config: Phase2Config) -> None:
+        self.template = policy
+        self.config = config
+        self.tables = policy.tables.astype(np.float64, copy=True)
+        self.visits = (
+            np.zeros(policy.tables.shape, np.uint64) if policy.visits is None else policy.visits.astype(np.uint64)
+        )
+
+    @property
+    def discretization(self):
+        return self.template.discretization
+
+    def cells(self, states: np.ndarray) -> np.ndarray:
+        return self.template.discretization.cells(states)
+
+    def act(self, robots: np.ndarray, cells: np.ndarray, rng: np.random.Generator, explore: bool) -> np.ndarray:
+        """(N,) greedy actions on each robot's table; with ``explore`` a fraction ε is replaced by random ones."""
+        q = self._lookup(robots, cells)
+        actions = np.argmax(q, axis=1)
+        if explore and self.config.epsilon > 0:
+            flip = rng.random(actions.size) < self.config.epsilon
+            actions = np.where(flip, rng.integers(0, N_ACTIONS, actions.size), actions)
+        return actions
+
+    def learn(
+        self,
+        robots: np.ndarray,
+        cell_sa: np.ndarray,
+        next_cells: np.ndarray,
+        rewards: np.ndarray,
+        dones: np.ndarray,
+    ) -> None:
+        """Eq. 1 for N tuples: ``cell_sa`` (N,) cell of (s, a), ``next_cells`` (N, L) cells of s′."""
+        if robots.size == 0:
+            return
+        bootstrap = self._lookup(robots, next_cells).max(axis=1)
+        targets = np.where(dones, rewards, rewards + self.config.gamma * bootstrap)
+        rows = self.template.rows(robots)
+        size = self.tables.shape[1]
+        q_update(self.tables.reshape(-1), self.visits.reshape(-1), rows * size + cell_sa, targets, self.config.alpha)
+
+    def _lookup(self, robots: np.ndarray, cells: np.ndarray) -> np.ndarray:
+        """(N, L) Q values of each robot's own table at ``cells`` (N, L), without copying whole table rows."""
+        rows = self.template.rows(robots)
+        return self.tables.reshape(-1)[rows[:, None] * self.tables.shape[1] + cells]
+
+    def policy(self, **changes: object) -> Policy:
+        """A snapshot of the current tables as an immutable policy."""
+        return dataclasses.replace(
+            self.template,
+            tables=self.tables.astype(np.float32),
+            visits=self.visits.copy(),
+            **changes,  # type: ignore[arg-type]
+        )

@@ -1,0 +1,179 @@
+"""One learning process of each method of the paper, end to end on the vectorized simulator.
+
+A process explores with random actions (phase 0), builds a discretization (ENNC-QL phase 1, or the LBG codebook of
+VQQL), learns Q tables on-line with ε-greedy tabular Q-learning (phase 2), and is then tested on seeded 1000-step
+trials with 10 robots. Usage::
+
+    spec = METHODS["ennc-ql-collab-option2"]
+    outcome = train(spec, Budget.quick(), seed=0)
+    outcome.policy, outcome.coverage_mean, outcome.states
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from actors.agent import Phase2Config, TabularAgent
+from actors.slice import ExperienceSlice, SliceConfig
+from learner.discretization import Discretization
+from learner.enncql import Phase1Config, phase1
+from learner.policy import Policy, PolicyController
+from learner.transitions import Transitions
+from learner.vqql import lbg
+from sim import N_ACTIONS, ScenarioConfig, evaluate, scenario
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class MethodSpec:
+    """How one method of Figure 5 learns."""
+
+    name: str
+    algorithm: str
+    """``enncql`` or ``vqql``."""
+    featurizer: str
+    """``local2d`` or ``collab6d``."""
+    learning_robots: int
+    """Robots present in learning trials: 1 for the local experiments, 10 for the collaborative ones [paper]."""
+    per_robot_tables: bool
+    """Option 2: every robot learns its own table [paper]; otherwise robot 0 learns and all use its table."""
+    codebook: int = 0
+    """VQQL codebook size."""
+
+
+METHODS: dict[str, MethodSpec] = {
+    spec.name: spec
+    for spec in [
+        MethodSpec("vqql-local-16", "vqql", "local2d", 1, False, codebook=16),
+        MethodSpec("vqql-collab-64", "vqql", "collab6d", 10, False, codebook=64),
+        MethodSpec("vqql-collab-256", "vqql", "collab6d", 10, False, codebook=256),
+        MethodSpec("vqql-collab-1024", "vqql", "collab6d", 10, False, codebook=1024),
+        MethodSpec("vqql-collab-2048", "vqql", "collab6d", 10, False, codebook=2048),
+        MethodSpec("ennc-ql-local", "enncql", "local2d", 1, False),
+        MethodSpec("ennc-ql-collab-option1", "enncql", "collab6d", 10, False),
+        MethodSpec("ennc-ql-collab-option2", "enncql", "collab6d", 10, True),
+    ]
+}
+
+
+@dataclass(frozen=True, slots=True)
+class Budget:
+    """How much experience and computation one learning process gets."""
+
+    arenas: int = 1000
+    """Arenas simulated side by side in learning trials."""
+    explore_trials: int = 4
+    """Batches of random-exploration learning trials (phase 0), each in every arena."""
+    phase2_trials: int = 60
+    """Batches of ε-greedy learning trials (phase 2)."""
+    phase1: Phase1Config = field(default_factory=lambda: Phase1Config(max_iterations=1, max_patterns=60_000))
+    """ENNC-QL phase 1; one iteration suffices in CMOMMT [paper]."""
+    phase2: Phase2Config = field(default_factory=Phase2Config)
+    codebook_patterns: int = 50_000
+    """LBG runs on a uniform sample of this many explored states [choice]."""
+    test_trials: int = 10
+    test_steps: int = 1000
+    test_seed: int = 0
+    """Every method is tested on the same seeded trials, as the hand-made controllers are."""
+
+    @classmethod
+    def quick(cls) -> Budget:
+        return cls(
+            arenas=500,
+            explore_trials=2,
+            phase2_trials=20,
+            phase1=Phase1Config(max_iterations=1, max_patterns=20_000, n_cycles=150),
+            codebook_patterns=20_000,
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class Outcome:
+    method: str
+    seed: int
+    policy: Policy
+    coverage_per_trial: np.ndarray
+    states: float
+    """Mean prototypes per action (ENNC-QL) or codebook size (VQQL)."""
+    tuples: int
+    seconds: float
+
+    @property
+    def coverage_mean(self) -> float:
+        return float(self.coverage_per_trial.mean())
+
+
+Progress = Callable[[str], None]
+
+
+def _discretize(spec: MethodSpec, data: Transitions, budget: Budget, seed: int) -> tuple[Discretization, str]:
+    rng = np.random.default_rng(seed)
+    if spec.algorithm == "vqql":
+        n = min(budget.codebook_patterns, len(data))
+        sample = data.state[rng.choice(len(data), n, replace=False)]
+        return Discretization.shared(lbg(sample, spec.codebook, seed=seed, max_iter=30), N_ACTIONS), "until_change"
+    result = phase1(data, N_ACTIONS, budget.phase1, seed=seed)
+    return result.discretization, "fixed"
+
+
+def train(
+    spec: MethodSpec,
+    budget: Budget,
+    seed: int,
+    base: ScenarioConfig | None = None,
+    progress: Progress | None = None,
+) -> Outcome:
+    """One independent learning process of ``spec``, tested on the paper's protocol."""
+    start = time.perf_counter()
+    base = base or scenario()
+    say = progress or (lambda message: log.info("%s[%d]: %s", spec.name, seed, message))
+    learn_cfg = base.replace(n_robots=spec.learning_robots)
+    seeds = np.random.SeedSequence([seed, sum(spec.name.encode())]).spawn(2)
+    explorer = ExperienceSlice(learn_cfg, SliceConfig(n_arenas=budget.arenas, featurizer=spec.featurizer), seeds[0])
+    data = Transitions.concat([explorer.run_trial() for _ in range(budget.explore_trials)])
+    say(f"explored {len(data)} tuples")
+    disc, action_mode = _discretize(spec, data, budget, seed)
+    say(f"discretization: {disc.size} cells, {disc.sizes().mean():.1f} per action")
+    rows = spec.learning_robots if spec.per_robot_tables else 1
+    template = Policy(
+        featurizer=spec.featurizer,
+        discretization=disc,
+        tables=np.tile(disc.labels, (rows, 1)),
+        robot_table=np.arange(spec.learning_robots) % rows,
+        action_steps=base.action_steps,
+        action_mode=action_mode,  # type: ignore[arg-type]
+        method=spec.name,
+    )
+    agent = TabularAgent(template, budget.phase2)
+    learners = None if spec.per_robot_tables else (0,)
+    learner_slice = ExperienceSlice(
+        learn_cfg,
+        SliceConfig(n_arenas=budget.arenas, featurizer=spec.featurizer, learners=learners, action_mode=action_mode),
+        seeds[1],
+    )
+    tuples = len(data)
+    for trial in range(budget.phase2_trials):
+        tuples += len(learner_slice.run_trial(agent, learn=True))
+        if (trial + 1) % max(1, budget.phase2_trials // 4) == 0:
+            say(f"phase 2: {trial + 1}/{budget.phase2_trials} trial batches, {tuples} tuples")
+    test_robots = base.n_robots
+    robot_table = np.arange(test_robots) % rows
+    policy = agent.policy(robot_table=robot_table, meta={"seed": seed, "tuples": tuples})
+    result = evaluate(base, PolicyController(policy), budget.test_trials, budget.test_steps, seed=budget.test_seed)
+    say(f"test coverage {result.coverage_mean:.2f}%")
+    states = float(spec.codebook) if spec.algorithm == "vqql" else float(disc.sizes().mean())
+    return Outcome(
+        method=spec.name,
+        seed=seed,
+        policy=policy,
+        coverage_per_trial=result.coverage_per_trial,
+        states=states,
+        tuples=tuples,
+        seconds=time.perf_counter() - start,
+    )

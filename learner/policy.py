@@ -1,0 +1,138 @@
+"""A learned CMOMMT policy: per-action discretizations, per-robot Q tables, and how robots act on them.
+
+Usage::
+
+    policy = Policy(featurizer="collab6d", discretization=disc, tables=q, robot_table=np.arange(10), ...)
+    actions = policy.greedy(states, robots)            # (N,) compass actions for states (N, d) of robots (N,)
+    evaluate(cfg, PolicyController(policy), trials=10, steps=1000)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+
+from learner.discretization import Discretization
+from learner.qtable import greedy
+from sim import FEATURIZERS, ScenarioConfig
+from sim.controllers import compass_velocity, wander
+from sim.features import featurize, lost
+from sim.world import Observation, WorldState
+
+LostBehaviour = Literal["wander", "stay", "policy"]
+ActionMode = Literal["fixed", "until_change"]
+
+
+@dataclass(frozen=True, slots=True)
+class Policy:
+    """Everything needed to act: state definition, discretization, Q tables and the acting rules."""
+
+    featurizer: str
+    """``local2d`` or ``collab6d`` (see :mod:`sim.features`)."""
+    discretization: Discretization
+    tables: np.ndarray
+    """(R, Σ P_a) float32 Q tables; option 2 has one row per robot, option 1 and VQQL one row."""
+    robot_table: np.ndarray
+    """(m,) int64: the table row robot i uses."""
+    action_steps: int = 5
+    """Steps a compass action lasts (``fixed`` mode) [choice]."""
+    action_mode: ActionMode = "fixed"
+    """``fixed``: act every ``action_steps``; ``until_change``: keep the action until the discretized state
+    changes, at most ``max_action_steps`` steps (VQQL) [paper]."""
+    max_action_steps: int = 20
+    """Cap of ``until_change`` actions [choice]."""
+    lost_behaviour: LostBehaviour = "wander"
+    """What a robot that sees no target does in test trials: keep its heading and reflect off the wall, stay
+    motionless, or follow the policy on the masked state [choice]."""
+    visits: np.ndarray | None = None
+    """(R, Σ P_a) visit counts of the tables, when known."""
+    version: int = 0
+    """Policy version (distributed runs)."""
+    method: str = ""
+    """Name of the method that learned it, e.g. ``ennc-ql-collab-option2``."""
+    meta: dict[str, Any] = field(default_factory=dict)
+    """Free-form provenance (seeds, configs) kept in the policy file header."""
+
+    def __post_init__(self) -> None:
+        if self.featurizer not in FEATURIZERS:
+            raise ValueError(f"unknown featurizer {self.featurizer!r}")
+        if FEATURIZERS[self.featurizer] != self.discretization.dim:
+            raise ValueError("featurizer dimension and discretization dimension differ")
+        if self.tables.ndim != 2 or self.tables.shape[1] != self.discretization.size:
+            raise ValueError(f"tables must have shape (R, {self.discretization.size}), got {self.tables.shape}")
+        if self.robot_table.min() < 0 or self.robot_table.max() >= self.tables.shape[0]:
+            raise ValueError("robot_table names a table row that does not exist")
+        if self.visits is not None and self.visits.shape != self.tables.shape:
+            raise ValueError("visits must have the shape of tables")
+
+    @property
+    def n_robots(self) -> int:
+        return int(self.robot_table.size)
+
+    def rows(self, robots: np.ndarray) -> np.ndarray:
+        return self.robot_table[np.asarray(robots) % self.robot_table.size]
+
+    def greedy(self, states: np.ndarray, robots: np.ndarray, cells: np.ndarray | None = None) -> np.ndarray:
+        """(N,) argmax_a Q_robot(s, a) for states (N, d) of robots (N,)."""
+        cells = self.discretization.cells(states) if cells is None else cells
+        return greedy(self.tables[self.rows(robots)], cells)
+
+
+@dataclass(frozen=True, slots=True)
+class _Memory:
+    action: np.ndarray  # (E, m) int64 current compass action
+    heading: np.ndarray  # (E, m, 2) unit heading of wandering robots
+    held: np.ndarray  # (E, m) int64 steps the current action has lasted
+    cell: np.ndarray  # (E, m) int64 cell of the state the action started in (until_change mode)
+
+
+@dataclass(frozen=True, slots=True)
+class PolicyController:
+    """Drives every robot of a scenario with a learned :class:`Policy` (greedy), for test trials."""
+
+    policy: Policy
+    name: str = "policy"
+
+    def init(self, cfg: ScenarioConfig, world: WorldState, rng: np.random.Generator) -> _Memory:
+        shape = (world.n_arenas, cfg.n_robots)
+        angle = rng.uniform(0.0, 2.0 * np.pi, shape)
+        return _Memory(
+            action=np.zeros(shape, np.int64),
+            heading=np.stack([np.cos(angle), np.sin(angle)], axis=-1),
+            held=np.full(shape, 1 << 30, np.int64),
+            cell=np.full(shape, -1, np.int64),
+        )
+
+    def act(
+        self, cfg: ScenarioConfig, world: WorldState, obs: Observation, memory: _Memory, rng: np.random.Generator
+    ) -> tuple[np.ndarray, _Memory]:
+        p = self.policy
+        n_arenas, m = memory.action.shape
+        states = featurize(cfg, obs, p.featurizer).reshape(n_arenas * m, -1)
+        robots = np.tile(np.arange(m), n_arenas)
+        held = memory.held
+        if p.action_mode == "fixed":
+            decide = np.broadcast_to(world.t % p.action_steps == 0, (n_arenas, m))
+            cells = p.discretization.cells(states) if decide.any() else None
+            cell_now = memory.cell
+        else:
+            cells = p.discretization.cells(states)
+            cell_now = cells[np.arange(n_arenas * m), memory.action.reshape(-1)].reshape(n_arenas, m)
+            decide = (cell_now != memory.cell) | (held >= p.max_action_steps)
+        action = memory.action
+        cell = memory.cell
+        if cells is not None and decide.any():
+            chosen = p.greedy(states, robots, cells).reshape(n_arenas, m)
+            action = np.where(decide, chosen, action)
+            start_cell = cells[np.arange(n_arenas * m), action.reshape(-1)].reshape(n_arenas, m)
+            cell = np.where(decide, start_cell, cell_now)
+        held = np.where(decide, 1, held + 1)
+        velocity = compass_velocity(cfg, action)
+        heading = wander(cfg, world, memory.heading)
+        if p.lost_behaviour != "policy":
+            gone = lost(obs)[..., None]
+            search = cfg.robot_speed * heading if p.lost_behaviour == "wander" else 0.0
+            velocity = np.where(gone, search, velocity)
+        return velocity, _Memory(action=action, heading=heading, held=held, cell=cell)

@@ -1,0 +1,163 @@
+"""The portable policy file: one ``.npz`` archive (a zip of ``.npy`` arrays) with a JSON header.
+
+Layout (format ``ennc-ql-policy``, version 1; see docs/policy-file.md):
+
+============  ================  ============================================================
+member        dtype / shape     content
+============  ================  ============================================================
+header        uint8 (B,)        UTF-8 JSON: format, version, scenario, featurizer, actions...
+prototypes    float32 (P, d)    per-action prototypes, concatenated (P = Σ_a P_a)
+labels        float32 (P,)      phase-1 Q value of each prototype
+offsets       int64 (L+1,)      action a owns rows offsets[a]:offsets[a+1]
+tables        float32 (R, P)    Q tables, one row per table
+robot_table   int64 (m,)        table row used by robot i
+visits        uint64 (R, P)     visit counts (optional)
+scale         float32 (d,)      per-dimension metric scale (optional; absent = Euclidean)
+============  ================  ============================================================
+
+Usage::
+
+    save_policy(policy, cfg, "runs/x/policy.npz")
+    policy, header = load_policy("runs/x/policy.npz")
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from learner.discretization import Discretization
+from learner.policy import Policy
+from sim import COMPASS, FEATURIZERS, ScenarioConfig
+from sim.controllers import COMPASS_NAMES
+
+FORMAT = "ennc-ql-policy"
+FORMAT_VERSION = 1
+STATE_NAMES = {
+    "local2d": ["target_dx", "target_dy"],
+    "collab6d": [
+        "nearest_target_dx",
+        "nearest_target_dy",
+        "furthest_target_dx",
+        "furthest_target_dy",
+        "nearest_robot_dx",
+        "nearest_robot_dy",
+    ],
+}
+
+
+class PolicyFileError(ValueError):
+    """The file is not a readable policy file of a supported version."""
+
+
+def header_for(policy: Policy, cfg: ScenarioConfig) -> dict[str, Any]:
+    return {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "method": policy.method,
+        "version": policy.version,
+        "scenario": dataclasses.asdict(cfg),
+        "featurizer": {
+            "name": policy.featurizer,
+            "dim": FEATURIZERS[policy.featurizer],
+            "state": STATE_NAMES[policy.featurizer],
+            "frame": "world (x east, y north), target/robot position minus own position",
+            "mask_value": cfg.mask_value,
+            "local_target": cfg.local_target,
+        },
+        "actions": [
+            {"index": i, "name": name, "direction": [float(v) for v in COMPASS[i]]}
+            for i, name in enumerate(COMPASS_NAMES)
+        ],
+        "action_steps": policy.action_steps,
+        "action_mode": policy.action_mode,
+        "max_action_steps": policy.max_action_steps,
+        "lost_behaviour": policy.lost_behaviour,
+        "prototypes_per_action": [int(s) for s in policy.discretization.sizes()],
+        "meta": policy.meta,
+    }
+
+
+def save_policy(policy: Policy, cfg: ScenarioConfig, path: str | os.PathLike[str]) -> Path:
+    """Write atomically (temporary file, then rename) and return the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    header = json.dumps(header_for(policy, cfg), sort_keys=True).encode()
+    arrays: dict[str, np.ndarray] = {
+        "header": np.frombuffer(header, dtype=np.uint8),
+        "prototypes": policy.discretization.prototypes.astype(np.float32),
+        "labels": policy.discretization.labels.astype(np.float32),
+        "offsets": policy.discretization.offsets.astype(np.int64),
+        "tables": policy.tables.astype(np.float32),
+        "robot_table": policy.robot_table.astype(np.int64),
+    }
+    if policy.visits is not None:
+        arrays["visits"] = policy.visits.astype(np.uint64)
+    if policy.discretization.scale is not None:
+        arrays["scale"] = policy.discretization.scale.astype(np.float32)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, **arrays)  # type: ignore[arg-type]
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def load_policy(path: str | os.PathLike[str]) -> tuple[Policy, dict[str, Any]]:
+    """Read a policy file; raises :class:`PolicyFileError` with the reason when it cannot."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {name: data[name] for name in data.files}
+    except (OSError, ValueError, EOFError) as exc:
+        raise PolicyFileError(f"{path}: not a readable policy file ({exc})") from exc
+    missing = {"header", "prototypes", "labels", "offsets", "tables", "robot_table"} - set(arrays)
+    if missing:
+        raise PolicyFileError(f"{path}: missing members {sorted(missing)}")
+    try:
+        header = json.loads(arrays["header"].tobytes().decode())
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise PolicyFileError(f"{path}: unreadable header ({exc})") from exc
+    if header.get("format") != FORMAT:
+        raise PolicyFileError(f"{path}: not an {FORMAT} file")
+    if header.get("format_version") != FORMAT_VERSION:
+        raise PolicyFileError(
+            f"{path}: format version {header.get('format_version')} is not supported"
+            f" (this build reads {FORMAT_VERSION})"
+        )
+    try:
+        disc = Discretization(arrays["prototypes"], arrays["labels"], arrays["offsets"], arrays.get("scale"))
+        policy = Policy(
+            featurizer=header["featurizer"]["name"],
+            discretization=disc,
+            tables=arrays["tables"],
+            robot_table=arrays["robot_table"],
+            action_steps=int(header["action_steps"]),
+            action_mode=header["action_mode"],
+            max_action_steps=int(header["max_action_steps"]),
+            lost_behaviour=header["lost_behaviour"],
+            visits=arrays.get("visits"),
+            version=int(header["version"]),
+            method=str(header["method"]),
+            meta=dict(header.get("meta", {})),
+        )
+    except (KeyError, TypeError, ValueError) as exc:
+        raise PolicyFileError(f"{path}: inconsistent policy file ({exc})") from exc
+    return policy, header
+
+
+def scenario_from_header(header: dict[str, Any]) -> ScenarioConfig:
+    """The scenario the policy was learned in, rebuilt from the header (unknown fields are errors)."""
+    from sim.config import ForceLawConfig
+
+    fields = dict(header["scenario"])
+    fields["force"] = ForceLawConfig(**fields.get("force", {}))
+    return ScenarioConfig(**fields)

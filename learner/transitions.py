@@ -1,0 +1,67 @@
+"""Experience tuples ⟨robot, s, a, r, s′, done⟩ in columnar form."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True, slots=True)
+class Transitions:
+    """N tuples, one row each; ``done`` marks terminal s′ (no bootstrap)."""
+
+    robot: np.ndarray
+    """(N,) int16 robot id within its arena."""
+    state: np.ndarray
+    """(N, d) float32."""
+    action: np.ndarray
+    """(N,) uint8 compass action index."""
+    reward: np.ndarray
+    """(N,) float32."""
+    next_state: np.ndarray
+    """(N, d) float32."""
+    done: np.ndarray
+    """(N,) bool."""
+
+    def __len__(self) -> int:
+        return int(self.action.shape[0])
+
+    @property
+    def dim(self) -> int:
+        return int(self.state.shape[1])
+
+    @classmethod
+    def empty(cls, dim: int) -> Transitions:
+        return cls(
+            robot=np.zeros(0, np.int16),
+            state=np.zeros((0, dim), np.float32),
+            action=np.zeros(0, np.uint8),
+            reward=np.zeros(0, np.float32),
+            next_state=np.zeros((0, dim), np.float32),
+            done=np.zeros(0, bool),
+        )
+
+    @classmethod
+    def concat(cls, parts: Sequence[Transitions]) -> Transitions:
+        if not parts:
+            raise ValueError("concat needs at least one batch")
+        return cls(
+            robot=np.concatenate([p.robot for p in parts]),
+            state=np.concatenate([p.state for p in parts]),
+            action=np.concatenate([p.action for p in parts]),
+            reward=np.concatenate([p.reward for p in parts]),
+            next_state=np.concatenate([p.next_state for p in parts]),
+            done=np.concatenate([p.done for p in parts]),
+        )
+
+    def take(self, index: np.ndarray) -> Transitions:
+        return Transitions(
+            robot=self.robot[index],
+            state=self.state[index],
+            action=self.action[index],
+            reward=self.reward[index],
+            next_state=self.next_state[index],
+            done=self.done[index],
+        )

@@ -1,0 +1,68 @@
+"""Learning trials in a simulator slice: tuple semantics, the lost rule, and on-line phase 2."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from actors.agent import Phase2Config, TabularAgent
+from actors.slice import ExperienceSlice, SliceConfig
+from learner.discretization import Discretization
+from learner.policy import Policy
+from sim import scenario
+
+
+def test_exploration_tuples_follow_the_trial_rules() -> None:
+    cfg = scenario()
+    sl = ExperienceSlice(cfg, SliceConfig(n_arenas=64, featurizer="collab6d"), seed=0)
+    batch = sl.run_trial()
+    robots_total = 64 * cfg.n_robots
+    # Every learning robot's trial ends exactly once: lost or at the end of the trial.
+    assert batch.done.sum() == robots_total
+    decisions = cfg.learning_steps // cfg.action_steps
+    assert robots_total <= len(batch) <= robots_total * decisions
+    lost = batch.done & (batch.next_state[:, 0] == cfg.mask_value)
+    np.testing.assert_array_equal(batch.reward[lost], cfg.lost_reward)
+    # Rewards are delayed: non-terminal tuples carry 0.
+    assert (batch.reward[~batch.done] == 0).all()
+    # Every decision starts with a target in view (a lost robot's trial has ended).
+    assert (batch.state[:, 0] != cfg.mask_value).all()
+    assert batch.state.dtype == np.float32 and batch.state.shape[1] == 6
+    assert set(np.unique(batch.robot)) == set(range(cfg.n_robots))
+
+
+def test_only_the_named_learners_emit_tuples() -> None:
+    cfg = scenario()
+    sl = ExperienceSlice(cfg, SliceConfig(n_arenas=32, learners=(0, 3)), seed=1)
+    batch = sl.run_trial()
+    assert set(np.unique(batch.robot)) == {0, 3}
+    assert batch.done.sum() == 64
+
+
+def test_slices_with_the_same_seed_produce_the_same_tuples() -> None:
+    cfg = scenario()
+    a = ExperienceSlice(cfg, SliceConfig(n_arenas=16, featurizer="local2d"), seed=5).run_trial()
+    b = ExperienceSlice(cfg, SliceConfig(n_arenas=16, featurizer="local2d"), seed=5).run_trial()
+    c = ExperienceSlice(cfg, SliceConfig(n_arenas=16, featurizer="local2d"), seed=6).run_trial()
+    np.testing.assert_array_equal(a.state, b.state)
+    np.testing.assert_array_equal(a.reward, b.reward)
+    assert len(a) != len(c) or not np.array_equal(a.state, c.state)
+
+
+def test_phase2_learns_that_moving_away_from_a_lone_target_loses_it() -> None:
+    cfg = scenario(n_robots=1)
+    # Three cells per action on the 2-D local state: target close, far to the east, far to the west.
+    protos = [np.array([[0.0, 0.0], [140.0, 0.0], [-140.0, 0.0]])] * 8
+    disc = Discretization.from_per_action(protos)
+    policy = Policy("local2d", disc, np.zeros((1, disc.size), np.float32), np.zeros(1, np.int64))
+    agent = TabularAgent(policy, Phase2Config(alpha=0.1, gamma=0.9, epsilon=1.0))
+    sl = ExperienceSlice(cfg, SliceConfig(n_arenas=400, featurizer="local2d"), seed=2)
+    for _ in range(6):
+        sl.run_trial(agent, learn=True)
+    east, west = 2, 6
+    q = agent.tables[0]
+    target_east = disc.offsets[:-1] + 1
+    # With the target far to the east, going West (away) must look worse than going East (towards it).
+    assert q[target_east[west]] < q[target_east[east]]
+    target_west = disc.offsets[:-1] + 2
+    assert q[target_west[east]] < q[target_west[west]]
+    assert agent.visits.sum() > 0

@@ -1,0 +1,120 @@
+"""The portable policy file round trip, its errors, and acting with a learned policy."""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from learner.discretization import Discretization
+from learner.policy import Policy, PolicyController
+from learner.policy_file import FORMAT_VERSION, PolicyFileError, load_policy, save_policy, scenario_from_header
+from sim import evaluate, scenario
+
+
+def make_policy(rng: np.random.Generator, robots: int = 10, rows: int = 10) -> Policy:
+    protos = [rng.normal(0, 100, (int(rng.integers(1, 6)), 6)) for _ in range(8)]
+    labels = [rng.normal(size=len(p)) for p in protos]
+    disc = Discretization.from_per_action(protos, labels, scale=np.full(6, 50.0, np.float32))
+    return Policy(
+        featurizer="collab6d",
+        discretization=disc,
+        tables=rng.normal(size=(rows, disc.size)).astype(np.float32),
+        robot_table=np.arange(robots) % rows,
+        visits=rng.integers(0, 100, (rows, disc.size)).astype(np.uint64),
+        version=7,
+        method="ennc-ql-collab-option2",
+        meta={"seed": 3},
+    )
+
+
+def test_round_trip_keeps_every_array_and_field(tmp_path: Path) -> None:
+    cfg = scenario(sensor_noise_std=2.0)
+    policy = make_policy(np.random.default_rng(0))
+    path = save_policy(policy, cfg, tmp_path / "p.npz")
+    loaded, header = load_policy(path)
+    for name in ("prototypes", "labels", "offsets", "scale"):
+        np.testing.assert_array_equal(getattr(loaded.discretization, name), getattr(policy.discretization, name))
+    np.testing.assert_array_equal(loaded.tables, policy.tables)
+    np.testing.assert_array_equal(loaded.robot_table, policy.robot_table)
+    assert loaded.visits is not None and policy.visits is not None
+    np.testing.assert_array_equal(loaded.visits, policy.visits)
+    assert (loaded.version, loaded.method, loaded.meta, loaded.featurizer) == (
+        7,
+        policy.method,
+        {"seed": 3},
+        "collab6d",
+    )
+    assert header["prototypes_per_action"] == list(policy.discretization.sizes())
+    assert header["featurizer"]["mask_value"] == 1000.0 and len(header["featurizer"]["state"]) == 6
+    assert [a["name"] for a in header["actions"]] == ["N", "NE", "E", "SE", "S", "SW", "W", "NW"]
+    assert scenario_from_header(header) == cfg
+    states = np.random.default_rng(1).normal(0, 100, (50, 6))
+    robots = np.arange(50) % 10
+    np.testing.assert_array_equal(loaded.greedy(states, robots), policy.greedy(states, robots))
+
+
+def test_the_file_is_a_plain_npz_with_a_json_header(tmp_path: Path) -> None:
+    path = save_policy(make_policy(np.random.default_rng(0)), scenario(), tmp_path / "p.npz")
+    with zipfile.ZipFile(path) as zf:
+        assert {"header.npy", "prototypes.npy", "tables.npy", "offsets.npy"} <= set(zf.namelist())
+    with np.load(path) as data:
+        header = json.loads(data["header"].tobytes())
+    assert header["format"] == "ennc-ql-policy" and header["format_version"] == FORMAT_VERSION
+
+
+def test_bad_files_get_a_clear_error(tmp_path: Path) -> None:
+    junk = tmp_path / "junk.npz"
+    junk.write_bytes(b"not a zip")
+    with pytest.raises(PolicyFileError, match="not a readable"):
+        load_policy(junk)
+    path = save_policy(make_policy(np.random.default_rng(0)), scenario(), tmp_path / "p.npz")
+    with np.load(path) as data:
+        arrays = {k: data[k] for k in data.files}
+    header = json.loads(arrays["header"].tobytes())
+    header["format_version"] = 99
+    arrays["header"] = np.frombuffer(json.dumps(header).encode(), np.uint8)
+    np.savez(tmp_path / "future.npz", **arrays)
+    with pytest.raises(PolicyFileError, match="version 99"):
+        load_policy(tmp_path / "future.npz")
+    del arrays["tables"]
+    np.savez(tmp_path / "partial.npz", **arrays)
+    with pytest.raises(PolicyFileError, match="missing"):
+        load_policy(tmp_path / "partial.npz")
+
+
+def test_greedy_uses_each_robots_own_table() -> None:
+    disc = Discretization.from_per_action([np.zeros((1, 2))] * 8)
+    tables = np.zeros((2, 8), np.float32)
+    tables[0, 3] = 1.0  # robot 0 prefers action 3
+    tables[1, 6] = 1.0  # robot 1 prefers action 6
+    policy = Policy("local2d", disc, tables, np.array([0, 1]))
+    np.testing.assert_array_equal(policy.greedy(np.zeros((4, 2)), np.array([0, 1, 0, 1])), [3, 6, 3, 6])
+
+
+def test_policy_controller_holds_actions_and_searches_when_lost() -> None:
+    cfg = scenario()
+    disc = Discretization.from_per_action([np.zeros((1, 6))] * 8)
+    tables = np.zeros((1, 8), np.float32)
+    tables[0, 2] = 1.0  # always East
+    policy = Policy("collab6d", disc, tables, np.zeros(10, np.int64))
+    from sim import reset, sense
+
+    rng = np.random.default_rng(0)
+    world = reset(cfg, 20, rng)
+    controller = PolicyController(policy)
+    memory = controller.init(cfg, world, rng)
+    velocity, memory = controller.act(cfg, world, sense(cfg, world), memory, rng)
+    seeing = sense(cfg, world).n_seen > 0
+    assert seeing.any() and (~seeing).any()
+    np.testing.assert_allclose(velocity[seeing], np.tile([cfg.robot_speed, 0.0], (int(seeing.sum()), 1)), atol=1e-9)
+    np.testing.assert_allclose(np.linalg.norm(velocity[~seeing], axis=-1), cfg.robot_speed)
+    stay = PolicyController(Policy("collab6d", disc, tables, np.zeros(10, np.int64), lost_behaviour="stay"))
+    v_stay, _ = stay.act(cfg, world, sense(cfg, world), stay.init(cfg, world, rng), rng)
+    assert (v_stay[~seeing] == 0).all()
+    # A learned always-East policy is a valid controller for the test protocol.
+    result = evaluate(cfg, controller, trials=2, steps=50, seed=0)
+    assert 0.0 <= result.coverage_mean <= 100.0

@@ -1,0 +1,176 @@
+"""Discretizations, tabular Q-learning (phase 2) and ENNC-QL phase 1 on small problems with known answers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from learner.discretization import Discretization, nearest
+from learner.enncql import Phase1Config, phase1, to_classes
+from learner.qtable import greedy, merge_tables, q_targets, q_update
+from learner.transitions import Transitions
+
+GAMMA = 0.9
+
+
+def test_nearest_matches_brute_force_and_breaks_ties_low() -> None:
+    rng = np.random.default_rng(0)
+    points = rng.normal(size=(500, 3))
+    protos = rng.normal(size=(17, 3))
+    brute = np.argmin(((points[:, None, :] - protos[None]) ** 2).sum(-1), axis=1)
+    np.testing.assert_array_equal(nearest(points, protos), brute)
+    assert nearest(np.array([[0.5]]), np.array([[0.0], [1.0]]))[0] == 0
+
+
+def test_cells_are_global_per_action_and_respect_the_scale() -> None:
+    disc = Discretization.from_per_action(
+        [np.array([[0.0, 0.0], [10.0, 0.0]]), np.array([[0.0, 0.0], [0.0, 10.0], [0.0, 20.0]])]
+    )
+    cells = disc.cells(np.array([[9.0, 1.0], [0.0, 16.0]]))
+    np.testing.assert_array_equal(cells, [[1, 2], [0, 4]])
+    assert disc.size == 5 and disc.n_actions == 2 and list(disc.sizes()) == [2, 3]
+    # (9, 1) is nearer (10, 5) in plain Euclidean terms, but nearer (0, 0) once y differences weigh 10x.
+    two = Discretization.from_per_action([np.array([[0.0, 0.0], [10.0, 5.0]])])
+    weighted = Discretization(two.prototypes, two.labels, two.offsets, scale=np.array([1.0, 0.1], np.float32))
+    assert two.cells(np.array([[9.0, 1.0]]))[0, 0] == 1
+    assert weighted.cells(np.array([[9.0, 1.0]]))[0, 0] == 0
+
+
+def test_shared_codebook_gives_the_same_cell_for_every_action() -> None:
+    codebook = np.random.default_rng(1).normal(size=(8, 6))
+    disc = Discretization.shared(codebook, 8)
+    assert disc.is_shared()
+    states = np.random.default_rng(2).normal(size=(100, 6))
+    cells = disc.cells(states)
+    np.testing.assert_array_equal(cells - disc.offsets[:-1], np.repeat(nearest(states, codebook)[:, None], 8, 1))
+
+
+def test_carry_over_inherits_the_nearest_old_value() -> None:
+    old = Discretization.from_per_action([np.array([[0.0], [10.0]]), np.array([[5.0]])])
+    table = np.array([[1.0, 2.0, 3.0]])
+    new = Discretization.from_per_action([np.array([[1.0], [9.0], [12.0]]), np.array([[0.0], [7.0]])])
+    np.testing.assert_array_equal(new.carry_over(old, table), [[1.0, 2.0, 2.0, 3.0, 3.0]])
+
+
+def test_discretization_rejects_inconsistent_arrays() -> None:
+    with pytest.raises(ValueError, match="offsets"):
+        Discretization(np.zeros((3, 2), np.float32), np.zeros(3, np.float32), np.array([0, 3, 3]))
+    with pytest.raises(ValueError, match="finite"):
+        Discretization(np.full((1, 2), np.nan, np.float32), np.zeros(1, np.float32), np.array([0, 1]))
+
+
+def test_single_q_update_is_equation_1() -> None:
+    table = np.array([0.5, 2.0])
+    visits = np.zeros(2, np.uint64)
+    q_update(table, visits, np.array([0]), np.array([1.5]), alpha=0.1)
+    assert table[0] == pytest.approx(0.9 * 0.5 + 0.1 * 1.5)
+    assert table[1] == 2.0
+    np.testing.assert_array_equal(visits, [1, 0])
+
+
+def test_repeated_hits_in_a_batch_equal_sequential_updates_with_the_mean_target() -> None:
+    table = np.array([0.0])
+    visits = np.zeros(1, np.uint64)
+    q_update(table, visits, np.array([0, 0, 0]), np.array([1.0, 1.0, 1.0]), alpha=0.5)
+    assert table[0] == pytest.approx(1 - 0.5**3)  # three sequential updates towards 1
+    assert visits[0] == 3
+
+
+def test_tabular_q_learning_converges_to_known_values_on_a_chain() -> None:
+    # States 0..3 on a line, actions 0 = left, 1 = right; reaching 3 ends the episode with reward 1.
+    # One cell per (state, action): Q*(s, right) = γ^(2−s); Q*(s, left) = γ·V*(max(s−1, 0)).
+    disc = Discretization.from_per_action([np.arange(3.0)[:, None]] * 2)
+    table = np.zeros(disc.size)
+    visits = np.zeros(disc.size, np.uint64)
+    rng = np.random.default_rng(0)
+    for _ in range(3000):
+        s = rng.integers(0, 3, 64)
+        a = rng.integers(0, 2, 64)
+        nxt = np.where(a == 1, s + 1, np.maximum(s - 1, 0))
+        done = nxt == 3
+        reward = done.astype(float)
+        next_cells = disc.cells(np.minimum(nxt, 2)[:, None].astype(float))
+        targets = q_targets(table, next_cells, reward, done, GAMMA)
+        q_update(table, visits, disc.cells(s[:, None].astype(float))[np.arange(64), a], targets, alpha=0.2)
+    v = np.array([GAMMA**2, GAMMA, 1.0])
+    right = v
+    left = GAMMA * v[[0, 0, 1]]
+    np.testing.assert_allclose(table, np.concatenate([left, right]), atol=1e-3)
+    assert (greedy(table, disc.cells(np.arange(3.0)[:, None])) == 1).all()
+
+
+def test_merge_weights_tables_by_visits() -> None:
+    merged, total = merge_tables(np.array([[1.0, 4.0, 0.0], [3.0, 8.0, 2.0]]), np.array([[1, 3, 0], [3, 1, 0]]))
+    np.testing.assert_allclose(merged, [2.5, 5.0, 1.0])
+    np.testing.assert_array_equal(total, [4, 4, 0])
+
+
+def test_to_classes_keeps_few_values_and_bins_many() -> None:
+    config = Phase1Config(max_classes=4)
+    q = np.array([0.0, 0.9, 0.9, 1.0 + 1e-9, 1.0])
+    np.testing.assert_allclose(to_classes(q, config), [0.0, 0.9, 0.9, 1.0, 1.0])
+    many = np.linspace(0.0, 1.0, 101)
+    classes = to_classes(many, config)
+    assert np.unique(classes).size == 4
+    # Each bin is labelled by the mean of its members, so order is kept and the overall mean is preserved.
+    assert np.all(np.diff(classes) >= 0)
+    assert classes.mean() == pytest.approx(many.mean(), abs=1e-6)
+
+
+def chain_transitions(copies: int, rng: np.random.Generator) -> Transitions:
+    s = np.repeat(np.arange(3), copies * 2)
+    a = np.tile(np.repeat([0, 1], copies), 3)
+    nxt = np.where(a == 1, s + 1, np.maximum(s - 1, 0))
+    done = nxt == 3
+    state = (s[:, None] * 10.0 + rng.normal(0, 0.5, (s.size, 1))).astype(np.float32)
+    next_state = (np.minimum(nxt, 2)[:, None] * 10.0 + rng.normal(0, 0.5, (s.size, 1))).astype(np.float32)
+    return Transitions(
+        robot=np.zeros(s.size, np.int16),
+        state=state,
+        action=a.astype(np.uint8),
+        reward=done.astype(np.float32),
+        next_state=next_state,
+        done=done,
+    )
+
+
+def test_phase1_iterations_recover_the_q_values_of_a_deterministic_chain() -> None:
+    data = chain_transitions(40, np.random.default_rng(0))
+    result = phase1(data, n_actions=2, config=Phase1Config(n_cycles=60, max_iterations=10), seed=0)
+    assert result.converged
+    assert result.iterations <= 6  # values propagate one step per iteration, then stop changing
+    cells = result.discretization.cells(np.array([[0.0], [10.0], [20.0]]))
+    values = result.discretization.labels[cells]
+    v = np.array([GAMMA**2, GAMMA, 1.0])
+    np.testing.assert_allclose(values[:, 1], v, atol=1e-5)
+    np.testing.assert_allclose(values[:, 0], GAMMA * v[[0, 0, 1]], atol=1e-5)
+    assert result.changed[-1] == 0.0 and result.changed[0] > 0.0
+
+
+def test_phase1_one_iteration_separates_the_negative_region() -> None:
+    # One action; states left of 0 end with −1, the rest continue with q = 0 [paper: one iteration suffices].
+    rng = np.random.default_rng(1)
+    x = rng.uniform(-1, 1, (2000, 2)).astype(np.float32)
+    bad = x[:, 0] < 0
+    data = Transitions(
+        robot=np.zeros(2000, np.int16),
+        state=x,
+        action=np.zeros(2000, np.uint8),
+        reward=np.where(bad, -1.0, 0.0).astype(np.float32),
+        next_state=x,
+        done=bad,
+    )
+    result = phase1(data, n_actions=1, config=Phase1Config(n_cycles=80, max_iterations=1), seed=3)
+    disc = result.discretization
+    predicted = disc.labels[disc.cells(x)[:, 0]]
+    assert np.mean(predicted == np.where(bad, -1.0, 0.0)) > 0.9
+    assert set(np.unique(disc.labels)) == {-1.0, 0.0}
+    assert disc.scale is not None  # fitted on standardized states
+
+
+def test_phase1_rejects_empty_and_out_of_range_data() -> None:
+    with pytest.raises(ValueError, match="at least one"):
+        phase1(Transitions.empty(2), n_actions=2)
+    data = chain_transitions(2, np.random.default_rng(0))
+    with pytest.raises(ValueError, match="actions"):
+        phase1(data, n_actions=1)
