@@ -14,8 +14,11 @@ import time
 from typing import Any
 
 import numpy as np
+import torch
 
-from sim import HAND_MADE, ScenarioConfig, reset, scenario, sense, step, trial_reward
+from actors.slice import ExperienceSlice, SliceConfig
+from learner.transitions import Transitions
+from sim import HAND_MADE, N_ACTIONS, ScenarioConfig, reset, scenario, sense, step, trial_reward
 
 log = logging.getLogger(__name__)
 
@@ -77,3 +80,78 @@ def bench_sim(
         "target": SIM_TARGETS,
         "meets_target": {key: by_size[key][best[key]] >= SIM_TARGETS[key] for key in by_size},
     }
+
+
+def cmommt_experience(tuples: int, seed: int = 0) -> Transitions:
+    """At least ``tuples`` collaborative (6-D) tuples from random-exploration learning trials."""
+    cfg = scenario()
+    explorer = ExperienceSlice(cfg, SliceConfig(n_arenas=1000, featurizer="collab6d"), seed)
+    parts: list[Transitions] = []
+    collected = 0
+    while collected < tuples:
+        batch = explorer.run_trial()
+        parts.append(batch)
+        collected += len(batch)
+    data = Transitions.concat(parts)
+    return data.take(np.arange(tuples))
+
+
+def bench_ennc(
+    patterns: int = 100_000,
+    cycles: int = 250,
+    phase1_tuples: int = 1_000_000,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """ENNC fit time against scikit-learn's k-means on the same data, and ENNC-QL phase 1 on many tuples.
+
+    The patterns are standardized collaborative states from random exploration with their first-iteration
+    Q-target classes, exactly what phase 1 trains on. k-means gets k = ENNC's final prototype count, 250 Lloyd
+    iterations and one init; it is the reference for "not much more work on the data than a Lloyd iteration".
+    """
+    from sklearn.cluster import KMeans
+
+    from learner.ennc import ENNC
+    from learner.enncql import Phase1Config, phase1, standard_scale, to_classes
+
+    data = cmommt_experience(max(patterns, phase1_tuples if phase1_tuples else 0), seed)
+    sample = data.take(np.arange(patterns))
+    x = sample.state / standard_scale(sample.state)
+    y = to_classes(np.where(sample.done, sample.reward, 0.0), Phase1Config())
+    log.info("bench ennc: %d patterns, %d classes", len(x), np.unique(y).size)
+    start = time.perf_counter()
+    model = ENNC(n_cycles=cycles, random_state=seed).fit(x, y)
+    ennc_seconds = time.perf_counter() - start
+    log.info("bench ennc: ENNC %.2f s, %d prototypes", ennc_seconds, model.n_prototypes_)
+    kmeans = KMeans(n_clusters=model.n_prototypes_, max_iter=cycles, n_init=1, tol=0.0, random_state=seed)
+    start = time.perf_counter()
+    kmeans.fit(x)
+    kmeans_seconds = time.perf_counter() - start
+    log.info("bench ennc: k-means %.2f s (%d iterations)", kmeans_seconds, kmeans.n_iter_)
+    out: dict[str, Any] = {
+        "benchmark": "ennc",
+        "patterns": len(x),
+        "dims": int(x.shape[1]),
+        "cycles": cycles,
+        "classes": int(np.unique(y).size),
+        "n_prototypes": int(model.n_prototypes_),
+        "accuracy": round(float(model.score(x, y)), 4),
+        "ennc_seconds": round(ennc_seconds, 3),
+        "kmeans_seconds": round(kmeans_seconds, 3),
+        "kmeans_iterations": int(kmeans.n_iter_),
+        "ratio": round(ennc_seconds / kmeans_seconds, 3),
+        "target": {"ratio": 2.0, "phase1_seconds": 60.0},
+        "torch_threads": torch.get_num_threads(),
+    }
+    if phase1_tuples:
+        big = data.take(np.arange(phase1_tuples))
+        start = time.perf_counter()
+        result = phase1(big, N_ACTIONS, Phase1Config(max_iterations=1, n_cycles=cycles), seed=seed)
+        out["phase1_tuples"] = phase1_tuples
+        out["phase1_seconds"] = round(time.perf_counter() - start, 3)
+        out["phase1_prototypes_per_action"] = [int(s) for s in result.discretization.sizes()]
+        log.info("bench ennc: phase 1 on %d tuples: %.1f s", phase1_tuples, out["phase1_seconds"])
+    out["meets_target"] = {
+        "ratio": out["ratio"] <= 2.0,
+        "phase1_seconds": out.get("phase1_seconds", np.inf) <= 60.0,
+    }
+    return out

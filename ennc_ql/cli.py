@@ -84,8 +84,22 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from ennc_ql.bench import bench_sim
+    from ennc_ql.bench import bench_ennc, bench_sim
 
+    if args.what == "ennc":
+        out = bench_ennc(args.patterns, args.cycles, args.phase1_tuples)
+        table = (
+            f"ENNC {out['cycles']} cycles on {out['patterns']} x {out['dims']} patterns: {out['ennc_seconds']:.2f} s, "
+            f"{out['n_prototypes']} prototypes\n"
+            f"k-means k={out['n_prototypes']}, {out['kmeans_iterations']} iterations: {out['kmeans_seconds']:.2f} s\n"
+            f"ratio {out['ratio']:.2f} (target <= 2: {'met' if out['meets_target']['ratio'] else 'NOT met'})"
+        )
+        if "phase1_seconds" in out:
+            table += (
+                f"\nENNC-QL phase 1 on {out['phase1_tuples']} tuples: {out['phase1_seconds']:.1f} s "
+                f"(target <= 60 s: {'met' if out['meets_target']['phase1_seconds'] else 'NOT met'})"
+            )
+        _emit(out, args.json, table)
     if args.what == "sim":
         out = bench_sim(args.scenario, seconds=args.seconds)
         rates = out["robot_steps_per_s"]
@@ -136,9 +150,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_reproduce)
 
     p = sub.add_parser("bench", help="measure performance figures")
-    p.add_argument("what", choices=["sim"], help="sim: simulator robot-steps per second")
+    p.add_argument(
+        "what", choices=["sim", "ennc"], help="sim: simulator robot-steps/s; ennc: ENNC vs k-means and phase 1 time"
+    )
     p.add_argument("--scenario", default="cmommt-v1", choices=sorted(SCENARIOS))
-    p.add_argument("--seconds", type=float, default=1.5, help="measuring time per configuration")
+    p.add_argument("--seconds", type=float, default=1.5, help="sim: measuring time per configuration")
+    p.add_argument("--patterns", type=_positive_int, default=100_000, help="ennc: patterns of the ENNC fit")
+    p.add_argument("--cycles", type=_positive_int, default=250, help="ennc: ENNC cycles / k-means iterations")
+    p.add_argument(
+        "--phase1-tuples", type=int, default=1_000_000, help="ennc: tuples of the timed phase 1 (0 skips it)"
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_bench)
     return parser

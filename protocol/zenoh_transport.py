@@ -1,0 +1,302 @@
+"""Zenoh implementation of the transport, plus the connection flags every process CLI shares.
+
+Usage::
+
+    parser = argparse.ArgumentParser()
+    add_connection_args(parser)                 # --connect, --listen, --zenoh-config, --mode, ...
+    args = parser.parse_args()
+    with ZenohTransport.open(config_from_args(args)) as t:
+        t.subscribe(t.keys.experience(), ExperienceBatch, store.add)
+
+Receiving: each subscription, queryable and liveliness subscription gets a zenoh ``FifoChannel`` of
+``channel_capacity`` samples drained by one worker thread that decodes, validates and calls the handler.
+Zenoh's callback never runs Python code of ours, so it cannot block or raise in a zenoh thread. A full
+FifoChannel blocks zenoh's receive path, which pushes back through TCP to BLOCK publishers: delivery is
+lossless and the publisher slows to the consumer's pace (measured: a callback that drops into a bounded
+``queue.Queue`` instead lost 95 % of a fast BLOCK stream). Two limits remain, both covered by the
+ack/outbox contract of docs/protocol.md:
+
+* a handler stalled for longer than zenoh's ``transport/link/tx/queue/congestion_control/block/
+  wait_before_close`` (5 s by default) makes the publisher's zenoh close the link: what was in flight is
+  lost silently and the link is re-established;
+* messages published while no subscriber is connected are not stored anywhere.
+
+Memory held per subscription is bounded by ``channel_capacity`` × the largest payload.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import threading
+from collections.abc import Callable, Sequence
+from types import TracebackType
+from typing import Any, Self
+
+import zenoh
+
+from protocol.codec import encode
+from protocol.keys import DEFAULT_KEYS, ENCODING, KeySpace
+from protocol.messages import Message, UnexpectedMessageType
+from protocol.transport import Closeable, M, TransportClosed, TransportStats, accept, deliver, run_handler
+
+log = logging.getLogger(__name__)
+
+MODES = ("peer", "client", "router")
+DEFAULT_CHANNEL_CAPACITY = 32
+_JOIN_TIMEOUT_S = 10.0
+
+
+def zenoh_config(
+    connect: Sequence[str] = (),
+    listen: Sequence[str] = (),
+    mode: str = "peer",
+    config_file: str | None = None,
+    multicast_scouting: bool | None = None,
+) -> zenoh.Config:
+    """Build a zenoh Config: ``config_file`` (JSON5) if given, then these settings on top.
+
+    ``multicast_scouting=None`` keeps the file's setting, or turns scouting off without a file: explicit
+    endpoints are what works across machines and containers. Clients retry their router forever
+    (``connect/timeout_ms = -1``) instead of failing when started before it.
+
+    >>> conf = zenoh_config(connect=["tcp/10.0.0.1:7447"], mode="client")
+    """
+    if mode not in MODES:
+        raise ValueError(f"mode {mode!r} not one of {MODES}")
+    conf = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
+    conf.insert_json5("mode", json.dumps(mode))
+    if connect:
+        conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    if listen:
+        conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    if multicast_scouting is not None or not config_file:
+        conf.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast_scouting)))
+    if mode == "client":
+        conf.insert_json5("connect/timeout_ms", "-1")
+    return conf
+
+
+def add_connection_args(parser: argparse.ArgumentParser) -> None:
+    """Add the zenoh connection flags shared by every process CLI (read back by :func:`config_from_args`)."""
+    group = parser.add_argument_group("zenoh connection")
+    group.add_argument(
+        "--connect", action="append", default=[], metavar="ENDPOINT", help="endpoint to connect to (repeatable)"
+    )
+    group.add_argument(
+        "--listen", action="append", default=[], metavar="ENDPOINT", help="endpoint to listen on (repeatable)"
+    )
+    group.add_argument("--zenoh-config", metavar="FILE", help="zenoh JSON5 config file; the flags above override it")
+    group.add_argument("--mode", choices=MODES, default="peer", help="zenoh session mode (default: peer)")
+    group.add_argument(
+        "--multicast-scouting",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="discover peers by UDP multicast (default: off, or as in --zenoh-config)",
+    )
+    group.add_argument("--namespace", default="", help="key prefix isolating this run from others on the same network")
+
+
+def config_from_args(args: argparse.Namespace) -> zenoh.Config:
+    """The zenoh Config selected by the flags of :func:`add_connection_args`."""
+    return zenoh_config(args.connect, args.listen, args.mode, args.zenoh_config, args.multicast_scouting)
+
+
+def keys_from_args(args: argparse.Namespace) -> KeySpace:
+    """The KeySpace selected by ``--namespace``."""
+    return KeySpace(args.namespace)
+
+
+class _Pump:
+    """A zenoh entity with a FifoChannel handler and the worker thread that drains it."""
+
+    def __init__(self, name: str, entity: Any, on_item: Callable[[Any], None], stats: TransportStats) -> None:
+        self._entity = entity
+        self._on_item = on_item
+        self._stats = stats
+        self._closed = False
+        # Daemon only as a last resort: close() joins it; a forgotten one must not keep the process alive.
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while True:
+            try:
+                item = self._entity.handler.recv()
+            except zenoh.ZError:
+                return  # the channel is closed (entity undeclared) and drained
+            run_handler(self._stats, self._thread.name, self._on_item, item)
+
+    def close(self) -> None:
+        """Undeclare the entity, let the worker drain the channel and join it; idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        self._entity.undeclare()
+        if threading.current_thread() is not self._thread:
+            self._thread.join(_JOIN_TIMEOUT_S)
+            if self._thread.is_alive():
+                log.warning("worker %s still busy %.0f s after close", self._thread.name, _JOIN_TIMEOUT_S)
+
+
+class _Token:
+    def __init__(self, token: zenoh.LivelinessToken) -> None:
+        self._token: zenoh.LivelinessToken | None = token
+
+    def close(self) -> None:
+        """Undeclare the token; idempotent."""
+        token, self._token = self._token, None
+        if token is not None:
+            token.undeclare()
+
+
+class ZenohTransport:
+    """A :class:`~protocol.transport.Transport` over a zenoh session.
+
+    ``ZenohTransport(session)`` borrows a session the caller closes; :meth:`open` owns one.
+    """
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        keys: KeySpace = DEFAULT_KEYS,
+        *,
+        channel_capacity: int = DEFAULT_CHANNEL_CAPACITY,
+        own_session: bool = False,
+    ) -> None:
+        self.session = session
+        self.keys = keys
+        self.stats = TransportStats()
+        self._capacity = channel_capacity
+        self._own_session = own_session
+        self._lock = threading.Lock()
+        self._publishers: dict[str, zenoh.Publisher] = {}
+        self._handles: list[_Pump | _Token] = []
+        self._closed = False
+
+    @classmethod
+    def open(cls, conf: zenoh.Config, keys: KeySpace = DEFAULT_KEYS, **kwargs: Any) -> ZenohTransport:
+        """Open a zenoh session with ``conf`` that :meth:`close` will close."""
+        return cls(zenoh.open(conf), keys, own_session=True, **kwargs)
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise TransportClosed("transport is closed")
+
+    def _publisher(self, key: str) -> zenoh.Publisher:
+        with self._lock:
+            self._check_open()
+            pub = self._publishers.get(key)
+            if pub is None:
+                qos = self.keys.qos(key)
+                pub = self.session.declare_publisher(
+                    key,
+                    encoding=ENCODING,
+                    congestion_control=qos.congestion_control,
+                    priority=qos.priority,
+                    express=qos.express,
+                    reliability=qos.reliability,
+                )
+                self._publishers[key] = pub
+            return pub
+
+    def _add(self, handle: _Pump | _Token) -> Closeable:
+        with self._lock:
+            if self._closed:
+                handle.close()
+                raise TransportClosed("transport is closed")
+            self._handles.append(handle)
+        return handle
+
+    def publish(self, key: str, msg: Message) -> None:
+        if not isinstance(msg, self.keys.message_type(key)):
+            raise UnexpectedMessageType(f"a {msg.TAG} message cannot be published on {key!r}")
+        data = encode(msg)
+        self._publisher(key).put(data)
+        self.stats.count_published()
+
+    def subscribe(self, key_expr: str, msg_type: type[M], handler: Callable[[M], object]) -> Closeable:
+        self._check_open()
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            key = str(sample.key_expr)
+            deliver(self.keys, self.stats, key, sample.payload.to_bytes(), msg_type, handler)
+
+        sub = self.session.declare_subscriber(key_expr, zenoh.handlers.FifoChannel(self._capacity))
+        return self._add(_Pump(f"zenoh-sub {key_expr}", sub, on_sample, self.stats))
+
+    def has_subscribers(self, key: str) -> bool:
+        # zenoh 1.10's stub says bool, but the value is a MatchingStatus object, which is always truthy.
+        status: Any = self._publisher(key).matching_status
+        return bool(status.matching)
+
+    def declare_queryable(self, key: str, fn: Callable[[], Message | None]) -> Closeable:
+        self._check_open()
+
+        def on_query(query: zenoh.Query) -> None:
+            with query:  # leaving the block finalises the query, so the asker stops waiting
+                msg = fn()
+                if msg is not None:
+                    query.reply(key, encode(msg), encoding=ENCODING)
+
+        queryable = self.session.declare_queryable(key, zenoh.handlers.FifoChannel(self._capacity))
+        return self._add(_Pump(f"zenoh-queryable {key}", queryable, on_query, self.stats))
+
+    def get(self, key_expr: str, msg_type: type[M], timeout: float = 2.0) -> list[M]:
+        self._check_open()
+        replies: list[M] = []
+        for reply in self.session.get(key_expr, timeout=timeout):
+            sample = reply.ok
+            if sample is None:
+                log.warning("error reply to get %s: %s", key_expr, reply.err)
+                continue
+            msg = accept(self.keys, self.stats, str(sample.key_expr), sample.payload.to_bytes(), msg_type)
+            if msg is not None:
+                replies.append(msg)
+        return replies
+
+    def liveliness_token(self, key: str) -> Closeable:
+        self._check_open()
+        return self._add(_Token(self.session.liveliness().declare_token(key)))
+
+    def liveliness_subscribe(
+        self,
+        key_expr: str,
+        on_join: Callable[[str], object],
+        on_leave: Callable[[str], object],
+        history: bool = True,
+    ) -> Closeable:
+        self._check_open()
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            key = str(sample.key_expr)
+            (on_join if sample.kind == zenoh.SampleKind.PUT else on_leave)(key)
+
+        sub = self.session.liveliness().declare_subscriber(
+            key_expr, zenoh.handlers.FifoChannel(self._capacity), history=history
+        )
+        return self._add(_Pump(f"zenoh-liveliness {key_expr}", sub, on_sample, self.stats))
+
+    def close(self) -> None:
+        """Undeclare everything, join the workers, then close the session if this transport owns it."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            handles, self._handles = self._handles, []
+            publishers, self._publishers = list(self._publishers.values()), {}
+        for handle in handles:
+            handle.close()
+        for pub in publishers:
+            pub.undeclare()
+        if self._own_session:
+            self.session.close()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()

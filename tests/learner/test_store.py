@@ -1,0 +1,70 @@
+"""The bounded experience store and the sequence ledger."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from learner.store import ExperienceStore, SequenceLedger
+from learner.transitions import Transitions
+
+
+def batch(start: int, n: int, dim: int = 2) -> Transitions:
+    values = np.arange(start, start + n)
+    return Transitions(
+        robot=(values % 7).astype(np.int16),
+        state=np.repeat(values[:, None], dim, 1).astype(np.float32),
+        action=(values % 8).astype(np.uint8),
+        reward=values.astype(np.float32),
+        next_state=np.repeat(values[:, None] + 1, dim, 1).astype(np.float32),
+        done=values % 5 == 0,
+    )
+
+
+def test_store_keeps_the_newest_tuples_within_capacity() -> None:
+    store = ExperienceStore(capacity=10, dim=2)
+    store.add(batch(0, 4), policy_version=1)
+    store.add(batch(4, 9), policy_version=2)
+    assert len(store) == 10 and store.total == 13 and store.overwritten == 3
+    assert sorted(store.view().reward.tolist()) == list(range(3, 13))
+    store.add(batch(100, 25))  # larger than the store: only its last 10 remain
+    assert sorted(store.view().reward.tolist()) == list(range(115, 125))
+    assert store.total == 38
+
+
+def test_store_round_trips_through_arrays_in_age_order() -> None:
+    store = ExperienceStore(capacity=10, dim=3)
+    store.add(batch(0, 7, 3), policy_version=1)
+    store.add(batch(7, 6, 3), policy_version=4)
+    restored = ExperienceStore.from_arrays(store.to_arrays())
+    assert (restored.total, len(restored), restored.capacity) == (13, 10, 10)
+    np.testing.assert_array_equal(np.sort(restored.view().reward), np.sort(store.view().reward))
+    assert sorted(restored.policy_version.tolist()) == [1] * 4 + [4] * 6
+    # Adding after a restore overwrites the oldest tuples, as before the restore.
+    restored.add(batch(50, 2, 3), policy_version=5)
+    assert 3.0 not in restored.view().reward and 4.0 not in restored.view().reward
+
+
+def test_store_sample_is_uniform_without_replacement() -> None:
+    store = ExperienceStore(capacity=1000, dim=2)
+    store.add(batch(0, 1000))
+    sample = store.sample(200, np.random.default_rng(0))
+    assert len(sample) == 200 and np.unique(sample.reward).size == 200
+    assert len(store.sample(5000, np.random.default_rng(0))) == 1000
+    with pytest.raises(ValueError, match="dimension"):
+        store.add(batch(0, 3, dim=4))
+
+
+def test_ledger_deduplicates_and_counts_gaps() -> None:
+    ledger = SequenceLedger()
+    assert [ledger.accept("a", 1, s) for s in (0, 1, 1, 3)] == [True, True, False, True]
+    assert ledger.duplicates == 1 and ledger.accepted == 3
+    assert ledger.acked("a", 1) == 1 and ledger.gaps == 1  # seq 2 missing
+    assert ledger.accept("a", 1, 2)
+    assert ledger.acked("a", 1) == 3 and ledger.gaps == 0
+    # A new incarnation of the same actor is a new stream.
+    assert ledger.accept("a", 2, 0) and ledger.acked("a", 2) == 0
+    assert ledger.acked("b", 1) == -1
+    restored = SequenceLedger.from_arrays(ledger.to_arrays())
+    assert not restored.accept("a", 1, 3)
+    assert restored.acked("a", 1) == 3 and restored.duplicates == 2
