@@ -141,6 +141,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_eval)
 
+    from ennc_ql.processes import add_actor_parser, add_learner_parser
+    from ennc_ql.up import add_up_parser
+
+    add_up_parser(sub)
+    add_learner_parser(sub)
+    add_actor_parser(sub)
+
     p = sub.add_parser("reproduce", help="the paper's Figure 5 and 6: every method, tables and a bar chart")
     p.add_argument("--quick", action="store_true", help="reduced budget: 1 process per method, shorter learning")
     p.add_argument("--processes", type=_positive_int, help="learning processes per method (default 5, quick 1)")

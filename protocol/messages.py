@@ -302,7 +302,7 @@ class QTableIncrement(_Validated):
     policy_version: int = field(metadata=_u64())
     # Robot id, 0..32767.
     robot: int = field(metadata=_spec("int", lo=0, hi=INT16_MAX))
-    # [P] float32 Q value per cell.
+    # [P] float32 change of each cell's Q value since the actor's previous increment for this robot.
     q: npt.NDArray[np.float32] = field(metadata=_array("float32", "P"))
     # [P] uint32 visits per cell since the actor's previous increment for this robot.
     visits: npt.NDArray[np.uint32] = field(metadata=_array("uint32", "P"))

@@ -1,0 +1,212 @@
+"""``ennc-ql up``: the embedded default cluster on this machine.
+
+One learner and N actor processes (real OS processes, the same commands a multi-machine run uses), joined by
+Zenoh in peer mode on a loopback endpoint with multicast scouting off, so nothing leaves the machine and no router
+is needed. Progress comes from the learner's status messages; each process logs to ``runs/<id>/<name>.log``. When
+the learner's duration is over it writes its report, the actors are stopped, and the results are printed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+from contextlib import ExitStack
+from pathlib import Path
+from typing import IO, Any
+
+from protocol import Status, ZenohTransport, zenoh_config
+from protocol.keys import KeySpace
+
+log = logging.getLogger(__name__)
+
+ACTOR_NICENESS = 10
+PROGRESS_EVERY = 5.0
+"""Seconds between progress lines when stderr is not a terminal (a terminal gets one line rewritten each second)."""
+
+
+def free_port() -> int:
+    """A loopback TCP port that is free now, below Linux's ephemeral range so Zenoh's own sockets cannot take it."""
+    for port in range(20000 + (int(time.time() * 1000) % 9000), 32000):
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
+    raise RuntimeError("no free TCP port in 20000-32000 on 127.0.0.1")
+
+
+def robot_split(n_robots: int, n_actors: int) -> list[str]:
+    """Robots each actor learns: round robin, so every robot's table is learned by exactly one actor."""
+    groups = [[r for r in range(n_robots) if r % n_actors == i] for i in range(n_actors)]
+    return [",".join(map(str, g)) for g in groups]
+
+
+def add_up_parser(sub: Any) -> None:
+    p = sub.add_parser("up", help="learner + N actors as local processes (embedded Zenoh, peer mode on loopback)")
+    p.add_argument("--actors", type=int, default=2, help="actor processes (default 2)")
+    p.add_argument("--duration", type=float, default=420.0, help="seconds of training (default 420)")
+    p.add_argument("--arenas", type=int, default=500, help="arenas per actor (default 500)")
+    p.add_argument("--min-tuples", type=int, default=150_000, help="tuples before the first phase 1")
+    p.add_argument("--phase1-patterns", type=int, default=30_000, help="tuples per action in phase 1")
+    p.add_argument("--eval-interval", type=float, default=30.0, help="seconds between evaluations")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--runs", default="runs", help="parent folder of the run folder (default runs/)")
+    p.add_argument("--run-id", help="run folder name (default: a timestamp)")
+    p.add_argument("--json", action="store_true", help="print the learner's report as one JSON object")
+    p.set_defaults(func=cmd_up)
+
+
+def _spawn(argv: list[str], log_file: IO[str], nice: int = 0) -> subprocess.Popen[bytes]:
+    return subprocess.Popen(
+        [sys.executable, "-m", "ennc_ql.cli", *argv],
+        stdout=subprocess.DEVNULL,
+        stderr=log_file,
+        stdin=subprocess.DEVNULL,
+        # preexec_fn is unsafe with threads; every child is spawned before the launcher opens its Zenoh session.
+        preexec_fn=(lambda: os.nice(nice)) if nice else None,
+    )
+
+
+def _stop(proc: subprocess.Popen[bytes], grace: float) -> None:
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(timeout=grace)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def cmd_up(args: argparse.Namespace) -> int:
+    if args.actors < 1:
+        raise SystemExit("ennc-ql up: --actors must be at least 1")
+    run_id = args.run_id or time.strftime("%Y%m%d-%H%M%S")
+    run_dir = Path(args.runs) / run_id
+    run_dir.mkdir(parents=True, exist_ok=True)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    namespace = f"run-{run_id}".replace(":", "-")
+    common = ["--namespace", namespace, "--no-multicast-scouting"]
+    learner_argv = [
+        "learner",
+        *common,
+        "--listen",
+        endpoint,
+        "--run-dir",
+        str(run_dir),
+        "--duration",
+        str(args.duration),
+        "--min-tuples",
+        str(args.min_tuples),
+        "--phase1-patterns",
+        str(args.phase1_patterns),
+        "--eval-interval",
+        str(args.eval_interval),
+        "--seed",
+        str(args.seed),
+        "--threads",
+        "1",
+    ]
+    print(
+        f"ennc-ql up: run {run_id}: learner + {args.actors} actors on {endpoint}, {args.duration:.0f} s",
+        file=sys.stderr,
+    )
+    started = time.monotonic()
+    with ExitStack() as stack:
+        learner_log = stack.enter_context(open(run_dir / "learner.log", "w"))
+        learner = _spawn(learner_argv, learner_log)
+        actors: list[subprocess.Popen[bytes]] = []
+        try:
+            for i, robots in enumerate(robot_split(10, args.actors)):
+                actor_log = stack.enter_context(open(run_dir / f"actor-{i}.log", "w"))
+                actor_argv = [
+                    "actor",
+                    *common,
+                    "--connect",
+                    endpoint,
+                    "--id",
+                    f"actor-{i}",
+                    "--learn",
+                    robots,
+                    "--arenas",
+                    str(args.arenas),
+                    "--seed",
+                    str(args.seed),
+                ]
+                # Actors produce experience faster than one learner digests it on a shared machine: they yield
+                # the CPU to the learner so phase 1 and evaluations are not starved.
+                actors.append(_spawn(actor_argv, actor_log, nice=ACTOR_NICENESS))
+            _watch(endpoint, KeySpace(namespace), learner, started, args.duration)
+        finally:
+            for proc in actors:
+                _stop(proc, grace=10.0)
+            _stop(learner, grace=60.0)
+    report_path = run_dir / "report.json"
+    if not report_path.exists():
+        raise SystemExit(f"ennc-ql up: the learner wrote no report; see {run_dir / 'learner.log'}")
+    report: dict[str, Any] = json.loads(report_path.read_text())
+    report["run_dir"] = str(run_dir)
+    report["wall_seconds"] = round(time.monotonic() - started, 1)
+    report_path.write_text(json.dumps(report, indent=2))
+    if args.json:
+        print(json.dumps(report))
+    else:
+        print(results_table(report))
+    return 0
+
+
+def _watch(endpoint: str, keys: KeySpace, learner: subprocess.Popen[bytes], started: float, duration: float) -> None:
+    """Print the learner's progress from its status messages until it exits."""
+    latest: dict[str, float] = {}
+    lock = threading.Lock()
+
+    def on_status(status: Status) -> None:
+        with lock:
+            latest.update(status.counters)
+
+    conf = zenoh_config(connect=[endpoint], mode="peer", multicast_scouting=False)
+    with ZenohTransport.open(conf, keys) as transport:
+        transport.subscribe(keys.status("learner"), Status, on_status)
+        tty = sys.stderr.isatty()
+        while learner.poll() is None:
+            time.sleep(1.0 if tty else PROGRESS_EVERY)
+            with lock:
+                c = dict(latest)
+            if not c:
+                continue
+            phase = "exploring" if c.get("policy_version", 0) == 0 else "phase 2"
+            coverage = c.get("coverage", -1.0)
+            line = (
+                f"[{time.monotonic() - started:5.0f}/{duration:.0f} s] {phase}: "
+                f"{int(c.get('tuples_received', 0)):>10,} tuples ({c.get('tuples_per_s', 0) / 1e3:6.0f} k/s), "
+                f"policy v{int(c.get('policy_version', 0))}, {int(c.get('live_actors', 0))} actors, "
+                f"coverage {'–' if coverage < 0 else f'{coverage:.1f}%'}"
+            )
+            print(("\r" + line) if tty else line, end="" if tty else "\n", file=sys.stderr, flush=True)
+        if tty:
+            print(file=sys.stderr)
+
+
+def results_table(report: dict[str, Any]) -> str:
+    curve = report.get("coverage_curve") or []
+    rows = [
+        ("run folder", report["run_dir"]),
+        ("actors", ", ".join(report["actors"])),
+        ("tuples received", f"{report['tuples_received']:,}"),
+        ("duplicates / gaps", f"{report['duplicates']} / {report['gaps']}"),
+        ("rejected messages", str(report["rejected"])),
+        ("policy version", str(report["policy_version"])),
+        ("prototypes per action", str(report["prototypes_per_action"])),
+        ("final coverage", "–" if report["final_coverage_mean"] is None else f"{report['final_coverage_mean']:.2f} %"),
+        ("coverage curve", ", ".join(f"{t:.0f}s: {c:.1f}%" for t, c in curve)),
+        ("policy file", str(report["policy_file"])),
+    ]
+    width = max(len(k) for k, _ in rows)
+    return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
