@@ -1,0 +1,159 @@
+"""The learner service and a robot actor in one process over the in-memory transport (serial mode)."""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from actors.actor import ActorConfig, RobotActor, parse_robots
+from learner.enncql import Phase1Config
+from learner.service import LearnerConfig, LearnerService
+from protocol import ExperienceBatch, InMemoryBus, InMemoryTransport, PolicyUpdate, QTableIncrement
+
+FAST = LearnerConfig(
+    min_tuples=8000,
+    phase1=Phase1Config(max_iterations=1, n_cycles=20, max_patterns=800),
+    broadcast_interval=0.5,
+    eval_interval=1000.0,
+    eval_trials=2,
+    eval_steps=100,
+    checkpoint_interval=0.5,
+    duration=12.0,
+)
+
+
+def test_serial_learner_and_actor_exchange_experience_and_policies(tmp_path: Path) -> None:
+    bus = InMemoryBus()
+    versions: list[int] = []
+    with InMemoryTransport(bus) as lt, InMemoryTransport(bus) as at, InMemoryTransport(bus) as watcher:
+        watcher.subscribe(watcher.keys.policy(), PolicyUpdate, lambda u: versions.append(u.version))
+        service = LearnerService(lt, FAST, tmp_path)
+        service.start()
+        actor = RobotActor(at, ActorConfig(actor_id="a0", arenas=16, learn=(0, 1, 2), batch_size=256))
+        actor.start()
+        stop = threading.Event()
+        counters: dict[str, float] = {}
+        thread = threading.Thread(target=lambda: counters.update(actor.run(stop)))
+        thread.start()
+        report = service.run(threading.Event())
+        stop.set()
+        thread.join()
+        actor.close()
+        service.close()
+    assert versions == sorted(set(versions)) and len(versions) >= 3  # strictly increasing broadcasts
+    assert report["policy_version"] == versions[-1]
+    assert report["tuples_by_actor"]["a0"] >= counters["tuples_sent"] - counters["outbox"] * 256
+    assert report["gaps"] == 0 and report["duplicates"] == 0 and report["rejected"] == 0
+    assert report["increments"] > 0 and counters["policies_applied"] >= 1
+    # Only the learned robots produced tuples, and their tables moved away from the phase-1 labels.
+    assert report["prototypes_per_action"] and (tmp_path / "checkpoint.npz").exists()
+    assert service.disc is not None
+    moved = np.abs(service.tables - service.disc.labels[None, :]).sum(axis=1)
+    assert (moved[[0, 1, 2]] > 0).all() and (moved[3:] == 0).all()
+
+
+def test_merge_adds_the_visit_weighted_mean_of_the_actors_changes(tmp_path: Path) -> None:
+    with InMemoryTransport(InMemoryBus()) as t:
+        service = LearnerService(t, FAST, tmp_path)
+        from learner.discretization import Discretization
+
+        service.disc = Discretization.from_per_action([np.zeros((1, 6))] * 8)
+        service.tables = np.zeros((10, 8))
+        service.visits = np.zeros((10, 8), np.uint64)
+        service.disc_of_version = {1: service.disc_id}
+        offsets = service.disc.offsets
+
+        def inc(actor: str, seq: int, q: list[float], visits: list[int]) -> QTableIncrement:
+            return QTableIncrement(
+                actor_id=actor,
+                incarnation=1,
+                seq=seq,
+                policy_version=1,
+                robot=2,
+                q=np.array(q, np.float32),
+                visits=np.array(visits, np.uint32),
+                offsets=offsets,
+            )
+
+        service._on_increment(inc("a", 0, [1, 0, 0, 0, 0, 0, 0, 0], [1, 0, 0, 0, 0, 0, 0, 0]))
+        service._on_increment(inc("a", 1, [1, 2, 0, 0, 0, 0, 0, 0], [1, 2, 0, 0, 0, 0, 0, 0]))  # adds up
+        service._on_increment(inc("b", 0, [4, 0, 0, 0, 0, 0, 0, 0], [6, 0, 0, 0, 0, 0, 0, 0]))
+        service._on_increment(inc("b", 0, [9, 9, 9, 9, 9, 9, 9, 9], [9, 9, 9, 9, 9, 9, 9, 9]))  # duplicate seq
+        with service.lock:
+            service._merge_pending()
+    # Cell 0: actor a changed it by 2 over 2 visits, actor b by 4 over 6 visits -> (2*2 + 4*6) / 8 = 3.5.
+    assert service.tables[2, 0] == pytest.approx(3.5)
+    assert service.tables[2, 1] == pytest.approx(2.0)
+    assert service.tables[2, 2:].sum() == 0 and service.tables[[0, 1, 3]].sum() == 0
+    assert service.visits[2, 0] == 8 and service.ingest.ledger.duplicates == 1
+
+
+def test_stale_increments_over_an_old_discretization_are_dropped(tmp_path: Path) -> None:
+    with InMemoryTransport(InMemoryBus()) as t:
+        service = LearnerService(t, FAST, tmp_path)
+        from learner.discretization import Discretization
+
+        service.disc = Discretization.from_per_action([np.zeros((1, 6))] * 8)
+        service.tables = np.zeros((10, 8))
+        service.disc_id = 2
+        service.disc_of_version = {1: 1, 2: 2}
+        msg = QTableIncrement(
+            actor_id="a",
+            incarnation=1,
+            seq=0,
+            policy_version=1,
+            robot=0,
+            q=np.ones(8, np.float32),
+            visits=np.ones(8, np.uint32),
+            offsets=service.disc.offsets,
+        )
+        service._on_increment(msg)
+    assert service.stale_increments == 1 and not service.pending
+
+
+def test_experience_of_the_wrong_dimension_is_rejected_and_counted(tmp_path: Path) -> None:
+    with InMemoryTransport(InMemoryBus()) as t:
+        service = LearnerService(t, FAST, tmp_path)
+        service.start()
+        good = ExperienceBatch(
+            actor_id="a",
+            incarnation=1,
+            seq=0,
+            policy_version=0,
+            robot=np.zeros(3, np.int16),
+            state=np.zeros((3, 6), np.float32),
+            action=np.zeros(3, np.uint8),
+            reward=np.zeros(3, np.float32),
+            next_state=np.zeros((3, 6), np.float32),
+            done=np.zeros(3, bool),
+        )
+        bad = ExperienceBatch(
+            actor_id="a",
+            incarnation=1,
+            seq=1,
+            policy_version=0,
+            robot=np.zeros(3, np.int16),
+            state=np.zeros((3, 2), np.float32),
+            action=np.zeros(3, np.uint8),
+            reward=np.zeros(3, np.float32),
+            next_state=np.zeros((3, 2), np.float32),
+            done=np.zeros(3, bool),
+        )
+        t.publish(t.keys.experience("a"), good)
+        t.publish(t.keys.experience("a"), bad)
+        t.inject_raw(t.keys.experience("a"), b"\x93\x01garbage")
+        t.publish(t.keys.experience("a"), good)  # a re-sent duplicate
+        service.close()
+    assert service.ingest.tuples_received == 3 and len(service.ingest.store) == 3
+    assert service.ingest.rejected == 1 and sum(t.stats.rejected.values()) == 1
+    assert service.ingest.ledger.duplicates == 1
+
+
+def test_parse_robots() -> None:
+    assert parse_robots("0-2,7, 5") == (0, 1, 2, 5, 7)
+    for bad in ("", "3-1", "x"):
+        with pytest.raises(ValueError):
+            parse_robots(bad)
