@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml | $(PY)
 	touch $(STAMP)
 
 run: $(STAMP)
-	$(VENV)/bin/ennc-ql eval --policy a-cmommt --trials 10 --steps 1000 --seed 0
+	$(VENV)/bin/ennc-ql up
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

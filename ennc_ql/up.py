@@ -2,7 +2,8 @@
 
 One learner and N actor processes (real OS processes, the same commands a multi-machine run uses), joined by
 Zenoh in peer mode on a loopback endpoint with multicast scouting off, so nothing leaves the machine and no router
-is needed. Progress comes from the learner's status messages; each process logs to ``runs/<id>/<name>.log``. When
+is needed. Every actor learns every robot's table (option 2); the learner averages their changes by visits.
+Progress comes from the learner's status messages; each process logs to ``runs/<id>/<name>.log``. When
 the learner's duration is over it writes its report, the actors are stopped, and the results are printed.
 """
 
@@ -43,18 +44,13 @@ def free_port() -> int:
     raise RuntimeError("no free TCP port in 20000-32000 on 127.0.0.1")
 
 
-def robot_split(n_robots: int, n_actors: int) -> list[str]:
-    """Robots each actor learns: round robin, so every robot's table is learned by exactly one actor."""
-    groups = [[r for r in range(n_robots) if r % n_actors == i] for i in range(n_actors)]
-    return [",".join(map(str, g)) for g in groups]
-
-
 def add_up_parser(sub: Any) -> None:
     p = sub.add_parser("up", help="learner + N actors as local processes (embedded Zenoh, peer mode on loopback)")
     p.add_argument("--actors", type=int, default=2, help="actor processes (default 2)")
-    p.add_argument("--duration", type=float, default=420.0, help="seconds of training (default 420)")
+    p.add_argument("--duration", type=float, default=480.0, help="seconds of training (default 480)")
     p.add_argument("--arenas", type=int, default=500, help="arenas per actor (default 500)")
     p.add_argument("--min-tuples", type=int, default=150_000, help="tuples before the first phase 1")
+    p.add_argument("--store-capacity", type=int, default=400_000, help="tuples the learner keeps (default 400000)")
     p.add_argument("--phase1-patterns", type=int, default=30_000, help="tuples per action in phase 1")
     p.add_argument("--eval-interval", type=float, default=30.0, help="seconds between evaluations")
     p.add_argument("--seed", type=int, default=0)
@@ -105,6 +101,8 @@ def cmd_up(args: argparse.Namespace) -> int:
         str(args.duration),
         "--min-tuples",
         str(args.min_tuples),
+        "--store-capacity",
+        str(args.store_capacity),
         "--phase1-patterns",
         str(args.phase1_patterns),
         "--eval-interval",
@@ -124,7 +122,7 @@ def cmd_up(args: argparse.Namespace) -> int:
         learner = _spawn(learner_argv, learner_log)
         actors: list[subprocess.Popen[bytes]] = []
         try:
-            for i, robots in enumerate(robot_split(10, args.actors)):
+            for i in range(args.actors):
                 actor_log = stack.enter_context(open(run_dir / f"actor-{i}.log", "w"))
                 actor_argv = [
                     "actor",
@@ -133,8 +131,6 @@ def cmd_up(args: argparse.Namespace) -> int:
                     endpoint,
                     "--id",
                     f"actor-{i}",
-                    "--learn",
-                    robots,
                     "--arenas",
                     str(args.arenas),
                     "--seed",
