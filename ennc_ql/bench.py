@@ -82,14 +82,16 @@ def bench_sim(
     }
 
 
-def cmommt_experience(tuples: int, seed: int = 0) -> Transitions:
-    """At least ``tuples`` collaborative (6-D) tuples from random-exploration learning trials."""
+def cmommt_experience(tuples: int, seed: int = 0, action: int | None = None) -> Transitions:
+    """``tuples`` collaborative (6-D) tuples from random-exploration learning trials (only ``action``'s, if given)."""
     cfg = scenario()
     explorer = ExperienceSlice(cfg, SliceConfig(n_arenas=1000, featurizer="collab6d"), seed)
     parts: list[Transitions] = []
     collected = 0
     while collected < tuples:
         batch = explorer.run_trial()
+        if action is not None:
+            batch = batch.take(np.nonzero(batch.action == action)[0])
         parts.append(batch)
         collected += len(batch)
     data = Transitions.concat(parts)
@@ -104,17 +106,17 @@ def bench_ennc(
 ) -> dict[str, Any]:
     """ENNC fit time against scikit-learn's k-means on the same data, and ENNC-QL phase 1 on many tuples.
 
-    The patterns are standardized collaborative states from random exploration with their first-iteration
-    Q-target classes, exactly what phase 1 trains on. k-means gets k = ENNC's final prototype count, 250 Lloyd
-    iterations and one init; it is the reference for "not much more work on the data than a Lloyd iteration".
+    The patterns are standardized collaborative states of one action (East) from random exploration with their
+    first-iteration Q-target classes, exactly what phase 1 trains one classifier on. k-means gets k = ENNC's final
+    prototype count, 250 Lloyd iterations and one init; it is the reference for "not much more work on the data
+    than a Lloyd iteration".
     """
     from sklearn.cluster import KMeans
 
     from learner.ennc import ENNC
     from learner.enncql import Phase1Config, phase1, standard_scale, to_classes
 
-    data = cmommt_experience(max(patterns, phase1_tuples if phase1_tuples else 0), seed)
-    sample = data.take(np.arange(patterns))
+    sample = cmommt_experience(patterns, seed, action=2)
     x = sample.state / standard_scale(sample.state)
     y = to_classes(np.where(sample.done, sample.reward, 0.0), Phase1Config())
     log.info("bench ennc: %d patterns, %d classes", len(x), np.unique(y).size)
@@ -143,7 +145,7 @@ def bench_ennc(
         "torch_threads": torch.get_num_threads(),
     }
     if phase1_tuples:
-        big = data.take(np.arange(phase1_tuples))
+        big = cmommt_experience(phase1_tuples, seed)
         start = time.perf_counter()
         result = phase1(big, N_ACTIONS, Phase1Config(max_iterations=1, n_cycles=cycles), seed=seed)
         out["phase1_tuples"] = phase1_tuples

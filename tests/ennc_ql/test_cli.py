@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -55,7 +56,7 @@ def test_bad_flags_get_a_clear_error(capsys: pytest.CaptureFixture[str], argv: l
 
 
 def test_unknown_policy_is_named_in_the_error() -> None:
-    with pytest.raises(SystemExit, match="unknown policy 'greedy'"):
+    with pytest.raises(SystemExit, match="'greedy' is neither a hand-made policy"):
         main(["eval", "--policy", "greedy"])
 
 
@@ -91,3 +92,31 @@ def test_console_script_runs_as_a_process() -> None:
     out = json.loads(proc.stdout)
     assert len(out["coverage_per_trial"]) == 2
     assert 0.0 < out["coverage_mean"] <= 100.0
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["actor", "--id", "a/b"], "a/b"),
+        (["actor", "--id", "a0", "--learn", "5-2"], "bad robot range"),
+        (["actor", "--id", "a0", "--arenas", "0"], "positive int"),
+        (["learner", "--run-dir", "x", "--min-tuples", "-3"], "positive int"),
+        (["learner", "--run-dir", "x", "--mode", "satellite"], "invalid choice"),
+        (["learner"], "--run-dir"),
+    ],
+)
+def test_process_flags_are_checked(capsys: pytest.CaptureFixture[str], argv: list[str], message: str) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_resume_without_a_checkpoint_is_a_clear_error(tmp_path: Path) -> None:
+    with pytest.raises(SystemExit, match="no checkpoint"):
+        main(["learner", "--run-dir", str(tmp_path), "--resume", "--listen", "tcp/127.0.0.1:0", "--duration", "1"])
+
+
+def test_actor_for_a_robot_that_does_not_exist_is_a_clear_error() -> None:
+    with pytest.raises(SystemExit, match="robot 12 does not exist"):
+        main(["actor", "--id", "a0", "--learn", "12", "--listen", "tcp/127.0.0.1:0", "--duration", "1"])
