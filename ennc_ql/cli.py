@@ -100,6 +100,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 f"(target <= 60 s: {'met' if out['meets_target']['phase1_seconds'] else 'NOT met'})"
             )
         _emit(out, args.json, table)
+    if args.what == "transport":
+        from ennc_ql.bench_transport import bench_transport, transport_table
+
+        out = bench_transport(args.actors, args.batch_size, args.seconds, args.shared_memory)
+        _emit(out, args.json, transport_table(out))
     if args.what == "sim":
         out = bench_sim(args.scenario, seconds=args.seconds)
         rates = out["robot_steps_per_s"]
@@ -119,7 +124,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     budget = Budget.quick() if args.quick else Budget()
     processes = args.processes or (1 if args.quick else 5)
     out_dir = Path(args.out) if args.out else Path("runs") / ("reproduce-quick" if args.quick else "reproduce")
-    report = reproduce(budget, processes, out_dir, methods=args.methods or None)
+    report = reproduce(budget, processes, out_dir, methods=args.methods or None, jobs=args.jobs)
     report["output"] = str(out_dir)
     _emit(
         report, args.json, markdown_table(report) + f"\nwritten to {out_dir}/ (results.md, results.json, figure5.png)"
@@ -142,23 +147,28 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_eval)
 
     from ennc_ql.processes import add_actor_parser, add_learner_parser
+    from ennc_ql.router import add_router_parser
     from ennc_ql.up import add_up_parser
 
     add_up_parser(sub)
     add_learner_parser(sub)
     add_actor_parser(sub)
+    add_router_parser(sub)
 
     p = sub.add_parser("reproduce", help="the paper's Figure 5 and 6: every method, tables and a bar chart")
     p.add_argument("--quick", action="store_true", help="reduced budget: 1 process per method, shorter learning")
     p.add_argument("--processes", type=_positive_int, help="learning processes per method (default 5, quick 1)")
     p.add_argument("--methods", nargs="+", help="run only these methods (names as in the results table)")
     p.add_argument("--out", help="output folder (default runs/reproduce[-quick])")
+    p.add_argument("--jobs", type=_positive_int, default=1, help="learning processes run at once (default 1)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_reproduce)
 
     p = sub.add_parser("bench", help="measure performance figures")
     p.add_argument(
-        "what", choices=["sim", "ennc"], help="sim: simulator robot-steps/s; ennc: ENNC vs k-means and phase 1 time"
+        "what",
+        choices=["sim", "ennc", "transport"],
+        help="sim: simulator robot-steps/s; ennc: ENNC vs k-means and phase 1 time; transport: actors -> store",
     )
     p.add_argument("--scenario", default="cmommt-v1", choices=sorted(SCENARIOS))
     p.add_argument("--seconds", type=float, default=1.5, help="sim: measuring time per configuration")
@@ -168,6 +178,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--phase1-tuples", type=int, default=1_000_000, help="ennc: tuples of the timed phase 1 (0 skips it)"
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    from ennc_ql.bench_transport import add_bench_transport_args
+
+    add_bench_transport_args(p)  # --actors, --batch-size, --shared-memory; --seconds is per phase
     p.set_defaults(func=cmd_bench)
     return parser
 

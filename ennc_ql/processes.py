@@ -12,7 +12,10 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
+import re
 import signal
+import socket
 import threading
 from pathlib import Path
 from typing import Any
@@ -58,6 +61,15 @@ def _identifier(text: str) -> str:
         return check_id(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _actor_id(text: str) -> str:
+    # Replicas started from one command line (compose deploy.replicas) need distinct ids: a container's
+    # hostname is unique per replica, a pid per process on one host.
+    if text == "auto":
+        host = re.sub(r"[^A-Za-z0-9_.-]", "-", socket.gethostname())[:40]
+        text = f"actor-{host}-{os.getpid()}"
+    return _identifier(text)
 
 
 def _robots(text: str) -> tuple[int, ...]:
@@ -138,7 +150,9 @@ def cmd_learner(args: argparse.Namespace) -> int:
 
 def add_actor_parser(sub: Any) -> None:
     p = sub.add_parser("actor", help="one robot actor process")
-    p.add_argument("--id", type=_identifier, required=True, help="actor id, unique in the run")
+    p.add_argument(
+        "--id", type=_actor_id, required=True, help="actor id, unique in the run ('auto': from hostname and pid)"
+    )
     p.add_argument("--learn", type=_robots, help="robots whose tables this actor learns, e.g. 0-4 (default: all)")
     p.add_argument("--scenario", default="cmommt-v1", choices=sorted(SCENARIOS))
     p.add_argument("--featurizer", default="collab6d", choices=sorted(FEATURIZERS))

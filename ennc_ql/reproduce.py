@@ -58,14 +58,27 @@ def _row(name: str, per_run: Sequence[float], states: float | None, per_trial: l
     }
 
 
+def _train_job(job: tuple[str, Budget, int]) -> Outcome:
+    """One learning process in a worker: one torch thread each, so jobs share the cores instead of fighting."""
+    import torch
+
+    torch.set_num_threads(1)
+    name, budget, seed = job
+    return train(METHODS[name], budget, seed, scenario())
+
+
 def reproduce(
     budget: Budget,
     processes: int,
     out_dir: Path,
     methods: Sequence[str] | None = None,
     progress: Progress | None = None,
+    jobs: int = 1,
 ) -> dict[str, Any]:
-    """Run every method (``processes`` independent learning processes each), write table, JSON and chart."""
+    """Run every method (``processes`` independent learning processes each), write table, JSON and chart.
+
+    ``jobs`` > 1 runs that many learning processes at once in worker processes.
+    """
     start = time.perf_counter()
     say = progress or log.info
     names = list(methods) if methods is not None else [*HAND_MADE_ORDER, *METHODS]
@@ -74,6 +87,23 @@ def reproduce(
         raise ValueError(f"unknown methods {unknown}; known: {', '.join(PAPER)}")
     out_dir.mkdir(parents=True, exist_ok=True)
     cfg = scenario()
+    learned = [n for n in names if n not in HAND_MADE]
+    outcomes: dict[str, list[Outcome]] = {n: [] for n in learned}
+    todo = [(n, budget, seed) for n in learned for seed in range(processes)]
+    if jobs > 1 and todo:
+        import multiprocessing
+
+        with multiprocessing.get_context("spawn").Pool(jobs) as pool:
+            for outcome in pool.imap_unordered(_train_job, todo):
+                outcomes[outcome.method].append(outcome)
+                say(f"{outcome.method}[{outcome.seed}]: {outcome.coverage_mean:.2f}% ({len(todo)} processes in all)")
+    else:
+        for name, _, seed in todo:
+
+            def stage(message: str, method: str = name, process: int = seed) -> None:
+                say(f"{method}[{process}]: {message}")
+
+            outcomes[name].append(train(METHODS[name], budget, seed, cfg, progress=stage))
     rows: list[dict[str, Any]] = []
     for name in names:
         if name in HAND_MADE:
@@ -82,23 +112,18 @@ def reproduce(
             rows.append(_row(name, [result.coverage_mean], None, [per_trial]))
             say(f"{name}: {result.coverage_mean:.2f}%")
             continue
-        outcomes: list[Outcome] = []
-        for seed in range(processes):
-
-            def stage(message: str, method: str = name, process: int = seed) -> None:
-                say(f"{method}[{process}]: {message}")
-
-            outcome = train(METHODS[name], budget, seed, cfg, progress=stage)
-            save_policy(outcome.policy, cfg, out_dir / "policies" / f"{name}-{seed}.npz")
-            outcomes.append(outcome)
+        runs = sorted(outcomes[name], key=lambda o: o.seed)
+        for outcome in runs:
+            save_policy(outcome.policy, cfg, out_dir / "policies" / f"{name}-{outcome.seed}.npz")
         row = _row(
             name,
-            [o.coverage_mean for o in outcomes],
-            float(np.mean([o.states for o in outcomes])),
-            [[round(float(c), 3) for c in o.coverage_per_trial] for o in outcomes],
+            [o.coverage_mean for o in runs],
+            float(np.mean([o.states for o in runs])),
+            [[round(float(c), 3) for c in o.coverage_per_trial] for o in runs],
         )
-        row["states_per_run"] = [round(o.states, 2) for o in outcomes]
-        row["tuples_per_run"] = [o.tuples for o in outcomes]
+        row["states_per_run"] = [round(o.states, 2) for o in runs]
+        row["tuples_per_run"] = [o.tuples for o in runs]
+        row["seconds_per_run"] = [round(o.seconds, 1) for o in runs]
         rows.append(row)
         say(f"{name}: {row['coverage_mean']:.2f}% ± {row['coverage_std']:.2f} over {processes} processes")
     report = {

@@ -60,14 +60,18 @@ class ExperienceStore:
             batch = batch.take(np.arange(n - self.capacity, n))
             self.total += n - self.capacity
             n = self.capacity
-        idx = (self._head + np.arange(n)) % self.capacity
-        self.robot[idx] = batch.robot
-        self.state[idx] = batch.state
-        self.action[idx] = batch.action
-        self.reward[idx] = batch.reward
-        self.next_state[idx] = batch.next_state
-        self.done[idx] = batch.done
-        self.policy_version[idx] = policy_version
+        # At most two contiguous slice writes (the ring wraps once): fancy indexing cost twice as much per batch.
+        first = min(n, self.capacity - self._head)
+        for lo, hi, src in ((self._head, self._head + first, slice(0, first)), (0, n - first, slice(first, n))):
+            if hi <= lo:
+                continue
+            self.robot[lo:hi] = batch.robot[src]
+            self.state[lo:hi] = batch.state[src]
+            self.action[lo:hi] = batch.action[src]
+            self.reward[lo:hi] = batch.reward[src]
+            self.next_state[lo:hi] = batch.next_state[src]
+            self.done[lo:hi] = batch.done[src]
+            self.policy_version[lo:hi] = policy_version
         self.total += n
         self._head = int((self._head + n) % self.capacity)
         self._size = min(self._size + n, self.capacity)

@@ -1,0 +1,86 @@
+"""``ennc-ql router``: a Zenoh router from the ``eclipse-zenoh`` package, for multi-machine runs.
+
+PyPI has no ``zenohd``; a zenoh session opened in router mode routes for every client and peer that connects
+to it, so learners and actors on other machines only need ``--mode client --connect tcp/<router>:7447``. The
+official ``eclipse/zenoh`` image is the alternative where Docker runs (compose.yaml)::
+
+    ennc-ql router                                        # listens on tcp/0.0.0.0:7447
+    ennc-ql router --listen tcp/10.0.0.5:7447             # only on that address
+    ennc-ql router --zenoh-config router.json5            # anything else zenoh's config file can set
+
+Usage as a library (the stop event ends it; a signal handler or another thread sets it)::
+
+    stop = threading.Event()
+    run_router(zenoh_config(listen=["tcp/0.0.0.0:7447"], mode="router"), stop)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import threading
+from types import FrameType
+from typing import Any
+
+import zenoh
+
+from protocol import add_connection_args, config_from_args
+
+log = logging.getLogger(__name__)
+
+DEFAULT_LISTEN = "tcp/0.0.0.0:7447"
+"""7447 is zenoh's registered port; 0.0.0.0 rather than zenoh's own default ``[::]``, which fails where IPv6 is off."""
+
+
+def _on_transport_event(event: zenoh.TransportEvent) -> None:
+    # Runs on a zenoh thread: logging only, nothing that could block it.
+    verb = "connected" if event.kind == zenoh.SampleKind.PUT else "disconnected"
+    log.info("%s %s %s", event.transport.whatami, event.transport.zid, verb)
+
+
+def run_router(conf: zenoh.Config, stop: threading.Event) -> None:
+    """Route zenoh traffic with ``conf`` (its mode is forced to router) until ``stop`` is set."""
+    conf.insert_json5("mode", json.dumps("router"))
+    with zenoh.open(conf) as session:
+        # history: clients already retrying connect during open(), before this listener exists.
+        events = session.info.declare_transport_events_listener(_on_transport_event, history=True)
+        try:
+            log.info("zenoh router %s listening on %s", session.zid(), conf.get_json("listen/endpoints"))
+            stop.wait()
+        finally:
+            events.undeclare()
+    log.info("zenoh router closed")
+
+
+def cmd_router(args: argparse.Namespace) -> int:
+    """The ``router`` subcommand: run until SIGTERM or SIGINT."""
+    if args.mode != "router":
+        raise SystemExit(f"ennc-ql router: --mode must be router, got {args.mode!r}")
+    # argparse's append action would add to a non-empty default instead of replacing it, hence the default here.
+    if not args.listen and not args.zenoh_config:
+        args.listen = [DEFAULT_LISTEN]
+    conf = config_from_args(args)
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: FrameType | None) -> None:
+        log.info("%s: stopping", signal.Signals(signum).name)
+        stop.set()
+
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(signum, on_signal)
+    run_router(conf, stop)
+    return 0
+
+
+def add_router_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Register the ``router`` subcommand on ``subparsers`` (from ``ArgumentParser.add_subparsers``)."""
+    p: argparse.ArgumentParser = subparsers.add_parser(
+        "router",
+        help="a zenoh router for multi-machine runs (clients connect with --mode client --connect tcp/HOST:7447)",
+        epilog=f"Without --listen or --zenoh-config it listens on {DEFAULT_LISTEN}.",
+    )
+    add_connection_args(p)
+    p.set_defaults(mode="router", func=cmd_router)
+    return p

@@ -1,0 +1,122 @@
+"""compose.yaml: its structure, and the same topology run as local processes so that the file cannot rot.
+
+Docker does not run on the development machines, so the router service (the ``eclipse/zenoh`` image) is replaced
+by ``ennc-ql router`` with the same flags, and the learner and ``replicas`` actors run the compose commands as
+they are, except for three rewrites: the router's endpoint becomes a free loopback port, ``/runs`` a temporary
+folder, and test-sized budgets are appended (later flags win in argparse).
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from ennc_ql.cli import build_parser
+from ennc_ql.up import free_port
+from tests.e2e import ACTOR_BUDGET, LEARNER_BUDGET, Processes, ennc_ql
+
+pytestmark = pytest.mark.slow
+
+COMPOSE = Path(__file__).resolve().parents[2] / "compose.yaml"
+ENDPOINT = re.compile(r"tcp/[A-Za-z0-9.-]+:\d+")
+ZENOHD_ONLY = {"--rest-http-port": 1}
+"""zenohd flags ``ennc-ql router`` has no use for, with the number of values each takes."""
+
+
+def compose() -> dict[str, Any]:
+    spec: dict[str, Any] = yaml.safe_load(COMPOSE.read_text())
+    return spec
+
+
+def flag_values(argv: list[str], flag: str) -> list[str]:
+    """Values of ``flag`` in ``argv``, written either ``--flag value`` or ``--flag=value``."""
+    values = [arg.split("=", 1)[1] for arg in argv if arg.startswith(flag + "=")]
+    values += [argv[i + 1] for i, arg in enumerate(argv[:-1]) if arg == flag]
+    return values
+
+
+def test_compose_structure() -> None:
+    services = compose()["services"]
+    assert set(services) == {"router", "learner", "actor"}
+
+    router = services["router"]
+    assert router["image"].split(":")[0] == "eclipse/zenoh"
+    assert "7447:7447/tcp" in router["ports"]
+    assert flag_values(router["command"], "--listen") == ["tcp/0.0.0.0:7447"]
+    assert "--no-multicast-scouting" in router["command"]
+
+    parser = build_parser()
+    local_router = parser.parse_args(router_command(router["command"], 7447))
+    assert local_router.command == "router" and local_router.listen == ["tcp/127.0.0.1:7447"]
+    for name in ("learner", "actor"):
+        service = services[name]
+        assert service["build"] == "."
+        assert service["depends_on"] == ["router"]
+        args = parser.parse_args(service["command"])
+        assert args.command == name
+        assert args.mode == "client"
+        assert args.connect == ["tcp/router:7447"]
+        assert args.multicast_scouting is False
+    learner_args = parser.parse_args(services["learner"]["command"])
+    assert learner_args.run_dir.startswith("/runs/")
+    assert "runs:/runs" in services["learner"]["volumes"]
+    assert services["actor"]["deploy"]["replicas"] >= 2
+    # One command line for every replica: the id must be derived at start-up.
+    assert flag_values(services["actor"]["command"], "--id") == ["auto"]
+
+
+def local_command(argv: list[str], router_port: int, runs: Path) -> list[str]:
+    """A compose command for this machine: every endpoint on the local router, /runs under ``runs``."""
+    out = []
+    for arg in argv:
+        arg = ENDPOINT.sub(f"tcp/127.0.0.1:{router_port}", arg)
+        out.append(re.sub(r"(^|=)/runs(?=/|$)", lambda m: m.group(1) + str(runs), arg))
+    return out
+
+
+def router_command(zenohd_argv: list[str], port: int) -> list[str]:
+    """``ennc-ql router`` with the zenohd service's flags (listen endpoint moved to loopback)."""
+    argv, skip = [], 0
+    for arg in zenohd_argv:
+        if skip:
+            skip -= 1
+        elif arg in ZENOHD_ONLY:
+            skip = ZENOHD_ONLY[arg]
+        else:
+            argv.append(ENDPOINT.sub(f"tcp/127.0.0.1:{port}", arg))
+    return ["router", *argv]
+
+
+def test_compose_topology_runs_as_local_processes(tmp_path: Path) -> None:
+    services = compose()["services"]
+    replicas = services["actor"]["deploy"]["replicas"]
+    port = free_port()
+    runs = tmp_path / "runs"
+    with Processes(tmp_path) as procs:
+        procs.start("router", ennc_ql(*router_command(services["router"]["command"], port)))
+        learner_argv = local_command(services["learner"]["command"], port, runs)
+        procs.start("learner", ennc_ql(*learner_argv, *LEARNER_BUDGET))
+        for i in range(replicas):
+            procs.start(f"actor-{i}", ennc_ql(*local_command(services["actor"]["command"], port, runs), *ACTOR_BUDGET))
+
+        actors = [procs.json_result(f"actor-{i}", timeout=90) for i in range(replicas)]
+        report = procs.json_result("learner", timeout=90)
+        assert procs.procs["router"].poll() is None, "the router died\n" + procs.log_tail("router")
+    assert procs.procs["router"].returncode == 0, "the router did not stop cleanly on SIGTERM"
+
+    run_dir = Path(flag_values(learner_argv, "--run-dir")[0])
+    assert (run_dir / "report.json").exists() and (run_dir / "policy.npz").exists()
+    # `--id auto` gave every replica its own id, and each one's experience reached the learner's store once.
+    assert len(report["actors"]) == replicas
+    assert all(a["tuples_sent"] > 0 for a in actors)
+    assert sorted(report["tuples_by_actor"].values()) == sorted(a["tuples_sent"] for a in actors)
+    assert report["tuples_received"] == sum(a["tuples_sent"] for a in actors)
+    assert report["gaps"] == 0
+    # Policies went the other way, through the router, to every replica.
+    assert report["policy_version"] >= 1
+    assert all(a["policy_version"] >= 1 and a["policies_applied"] >= 1 for a in actors)
+    assert all(a["outbox"] == 0 for a in actors)  # everything they sent was acknowledged
