@@ -66,13 +66,13 @@ METHODS: dict[str, MethodSpec] = {
 class Budget:
     """How much experience and computation one learning process gets."""
 
-    arenas: int = 1000
+    arenas: int = 500
     """Arenas simulated side by side in learning trials."""
-    explore_trials: int = 4
+    explore_trials: int = 6
     """Batches of random-exploration learning trials (phase 0), each in every arena."""
     phase2_trials: int = 60
     """Batches of ε-greedy learning trials (phase 2)."""
-    phase1: Phase1Config = field(default_factory=lambda: Phase1Config(max_iterations=1, max_patterns=60_000))
+    phase1: Phase1Config = field(default_factory=lambda: Phase1Config(max_iterations=1, max_patterns=30_000))
     """ENNC-QL phase 1; one iteration suffices in CMOMMT [paper]."""
     phase2: Phase2Config = field(default_factory=Phase2Config)
     codebook_patterns: int = 50_000

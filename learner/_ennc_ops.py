@@ -1,0 +1,420 @@
+"""The operators of one ENNC cycle as pure functions over tensors.
+
+Every function takes tensors and returns new tensors (inputs are never modified), so each operator can be
+checked on a hand-built case. Randomness is injected as tensors of uniform draws in [0, 1): the estimator in
+:mod:`learner.ennc` draws them from its seeded ``torch.Generator``, a test can pass the draw it wants.
+
+Shapes: N patterns of dimension d, P prototypes, C classes. Classes are indices ``0..C-1`` here; the mapping to
+the caller's numeric class values lives in the estimator. The per-cycle bookkeeping is the (prototype, class)
+contingency table ``V`` (P, C) int64, with ``V[i, j] = |R_i ∩ S_j|``, and the per-cell pattern sums ``sums``
+(P·C, d), row ``i·C + j`` holding the sum of the patterns of V_ij. Patterns are never looped over in Python.
+
+Usage, one cycle by hand (what :class:`learner.ennc.ENNC` does 250 times)::
+
+    region, score = nearest_prototype(X, prototypes)
+    V = contingency(region, y, P, C)
+    q = quality(V, labels, class_sizes)
+    labels = relabel(V, labels)
+    child_pos, child_lab = reproduce(V, labels, cell_sums(X, region, y, P, C), u)
+    ...  # re-assign with nearest_among_new, drop empty regions, recompute V, q, sums
+    owner = fight(prototypes, labels, q, k_fight, u_fight, u_win, C)
+    prototypes = move(prototypes, labels, V, sums, owner)
+    keep = die(q, u_die)
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+#: Bytes of distance matrix evaluated per chunk when the caller gives no chunk size. On CPU a few MiB keeps
+#: the block in cache between the matrix product and the row minimum (measured fastest on the 2-core
+#: reference machine); on a GPU large chunks amortise kernel launches.
+CPU_CHUNK_BYTES = 4 << 20
+CUDA_CHUNK_BYTES = 256 << 20
+
+#: :func:`refresh_nearest` falls back to a full pass when its partial work exceeds this fraction of one; the
+#: gathers of the partial path cost about what this margin leaves.
+REFRESH_FULL_FRACTION = 0.6
+
+#: Relative gap (to ``||x||² + max ||c||²``) under which two scores from different passes count as a tie;
+#: float64 rounding of a 6-term dot product is about 1e-15 of that scale.
+TIE_TOLERANCE = 1e-12
+
+
+def default_chunk_rows(n_prototypes: int, device: torch.device, itemsize: int = 8) -> int:
+    """Rows of X per distance block so that one (rows, P) block holds about the device's chunk budget.
+
+    >>> default_chunk_rows(128, torch.device("cpu"))
+    4096
+    """
+    budget = CUDA_CHUNK_BYTES if device.type == "cuda" else CPU_CHUNK_BYTES
+    return max(256, budget // (max(1, n_prototypes) * itemsize))
+
+
+def nearest_prototype(X: Tensor, prototypes: Tensor, chunk_rows: int | None = None) -> tuple[Tensor, Tensor]:
+    """Index of the nearest prototype (Euclidean) of every pattern, computed in chunks of rows.
+
+    Distances use the matrix form ``||c||² − 2·x·c`` (the ``||x||²`` term is the same for every prototype
+    of a row and does not change the argmin), one GEMM per chunk, so memory stays at ``chunk_rows × P``.
+    Ties go to the lowest prototype index: ``torch.min`` returns the first minimum, and a prototype that
+    duplicates a lower-indexed one is never chosen (the GEMM may round two equal columns differently).
+    Distinct prototypes within rounding (~1e-15 relative) of a tie are resolved by that rounding.
+
+    Returns ``(index, score)``: int64 (N,) and the minimal ``||c||² − 2·x·c`` (N,), which
+    :func:`nearest_among_new` uses to compare against prototypes added later without recomputing the rest.
+
+    >>> X = torch.tensor([[0.0], [0.9], [3.0]], dtype=torch.float64)
+    >>> nearest_prototype(X, torch.tensor([[0.0], [2.0]], dtype=torch.float64))[0].tolist()
+    [0, 0, 1]
+    """
+    n = X.shape[0]
+    rows = chunk_rows or default_chunk_rows(prototypes.shape[0], X.device, X.element_size())
+    c_norm = (prototypes * prototypes).sum(dim=1).masked_fill(_duplicates(prototypes), float("inf"))
+    proto_t = prototypes.T.contiguous()
+    index = torch.empty(n, dtype=torch.int64, device=X.device)
+    score = torch.empty(n, dtype=X.dtype, device=X.device)
+    block = torch.empty((min(rows, n), prototypes.shape[0]), dtype=X.dtype, device=X.device)
+    for start in range(0, n, rows):
+        stop = min(n, start + rows)
+        out = block[: stop - start]
+        torch.addmm(c_norm, X[start:stop], proto_t, beta=1.0, alpha=-2.0, out=out)
+        torch.min(out, dim=1, out=(score[start:stop], index[start:stop]))
+    return index, score
+
+
+def _duplicates(prototypes: Tensor) -> Tensor:
+    """(P,) bool: rows equal to a row of lower index."""
+    if prototypes.shape[0] < 2:
+        return torch.zeros(prototypes.shape[0], dtype=torch.bool, device=prototypes.device)
+    _, group = torch.unique(prototypes, dim=0, return_inverse=True)
+    order = torch.arange(prototypes.shape[0], device=prototypes.device)
+    first = torch.full_like(order, prototypes.shape[0]).scatter_reduce_(0, group, order, reduce="amin")
+    return first[group] != order
+
+
+def nearest_among_new(
+    X: Tensor,
+    prototypes: Tensor,
+    index: Tensor,
+    score: Tensor,
+    first_new: int,
+    chunk_rows: int | None = None,
+) -> tuple[Tensor, Tensor]:
+    """Update a nearest-prototype assignment after ``prototypes[first_new:]`` were appended.
+
+    Only the N × (new) distances are computed; the result equals :func:`nearest_prototype` over all
+    ``prototypes`` (see :func:`_keep_nearer` for ties).
+
+    >>> X = torch.tensor([[0.0], [3.0]], dtype=torch.float64)
+    >>> protos = torch.tensor([[0.0], [3.0]], dtype=torch.float64)
+    >>> idx, sc = nearest_prototype(X, protos[:1])
+    >>> nearest_among_new(X, protos, idx, sc, 1)[0].tolist()
+    [0, 1]
+    """
+    new_index, new_score = nearest_prototype(X, prototypes[first_new:], chunk_rows)
+    return _keep_nearer(X, prototypes, index, score, new_index + first_new, new_score, chunk_rows)
+
+
+def refresh_nearest(
+    X: Tensor,
+    prototypes: Tensor,
+    index: Tensor,
+    score: Tensor,
+    moved: Tensor,
+    chunk_rows: int | None = None,
+    x_sq: Tensor | None = None,
+) -> tuple[Tensor, Tensor]:
+    """Nearest-prototype assignment after some prototypes moved and some were removed.
+
+    ``index`` (N,) is the previous assignment re-indexed to the current prototypes, −1 where the pattern's
+    prototype was removed; ``score`` its ``||c||² − 2·x·c``; ``moved`` (P,) bool flags prototypes whose
+    position changed since; ``x_sq`` the patterns' ``||x||²`` (computed when not given).
+
+    Only what can have changed is searched, with the centre–centre bound of accelerated k-means (Elkan 2003):
+    for a pattern x of prototype a and any prototype p, ``d(x, p) ≥ d(a, p) − d(x, a)``, so p cannot take x
+    while ``2·d(x, a) < d(a, p)``. Prototypes that did not move kept their distances, so the only candidates
+    are: every other prototype for the patterns of a moved prototype, the moved prototypes for the others.
+    Patterns that the bound does not settle are searched against those candidates; the patterns of a removed
+    prototype against all. When that would cost more than :data:`REFRESH_FULL_FRACTION` of a full pass, the
+    full pass is done instead. The result equals :func:`nearest_prototype`.
+
+    >>> X = torch.tensor([[0.0], [3.5], [9.0]], dtype=torch.float64)
+    >>> protos = torch.tensor([[0.0], [5.0], [10.0]], dtype=torch.float64)
+    >>> idx, sc = nearest_prototype(X, protos)
+    >>> protos[2] = 3.0  # prototype 2 moved next to pattern 1
+    >>> refresh_nearest(X, protos, idx, sc, torch.tensor([False, False, True]))[0].tolist()
+    [0, 2, 1]
+    """
+    n, n_proto = X.shape[0], prototypes.shape[0]
+    x_sq = (X * X).sum(dim=1) if x_sq is None else x_sq
+    orphan = index < 0
+    own = index.clamp(min=0)
+    own_moved = moved[own] & ~orphan
+    index, score = index.clone(), score.clone()
+    shifted = torch.nonzero(own_moved).squeeze(1)
+    if shifted.numel():
+        centre = prototypes[own[shifted]]
+        score[shifted] = (centre * centre).sum(dim=1) - 2.0 * (X[shifted] * centre).sum(dim=1)
+    # Squared distance to the own prototype, padded by its rounding error so that the bound stays strict.
+    dist_sq = score + x_sq + TIE_TOLERANCE * (x_sq + (prototypes * prototypes).sum(dim=1).max())
+    unsettled = orphan | (4.0 * dist_sq >= _reach(prototypes, moved)[own] ** 2)
+    search_all = torch.nonzero(unsettled & (orphan | own_moved)).squeeze(1)
+    search_moved = torch.nonzero(unsettled & ~orphan & ~own_moved).squeeze(1)
+    moved_ids = torch.nonzero(moved).squeeze(1)
+    cost = search_all.numel() * n_proto + search_moved.numel() * moved_ids.numel()
+    if cost >= REFRESH_FULL_FRACTION * n * n_proto:
+        return nearest_prototype(X, prototypes, chunk_rows)
+    if search_all.numel():
+        index[search_all], score[search_all] = nearest_prototype(X[search_all], prototypes, chunk_rows)
+    if search_moved.numel():
+        x = X[search_moved]
+        sub_index, sub_score = nearest_prototype(x, prototypes[moved_ids], chunk_rows)
+        index[search_moved], score[search_moved] = _keep_nearer(
+            x, prototypes, index[search_moved], score[search_moved], moved_ids[sub_index], sub_score, chunk_rows
+        )
+    return index, score
+
+
+def _reach(prototypes: Tensor, moved: Tensor) -> Tensor:
+    """(P,) distance from each prototype to the nearest other prototype that may now take its patterns:
+    any other one if it moved, a moved one otherwise (∞ when there is none).
+
+    Computed in blocks of prototype rows so that memory stays near 4 M distances for any P.
+    """
+    n_proto = prototypes.shape[0]
+    reach = torch.full((n_proto,), float("inf"), dtype=prototypes.dtype, device=prototypes.device)
+    if not bool(moved.any()):
+        return reach
+    block = max(1, (4 << 20) // n_proto)
+    for start in range(0, n_proto, block):
+        stop = min(n_proto, start + block)
+        dist = torch.cdist(prototypes[start:stop], prototypes, compute_mode="donot_use_mm_for_euclid_dist")
+        candidate = moved[None, :] | moved[start:stop, None]
+        rows = torch.arange(stop - start, device=prototypes.device)
+        candidate[rows, rows + start] = False
+        reach[start:stop] = dist.masked_fill(~candidate, float("inf")).amin(dim=1)
+    return reach
+
+
+def _keep_nearer(
+    x: Tensor,
+    prototypes: Tensor,
+    index: Tensor,
+    score: Tensor,
+    other_index: Tensor,
+    other_score: Tensor,
+    chunk_rows: int | None,
+) -> tuple[Tensor, Tensor]:
+    """Per pattern of ``x``, the nearer of two candidate prototypes scored in different passes.
+
+    Two passes may round the same distance differently (duplicated prototypes occur: two prototypes
+    representing the same patterns sit on the same centroid), so a pair within :data:`TIE_TOLERANCE` of a
+    tie is rescored against all prototypes in one pass, where ties resolve as in :func:`nearest_prototype`.
+    """
+    better = other_score < score
+    index, score = torch.where(better, other_index, index), torch.where(better, other_score, score)
+    scale = (x * x).sum(dim=1) + (prototypes * prototypes).sum(dim=1).max()
+    ties = torch.nonzero((other_score - score).abs() <= TIE_TOLERANCE * scale).squeeze(1)
+    if ties.numel():
+        index[ties], score[ties] = nearest_prototype(x[ties], prototypes, chunk_rows)
+    return index, score
+
+
+def contingency(region: Tensor, y: Tensor, n_prototypes: int, n_classes: int) -> Tensor:
+    """Table ``V`` (P, C) int64 of pattern counts per (region, class), one ``bincount`` over ``region·C + y``.
+
+    >>> contingency(torch.tensor([0, 0, 1]), torch.tensor([1, 0, 1]), 2, 2).tolist()
+    [[1, 1], [0, 1]]
+    """
+    cells = region * n_classes + y
+    return torch.bincount(cells, minlength=n_prototypes * n_classes).view(n_prototypes, n_classes)
+
+
+def cell_sums(X: Tensor, region: Tensor, y: Tensor, n_prototypes: int, n_classes: int) -> Tensor:
+    """Sum of the patterns of every cell V_ij, shape (P·C, d), row ``i·C + j`` (one ``index_add_``).
+
+    >>> X = torch.tensor([[1.0], [3.0], [5.0]], dtype=torch.float64)
+    >>> cell_sums(X, torch.tensor([0, 0, 0]), torch.tensor([1, 1, 0]), 1, 2).flatten().tolist()
+    [5.0, 4.0]
+    """
+    sums = torch.zeros((n_prototypes * n_classes, X.shape[1]), dtype=X.dtype, device=X.device)
+    return sums.index_add_(0, region * n_classes + y, X)
+
+
+def quality(V: Tensor, labels: Tensor, class_sizes: Tensor) -> Tensor:
+    """Quality ``q_i = min(1, accuracy_i · apportation_i)`` of every prototype [KEEL].
+
+    ``accuracy_i = |V_{i,s_i}| / |R_i|``; ``apportation_i = |V_{i,s_i}| / (E_{s_i} / 2)`` with
+    ``E_j = |S_j| / regions(j)`` and ``regions(j)`` the number of PROTOTYPES labelled j. (KEEL divides by the
+    number of patterns of the class instead, which makes E ≡ 1; the spec corrects it.) An empty region, or a
+    label with no training patterns, gives q = 0.
+
+    A pure prototype holding exactly the expected number of patterns of its class has quality 1:
+
+    >>> quality(torch.tensor([[10, 0], [0, 10]]), torch.tensor([0, 1]), torch.tensor([10, 10])).tolist()
+    [1.0, 1.0]
+    """
+    dtype = torch.float64
+    region_sizes = V.sum(dim=1).to(dtype)
+    own = V.gather(1, labels[:, None]).squeeze(1).to(dtype)
+    regions_per_class = torch.bincount(labels, minlength=V.shape[1]).to(dtype)
+    accuracy = own / region_sizes.clamp(min=1.0)
+    own_class_size = class_sizes[labels].to(dtype)
+    apportation = 2.0 * own * regions_per_class[labels] / own_class_size.clamp(min=1.0)
+    return (accuracy * apportation).clamp(max=1.0)
+
+
+def relabel(V: Tensor, labels: Tensor) -> Tensor:
+    """Labeling operator: each prototype takes the majority class of its region [paper][KEEL].
+
+    On a tie that includes the current label, the current label is kept [spec]; among other tied classes
+    the lowest class index wins. An empty region keeps its label.
+
+    >>> relabel(torch.tensor([[1, 3], [2, 2], [0, 0]]), torch.tensor([0, 1, 1])).tolist()
+    [1, 1, 1]
+    """
+    best_count, best_class = V.max(dim=1)
+    current = V.gather(1, labels[:, None]).squeeze(1)
+    return torch.where(current == best_count, labels, best_class)
+
+
+def reproduce(V: Tensor, labels: Tensor, sums: Tensor, u: Tensor) -> tuple[Tensor, Tensor]:
+    """Reproduction operator [KEEL]: at most one child per prototype.
+
+    Prototype i draws class j with probability ``|V_ij| / |R_i|`` (roulette over its row of V, driven by the
+    uniform draw ``u[i]``), so it reproduces with probability ``1 − accuracy_i``. When ``j ≠ s_i`` a child is
+    created at the centroid of V_ij with label j. KEEL also hands V_ij to the child, but the estimator
+    re-assigns all regions right after reproduction, so the hand-over has no effect and is not modelled.
+    Empty regions do not reproduce.
+
+    Returns ``(child_positions (K, d), child_labels (K,))``, children ordered by parent index.
+
+    A 50/50 region labelled 0 whose draw lands in the second half creates a child at the centroid of class 1:
+
+    >>> V = torch.tensor([[2, 2]])
+    >>> sums = torch.tensor([[0.0, 0.0], [10.0, 4.0]], dtype=torch.float64)
+    >>> pos, lab = reproduce(V, torch.tensor([0]), sums, torch.tensor([0.75], dtype=torch.float64))
+    >>> pos.tolist(), lab.tolist()
+    ([[5.0, 2.0]], [1])
+    """
+    n_classes = V.shape[1]
+    region_sizes = V.sum(dim=1)
+    # Integer roulette: target t in [0, |R_i| − 1]; the first class whose cumulative count exceeds t has
+    # V_ij > 0 by construction, whatever the rounding of u·|R_i|.
+    target = torch.minimum((u.to(torch.float64) * region_sizes).long(), (region_sizes - 1).clamp(min=0))
+    drawn = torch.searchsorted(V.cumsum(dim=1), target[:, None], right=True).squeeze(1)
+    drawn = drawn.clamp(max=n_classes - 1)
+    reproduces = (region_sizes > 0) & (drawn != labels)
+    parents = torch.nonzero(reproduces).squeeze(1)
+    child_labels = drawn[parents]
+    cells = parents * n_classes + child_labels
+    counts = V.view(-1)[cells].to(sums.dtype)
+    return sums[cells] / counts[:, None], child_labels
+
+
+def fight(
+    prototypes: Tensor,
+    labels: Tensor,
+    q: Tensor,
+    k_fight: int,
+    u_fight: Tensor,
+    u_win: Tensor,
+    n_classes: int,
+) -> Tensor:
+    """Fight operator [KEEL + choice]; returns the owner of every cell V_rj after the fights, shape (P·C,).
+
+    Each prototype i looks at its ``k_fight`` nearest other prototypes and picks the neighbour j with
+    ``q_j < q_i`` that maximises ``q_i − q_j`` (the nearer one on equal gaps). It fights when ``u_fight[i] < q_i − q_j``
+    [choice: KEEL's test never fires because of a random-number bug].
+
+    - Different labels → cooperation: i takes V_{j,s_i} (j's patterns of i's class).
+    - Same label → competition: i wins when ``u_win[i] · (q_i + q_j) < q_i`` (probability
+      ``q_i / (q_i + q_j)``); the winner takes the loser's patterns of their common class.
+
+    In both cases a fight moves the cell (loser, winner's label) to the winner. KEEL runs the fights one after
+    another, so a transfer can pass on what the loser gained earlier in the same loop; here all fights are
+    decided at once on the regions as they stand [choice]: every cell starts with its region's prototype and
+    a cell claimed by several winners goes to the winner of highest quality (then lowest index). Transfers
+    only change what :func:`move` averages over.
+
+    Prototype 0 (label 0, q = 1) cooperates with its neighbour 1 (label 1, q = 0) and takes cell (1, 0):
+
+    >>> protos = torch.tensor([[0.0], [1.0]], dtype=torch.float64)
+    >>> q = torch.tensor([1.0, 0.0], dtype=torch.float64)
+    >>> zeros = torch.zeros(2, dtype=torch.float64)
+    >>> fight(protos, torch.tensor([0, 1]), q, 3, zeros, zeros, 2).view(2, 2).tolist()
+    [[0, 0], [0, 1]]
+    """
+    n_proto = prototypes.shape[0]
+    owner = torch.arange(n_proto, device=prototypes.device).repeat_interleave(n_classes)
+    k = min(k_fight, n_proto - 1)
+    if k <= 0:
+        return owner
+    dist = torch.cdist(prototypes, prototypes, compute_mode="donot_use_mm_for_euclid_dist")
+    dist.fill_diagonal_(float("inf"))
+    # topk is O(P·k) per row where a full sort of the (P, P) table dominated the cycle at P ≈ 1000.
+    neighbours = torch.topk(dist, k, dim=1, largest=False, sorted=True).indices
+    gap = q[:, None] - q[neighbours]
+    best_gap, best = gap.max(dim=1)
+    target = neighbours.gather(1, best[:, None]).squeeze(1)
+    fights = (best_gap > 0) & (u_fight < best_gap)
+    attacker = torch.nonzero(fights).squeeze(1)
+    if attacker.numel() == 0:
+        return owner
+    defender = target[attacker]
+    q_att, q_def = q[attacker], q[defender]
+    attacker_wins = (labels[attacker] != labels[defender]) | (u_win[attacker] * (q_att + q_def) < q_att)
+    winner = torch.where(attacker_wins, attacker, defender)
+    loser = torch.where(attacker_wins, defender, attacker)
+    cells = loser * n_classes + labels[attacker]
+    # Rank claims by (quality desc, index asc); the best-ranked claim of each cell wins it.
+    by_index = torch.argsort(winner, stable=True)
+    order = by_index[torch.argsort(-q[winner[by_index]], stable=True)]
+    rank = torch.empty_like(order)
+    rank[order] = torch.arange(order.numel(), device=order.device)
+    best_rank = torch.full((n_proto * n_classes,), order.numel(), dtype=rank.dtype, device=rank.device)
+    best_rank.scatter_reduce_(0, cells, rank, reduce="amin")
+    claimed = best_rank < order.numel()
+    owner[claimed] = winner[order[best_rank[claimed]]]
+    return owner
+
+
+def move(prototypes: Tensor, labels: Tensor, V: Tensor, sums: Tensor, owner: Tensor) -> Tensor:
+    """Move operator [paper][KEEL]: each prototype goes to the centroid of the patterns it now represents
+    with its own label (the cells it owns whose class is its label); with none it stays put.
+
+    >>> protos = torch.tensor([[0.0], [9.0]], dtype=torch.float64)
+    >>> V = torch.tensor([[2, 0], [1, 1]])
+    >>> sums = torch.tensor([[2.0], [0.0], [7.0], [9.0]], dtype=torch.float64)
+    >>> move(protos, torch.tensor([0, 1]), V, sums, torch.tensor([0, 0, 0, 1])).flatten().tolist()
+    [3.0, 9.0]
+    """
+    n_proto, n_classes = V.shape
+    cell_class = torch.arange(n_classes, device=V.device).repeat(n_proto)
+    counts = V.reshape(-1)
+    used = (counts > 0) & (cell_class == labels[owner])
+    to = owner[used]
+    total = torch.zeros_like(prototypes).index_add_(0, to, sums[used])
+    n = torch.zeros(n_proto, dtype=prototypes.dtype, device=prototypes.device)
+    n.index_add_(0, to, counts[used].to(prototypes.dtype))
+    return torch.where(n[:, None] > 0, total / n.clamp(min=1.0)[:, None], prototypes)
+
+
+def die(q: Tensor, u: Tensor) -> Tensor:
+    """Die operator [KEEL]: keep-mask (P,) bool; prototype i dies when ``u[i] < P_die(i)``,
+    ``P_die = 0 if q > 0.5 else 1 − 2q`` ("inversely proportional to quality" [paper]).
+
+    The classifier never loses its last prototype [choice]: when every prototype would die, the one of
+    highest quality (then lowest index) survives.
+
+    >>> die(torch.tensor([0.0, 0.9, 0.0]), torch.tensor([0.5, 0.5, 0.5])).tolist()
+    [False, True, False]
+    >>> die(torch.tensor([0.0, 0.0]), torch.tensor([0.5, 0.5])).tolist()
+    [True, False]
+    """
+    p_die = torch.where(q > 0.5, torch.zeros_like(q), 1.0 - 2.0 * q)
+    keep = u >= p_die
+    if not bool(keep.any()):
+        keep[int(torch.argmax(q))] = True
+    return keep
