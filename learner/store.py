@@ -78,15 +78,15 @@ class ExperienceStore:
 
     def view(self, index: np.ndarray | None = None) -> Transitions:
         """The stored tuples (all, or those at ``index`` < len) as :class:`Transitions` (copies)."""
-        index = np.arange(len(self)) if index is None else index
-        return Transitions(
-            robot=self.robot[index],
-            state=self.state[index],
-            action=self.action[index],
-            reward=self.reward[index],
-            next_state=self.next_state[index],
-            done=self.done[index],
+        stored = Transitions(
+            robot=self.robot,
+            state=self.state,
+            action=self.action,
+            reward=self.reward,
+            next_state=self.next_state,
+            done=self.done,
         )
+        return stored.take(np.arange(len(self)) if index is None else index)
 
     def sample(self, n: int, rng: np.random.Generator) -> Transitions:
         """At most ``n`` stored tuples drawn uniformly without replacement."""

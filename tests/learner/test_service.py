@@ -114,34 +114,27 @@ def test_stale_increments_over_an_old_discretization_are_dropped(tmp_path: Path)
     assert service.stale_increments == 1 and not service.pending
 
 
+def experience(seq: int, dim: int, n: int = 3) -> ExperienceBatch:
+    return ExperienceBatch(
+        actor_id="a",
+        incarnation=1,
+        seq=seq,
+        policy_version=0,
+        robot=np.zeros(n, np.int16),
+        state=np.zeros((n, dim), np.float32),
+        action=np.zeros(n, np.uint8),
+        reward=np.zeros(n, np.float32),
+        next_state=np.zeros((n, dim), np.float32),
+        done=np.zeros(n, bool),
+    )
+
+
 def test_experience_of_the_wrong_dimension_is_rejected_and_counted(tmp_path: Path) -> None:
     with InMemoryTransport(InMemoryBus()) as t:
         service = LearnerService(t, FAST, tmp_path)
         service.start()
-        good = ExperienceBatch(
-            actor_id="a",
-            incarnation=1,
-            seq=0,
-            policy_version=0,
-            robot=np.zeros(3, np.int16),
-            state=np.zeros((3, 6), np.float32),
-            action=np.zeros(3, np.uint8),
-            reward=np.zeros(3, np.float32),
-            next_state=np.zeros((3, 6), np.float32),
-            done=np.zeros(3, bool),
-        )
-        bad = ExperienceBatch(
-            actor_id="a",
-            incarnation=1,
-            seq=1,
-            policy_version=0,
-            robot=np.zeros(3, np.int16),
-            state=np.zeros((3, 2), np.float32),
-            action=np.zeros(3, np.uint8),
-            reward=np.zeros(3, np.float32),
-            next_state=np.zeros((3, 2), np.float32),
-            done=np.zeros(3, bool),
-        )
+        good = experience(seq=0, dim=6)
+        bad = experience(seq=1, dim=2)
         t.publish(t.keys.experience("a"), good)
         t.publish(t.keys.experience("a"), bad)
         t.inject_raw(t.keys.experience("a"), b"\x93\x01garbage")
