@@ -50,9 +50,9 @@ class ActorConfig:
     """Arenas simulated side by side; every arena holds all m robots."""
     seed: int = 0
     """Run seed; the actor's random stream is derived from (seed, actor id), so no two actors share one."""
-    batch_size: int = 4096
+    batch_size: int = 16384
     """Tuples per experience message."""
-    outbox_limit: int = 1024
+    outbox_limit: int = 256
     """Unacknowledged messages kept for re-sending; when full the actor waits for acks."""
     resend_after: float = 30.0
     """Seconds without an ack after which a message is sent again."""

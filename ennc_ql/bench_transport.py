@@ -13,7 +13,7 @@ congestion control, reliable):
 ``tuples_per_s`` is the stored tuples over the time from the start command to the last store; ``ratio`` =
 protocol / raw; ``lost`` = batches the publishers sent − batches the ledger accepted. Usage::
 
-    out = bench_transport(actors=2, batch_size=4096, seconds=3.0)
+    out = bench_transport(actors=2, batch_size=16384, seconds=3.0)
     out["tuples_per_s"], out["ratio"], out["lost"]
 
 Zenoh's shared-memory transport is off by default here: the figure stands for actors on other machines, where it
@@ -253,7 +253,7 @@ def _wait_until(predicate: Callable[[], bool], timeout: float) -> None:
 
 
 def bench_transport(
-    actors: int = 2, batch_size: int = 4096, seconds: float = 3.0, shared_memory: bool = False
+    actors: int = 2, batch_size: int = 16384, seconds: float = 3.0, shared_memory: bool = False
 ) -> dict[str, Any]:
     """Run both phases for ``seconds`` each; the keys are those of the module docstring plus counts."""
     # Imported here, not at the top: the publisher subprocesses run this module and need no learner (whose package
@@ -340,7 +340,7 @@ def add_bench_transport_args(parser: argparse.ArgumentParser) -> None:
     """The ``bench transport`` flags (its measuring time per phase is the bench command's ``--seconds``)."""
     parser.add_argument("--actors", type=_positive_int, default=2, help="transport: publisher processes (default 2)")
     parser.add_argument(
-        "--batch-size", type=_positive_int, default=4096, help="transport: tuples per batch (default 4096)"
+        "--batch-size", type=_positive_int, default=16384, help="transport: tuples per batch (default 16384)"
     )
     parser.add_argument(
         "--shared-memory",
