@@ -150,3 +150,38 @@ def test_parse_robots() -> None:
     for bad in ("", "3-1", "x"):
         with pytest.raises(ValueError):
             parse_robots(bad)
+
+
+def test_refits_warm_start_and_carry_q_values_over(tmp_path: Path) -> None:
+    config = LearnerConfig(
+        min_tuples=6000,
+        refit_growth=2.0,
+        phase1=Phase1Config(max_iterations=1, n_cycles=15, max_patterns=600),
+        broadcast_interval=0.3,
+        eval_interval=1000.0,
+        eval_trials=1,
+        eval_steps=50,
+        checkpoint_interval=0.5,
+        duration=14.0,
+    )
+    bus = InMemoryBus()
+    prototypes_seen: list[int] = []
+    with InMemoryTransport(bus) as lt, InMemoryTransport(bus) as at, InMemoryTransport(bus) as watcher:
+        watcher.subscribe(watcher.keys.policy(), PolicyUpdate, lambda u: prototypes_seen.append(u.n_prototypes))
+        service = LearnerService(lt, config, tmp_path)
+        service.start()
+        actor = RobotActor(at, ActorConfig(actor_id="a0", arenas=16, batch_size=256))
+        actor.start()
+        stop = threading.Event()
+        thread = threading.Thread(target=actor.run, args=(stop,))
+        thread.start()
+        report = service.run(threading.Event())
+        stop.set()
+        thread.join()
+        actor.close()
+        service.close()
+    assert report["phase1_fits"] >= 2  # refitted as the data grew
+    assert len(set(prototypes_seen)) >= 2  # broadcasts carried the new discretization
+    assert service.disc is not None and service.disc_id == report["phase1_fits"]
+    # Carried-over tables are not the new labels: learned values survived the change of cells.
+    assert not np.allclose(service.tables, service.disc.labels[None, :])
