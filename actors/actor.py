@@ -56,6 +56,8 @@ class ActorConfig:
     """Unacknowledged messages kept for re-sending; when full the actor waits for acks."""
     resend_after: float = 30.0
     """Seconds without an ack after which a message is sent again."""
+    flush_timeout: float = 10.0
+    """On stopping, seconds to wait for the learner to acknowledge the outbox (it acks after each checkpoint)."""
     duration: float | None = None
     """Stop after this many seconds (None: run until stopped)."""
     status_interval: float = 2.0
@@ -212,7 +214,7 @@ class RobotActor:
             if time.monotonic() >= next_status:
                 self._publish_status()
                 next_status = time.monotonic() + self.config.status_interval
-        self._flush(timeout=5.0)
+        self._flush(timeout=self.config.flush_timeout)
         self._publish_status()
         return dict(self.counters, outbox=len(self.outbox), policy_version=self.version)
 

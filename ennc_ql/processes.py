@@ -162,6 +162,9 @@ def add_actor_parser(sub: Any) -> None:
     p.add_argument("--batch-size", type=_positive(int), default=16384, help="tuples per experience message")
     p.add_argument("--outbox", type=_positive(int), default=256, help="unacknowledged messages kept")
     p.add_argument("--epsilon", type=float, default=0.1, help="exploration rate of phase 2")
+    p.add_argument(
+        "--flush-timeout", type=float, default=10.0, help="seconds to wait for acks of the outbox when stopping"
+    )
     p.add_argument("--status-interval", type=_positive(float), default=2.0)
     p.add_argument("--json", action="store_true", help="print the final counters as one JSON object")
     add_connection_args(p)
@@ -181,6 +184,7 @@ def cmd_actor(args: argparse.Namespace) -> int:
         duration=args.duration,
         status_interval=args.status_interval,
         phase2=Phase2Config(epsilon=args.epsilon),
+        flush_timeout=args.flush_timeout,
     )
     stop = stop_on_signals()
     with ZenohTransport.open(config_from_args(args), keys_from_args(args)) as transport:

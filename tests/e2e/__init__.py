@@ -31,7 +31,7 @@ LEARNER_BUDGET = [
     "--eval-trials=1",
     "--json",
 ]
-ACTOR_BUDGET = ["--duration=16", "--arenas=16", "--json"]
+ACTOR_BUDGET = ["--duration=16", "--arenas=16", "--json", "--batch-size=1024", "--flush-timeout=30"]
 
 
 def ennc_ql(*argv: str) -> list[str]:

@@ -81,6 +81,8 @@ class Cluster:
             "--json",
             "--batch-size",
             "512",
+            "--flush-timeout",
+            "30",
             *extra,
         )
 
