@@ -15,8 +15,9 @@ Usage, one cycle by hand (what :class:`learner.ennc.ENNC` does 250 times)::
     V = contingency(region, y, P, C)
     q = quality(V, labels, class_sizes)
     labels = relabel(V, labels)
-    child_pos, child_lab = reproduce(V, labels, cell_sums(X, region, y, P, C), u)
-    ...  # re-assign with nearest_among_new, drop empty regions, recompute V, q, sums
+    child_pos, child_lab = reproduce(X, region, y, V, labels, u)
+    ...  # append the children, re-assign with nearest_among_new, drop empty regions, recompute V and q
+    sums = cell_sums(X.T.contiguous(), region, y, P, C)
     owner = fight(prototypes, labels, q, k_fight, u_fight, u_win, C)
     prototypes = move(prototypes, labels, V, sums, owner)
     keep = die(q, u_die)
@@ -85,8 +86,13 @@ def nearest_prototype(X: Tensor, prototypes: Tensor, chunk_rows: int | None = No
 
 def _duplicates(prototypes: Tensor) -> Tensor:
     """(P,) bool: rows equal to a row of lower index."""
+    none = torch.zeros(prototypes.shape[0], dtype=torch.bool, device=prototypes.device)
     if prototypes.shape[0] < 2:
-        return torch.zeros(prototypes.shape[0], dtype=torch.bool, device=prototypes.device)
+        return none
+    # Equal rows have equal norms: when no two norms are equal (the usual case) there is nothing to group.
+    norms = torch.sort((prototypes * prototypes).sum(dim=1)).values
+    if not bool((norms[1:] == norms[:-1]).any()):
+        return none
     _, group = torch.unique(prototypes, dim=0, return_inverse=True)
     order = torch.arange(prototypes.shape[0], device=prototypes.device)
     first = torch.full_like(order, prototypes.shape[0]).scatter_reduce_(0, group, order, reduce="amin")
@@ -100,11 +106,12 @@ def nearest_among_new(
     score: Tensor,
     first_new: int,
     chunk_rows: int | None = None,
+    x_sq: Tensor | None = None,
 ) -> tuple[Tensor, Tensor]:
     """Update a nearest-prototype assignment after ``prototypes[first_new:]`` were appended.
 
     Only the N × (new) distances are computed; the result equals :func:`nearest_prototype` over all
-    ``prototypes`` (see :func:`_keep_nearer` for ties).
+    ``prototypes`` (see :func:`_keep_nearer` for ties). ``x_sq`` (N,) = ``||x||²`` is computed when not given.
 
     >>> X = torch.tensor([[0.0], [3.0]], dtype=torch.float64)
     >>> protos = torch.tensor([[0.0], [3.0]], dtype=torch.float64)
@@ -112,8 +119,9 @@ def nearest_among_new(
     >>> nearest_among_new(X, protos, idx, sc, 1)[0].tolist()
     [0, 1]
     """
+    x_sq = (X * X).sum(dim=1) if x_sq is None else x_sq
     new_index, new_score = nearest_prototype(X, prototypes[first_new:], chunk_rows)
-    return _keep_nearer(X, prototypes, index, score, new_index + first_new, new_score, chunk_rows)
+    return _keep_nearer(X, x_sq, prototypes, index, score, new_index + first_new, new_score, chunk_rows)
 
 
 def refresh_nearest(
@@ -127,9 +135,9 @@ def refresh_nearest(
 ) -> tuple[Tensor, Tensor]:
     """Nearest-prototype assignment after some prototypes moved and some were removed.
 
-    ``index`` (N,) is the previous assignment re-indexed to the current prototypes, −1 where the pattern's
-    prototype was removed; ``score`` its ``||c||² − 2·x·c``; ``moved`` (P,) bool flags prototypes whose
-    position changed since; ``x_sq`` the patterns' ``||x||²`` (computed when not given).
+    ``index`` (N,) is the previous assignment re-indexed to the current P prototypes, with P where the
+    pattern's prototype was removed; ``score`` its ``||c||² − 2·x·c``; ``moved`` (P,) bool flags prototypes
+    whose position changed since; ``x_sq`` the patterns' ``||x||²`` (computed when not given).
 
     Only what can have changed is searched, with the centre–centre bound of accelerated k-means (Elkan 2003):
     for a pattern x of prototype a and any prototype p, ``d(x, p) ≥ d(a, p) − d(x, a)``, so p cannot take x
@@ -148,19 +156,23 @@ def refresh_nearest(
     """
     n, n_proto = X.shape[0], prototypes.shape[0]
     x_sq = (X * X).sum(dim=1) if x_sq is None else x_sq
-    orphan = index < 0
-    own = index.clamp(min=0)
-    own_moved = moved[own] & ~orphan
+    # Row P of these tables stands for a removed prototype: treated as moved, never settled, at the origin
+    # (so its score below is a harmless placeholder until the pattern is searched).
+    moved_ext = torch.cat([moved, moved.new_ones(1)])
+    centres = torch.cat([prototypes, prototypes.new_zeros((1, prototypes.shape[1]))])
+    c_sq = (centres * centres).sum(dim=1)
+    reach = torch.cat([_reach(prototypes, moved), prototypes.new_zeros(1)])
+    own_moved = moved_ext[index]
     index, score = index.clone(), score.clone()
     shifted = torch.nonzero(own_moved).squeeze(1)
     if shifted.numel():
-        centre = prototypes[own[shifted]]
-        score[shifted] = (centre * centre).sum(dim=1) - 2.0 * (X[shifted] * centre).sum(dim=1)
+        own = index[shifted]
+        score[shifted] = c_sq[own] - 2.0 * (X[shifted] * centres[own]).sum(dim=1)
     # Squared distance to the own prototype, padded by its rounding error so that the bound stays strict.
-    dist_sq = score + x_sq + TIE_TOLERANCE * (x_sq + (prototypes * prototypes).sum(dim=1).max())
-    unsettled = orphan | (4.0 * dist_sq >= _reach(prototypes, moved)[own] ** 2)
-    search_all = torch.nonzero(unsettled & (orphan | own_moved)).squeeze(1)
-    search_moved = torch.nonzero(unsettled & ~orphan & ~own_moved).squeeze(1)
+    dist_sq = score + x_sq * (1.0 + TIE_TOLERANCE) + TIE_TOLERANCE * c_sq.max()
+    unsettled = dist_sq >= (0.25 * reach * reach)[index]
+    search_all = torch.nonzero(unsettled & own_moved).squeeze(1)
+    search_moved = torch.nonzero(unsettled & ~own_moved).squeeze(1)
     moved_ids = torch.nonzero(moved).squeeze(1)
     cost = search_all.numel() * n_proto + search_moved.numel() * moved_ids.numel()
     if cost >= REFRESH_FULL_FRACTION * n * n_proto:
@@ -171,7 +183,14 @@ def refresh_nearest(
         x = X[search_moved]
         sub_index, sub_score = nearest_prototype(x, prototypes[moved_ids], chunk_rows)
         index[search_moved], score[search_moved] = _keep_nearer(
-            x, prototypes, index[search_moved], score[search_moved], moved_ids[sub_index], sub_score, chunk_rows
+            x,
+            x_sq[search_moved],
+            prototypes,
+            index[search_moved],
+            score[search_moved],
+            moved_ids[sub_index],
+            sub_score,
+            chunk_rows,
         )
     return index, score
 
@@ -199,6 +218,7 @@ def _reach(prototypes: Tensor, moved: Tensor) -> Tensor:
 
 def _keep_nearer(
     x: Tensor,
+    x_sq: Tensor,
     prototypes: Tensor,
     index: Tensor,
     score: Tensor,
@@ -214,7 +234,7 @@ def _keep_nearer(
     """
     better = other_score < score
     index, score = torch.where(better, other_index, index), torch.where(better, other_score, score)
-    scale = (x * x).sum(dim=1) + (prototypes * prototypes).sum(dim=1).max()
+    scale = x_sq + (prototypes * prototypes).sum(dim=1).max()
     ties = torch.nonzero((other_score - score).abs() <= TIE_TOLERANCE * scale).squeeze(1)
     if ties.numel():
         index[ties], score[ties] = nearest_prototype(x[ties], prototypes, chunk_rows)
@@ -231,15 +251,19 @@ def contingency(region: Tensor, y: Tensor, n_prototypes: int, n_classes: int) ->
     return torch.bincount(cells, minlength=n_prototypes * n_classes).view(n_prototypes, n_classes)
 
 
-def cell_sums(X: Tensor, region: Tensor, y: Tensor, n_prototypes: int, n_classes: int) -> Tensor:
-    """Sum of the patterns of every cell V_ij, shape (P·C, d), row ``i·C + j`` (one ``index_add_``).
+def cell_sums(columns: Tensor, region: Tensor, y: Tensor, n_prototypes: int, n_classes: int) -> Tensor:
+    """Sum of the patterns of every cell V_ij, shape (P·C, d), row ``i·C + j``.
+
+    Takes the patterns as ``columns`` = ``X.T`` made contiguous (d, N): one weighted ``bincount`` per
+    dimension measured about 2× faster than ``index_add_`` of the rows on CPU.
 
     >>> X = torch.tensor([[1.0], [3.0], [5.0]], dtype=torch.float64)
-    >>> cell_sums(X, torch.tensor([0, 0, 0]), torch.tensor([1, 1, 0]), 1, 2).flatten().tolist()
+    >>> cell_sums(X.T.contiguous(), torch.tensor([0, 0, 0]), torch.tensor([1, 1, 0]), 1, 2).flatten().tolist()
     [5.0, 4.0]
     """
-    sums = torch.zeros((n_prototypes * n_classes, X.shape[1]), dtype=X.dtype, device=X.device)
-    return sums.index_add_(0, region * n_classes + y, X)
+    cells = region * n_classes + y
+    n_cells = n_prototypes * n_classes
+    return torch.stack([torch.bincount(cells, weights=column, minlength=n_cells) for column in columns], dim=1)
 
 
 def quality(V: Tensor, labels: Tensor, class_sizes: Tensor) -> Tensor:
@@ -255,12 +279,12 @@ def quality(V: Tensor, labels: Tensor, class_sizes: Tensor) -> Tensor:
     >>> quality(torch.tensor([[10, 0], [0, 10]]), torch.tensor([0, 1]), torch.tensor([10, 10])).tolist()
     [1.0, 1.0]
     """
-    dtype = torch.float64
-    region_sizes = V.sum(dim=1).to(dtype)
-    own = V.gather(1, labels[:, None]).squeeze(1).to(dtype)
-    regions_per_class = torch.bincount(labels, minlength=V.shape[1]).to(dtype)
+    f64 = torch.float64
+    region_sizes = V.sum(dim=1).to(f64)
+    own = V.gather(1, labels[:, None]).squeeze(1).to(f64)
+    regions_per_class = torch.bincount(labels, minlength=V.shape[1]).to(f64)
     accuracy = own / region_sizes.clamp(min=1.0)
-    own_class_size = class_sizes[labels].to(dtype)
+    own_class_size = class_sizes[labels].to(f64)
     apportation = 2.0 * own * regions_per_class[labels] / own_class_size.clamp(min=1.0)
     return (accuracy * apportation).clamp(max=1.0)
 
@@ -279,26 +303,27 @@ def relabel(V: Tensor, labels: Tensor) -> Tensor:
     return torch.where(current == best_count, labels, best_class)
 
 
-def reproduce(V: Tensor, labels: Tensor, sums: Tensor, u: Tensor) -> tuple[Tensor, Tensor]:
+def reproduce(X: Tensor, region: Tensor, y: Tensor, V: Tensor, labels: Tensor, u: Tensor) -> tuple[Tensor, Tensor]:
     """Reproduction operator [KEEL]: at most one child per prototype.
 
     Prototype i draws class j with probability ``|V_ij| / |R_i|`` (roulette over its row of V, driven by the
     uniform draw ``u[i]``), so it reproduces with probability ``1 − accuracy_i``. When ``j ≠ s_i`` a child is
     created at the centroid of V_ij with label j. KEEL also hands V_ij to the child, but the estimator
     re-assigns all regions right after reproduction, so the hand-over has no effect and is not modelled.
-    Empty regions do not reproduce.
+    Empty regions do not reproduce. Only the patterns of the drawn cells are summed.
 
     Returns ``(child_positions (K, d), child_labels (K,))``, children ordered by parent index.
 
     A 50/50 region labelled 0 whose draw lands in the second half creates a child at the centroid of class 1:
 
-    >>> V = torch.tensor([[2, 2]])
-    >>> sums = torch.tensor([[0.0, 0.0], [10.0, 4.0]], dtype=torch.float64)
-    >>> pos, lab = reproduce(V, torch.tensor([0]), sums, torch.tensor([0.75], dtype=torch.float64))
+    >>> X = torch.tensor([[0.0, 0.0], [1.0, 1.0], [4.0, 2.0], [6.0, 2.0]], dtype=torch.float64)
+    >>> region, y = torch.zeros(4, dtype=torch.int64), torch.tensor([0, 0, 1, 1])
+    >>> V = contingency(region, y, 1, 2)
+    >>> pos, lab = reproduce(X, region, y, V, torch.tensor([0]), torch.tensor([0.75], dtype=torch.float64))
     >>> pos.tolist(), lab.tolist()
     ([[5.0, 2.0]], [1])
     """
-    n_classes = V.shape[1]
+    n_proto, n_classes = V.shape
     region_sizes = V.sum(dim=1)
     # Integer roulette: target t in [0, |R_i| − 1]; the first class whose cumulative count exceeds t has
     # V_ij > 0 by construction, whatever the rounding of u·|R_i|.
@@ -308,9 +333,18 @@ def reproduce(V: Tensor, labels: Tensor, sums: Tensor, u: Tensor) -> tuple[Tenso
     reproduces = (region_sizes > 0) & (drawn != labels)
     parents = torch.nonzero(reproduces).squeeze(1)
     child_labels = drawn[parents]
-    cells = parents * n_classes + child_labels
-    counts = V.view(-1)[cells].to(sums.dtype)
-    return sums[cells] / counts[:, None], child_labels
+    if parents.numel() == 0:
+        return X.new_zeros((0, X.shape[1])), child_labels
+    # Child slot of each parent (−1: none); a pattern belongs to a child's cell when its region's parent
+    # drew the pattern's class.
+    slot = torch.full((n_proto,), -1, dtype=torch.int64, device=V.device)
+    slot[parents] = torch.arange(parents.numel(), device=V.device)
+    wanted = torch.full((n_proto,), -1, dtype=torch.int64, device=V.device)
+    wanted[parents] = child_labels
+    rows = torch.nonzero(wanted[region] == y).squeeze(1)
+    sums = X.new_zeros((parents.numel(), X.shape[1])).index_add_(0, slot[region[rows]], X[rows])
+    counts = V[parents, child_labels].to(X.dtype)
+    return sums / counts[:, None], child_labels
 
 
 def fight(

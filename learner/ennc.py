@@ -8,6 +8,10 @@ provenance tags). The number of prototypes is not given: it settles where the pr
 Class values may be any numbers: in ENNC-QL they are Q values, and ``labels_`` holds the values themselves.
 The prototypes also serve as a discretization of the input space (:meth:`ENNC.predict_index`).
 
+Cost: a cycle is dominated by region assignment, O(N·P·d). The first one is a full chunked GEMM pass; later
+cycles only re-examine patterns that the last move, die or reproduction can have re-assigned (centre–centre
+bound, :func:`learner._ennc_ops.refresh_nearest`), typically a fifth of a full pass once the population settles.
+
 Usage::
 
     >>> import numpy as np
@@ -61,7 +65,8 @@ class ENNC:
         How many nearest prototypes each prototype considers in the fight operator; 3 [KEEL default].
     random_state:
         Seed of the ``torch.Generator`` that drives every random decision; ``None`` draws a fresh seed.
-        With a seed, ``fit`` is deterministic on a given device.
+        With a seed, ``fit`` is deterministic on CPU; on CUDA the weighted ``bincount`` behind the centroids
+        adds in a varying order, so runs may drift apart by rounding.
     device:
         Torch device of the computation, ``"cpu"`` or ``"cuda"``/``"cuda:N"``. A CUDA device that is not
         available raises ``ValueError`` at ``fit``.
@@ -174,7 +179,9 @@ class ENNC:
         with _intra_op_threads(self.n_threads):
             X_t = torch.as_tensor(x_np, dtype=torch.float64, device=device)
             y_t = torch.as_tensor(np.searchsorted(classes, y_np), dtype=torch.int64, device=device)
-            data = _Data(X_t, (X_t * X_t).sum(dim=1), y_t, torch.bincount(y_t, minlength=classes.size))
+            data = _Data(
+                X_t, X_t.T.contiguous(), (X_t * X_t).sum(dim=1), y_t, torch.bincount(y_t, minlength=classes.size)
+            )
             prototypes, labels = self._initial_prototypes(data, classes, warm, gen)
             pop = _Population.unassigned(prototypes, labels, x_np.shape[0])
             for _ in range(self.n_cycles):
@@ -271,6 +278,7 @@ class _Data:
     """The training set on the device."""
 
     X: Tensor  # (N, d) float64
+    columns: Tensor  # (d, N) float64, X.T contiguous (for cell_sums)
     x_sq: Tensor  # (N,) float64, ||x||²
     y: Tensor  # (N,) int64 class indices
     class_sizes: Tensor  # (C,) int64, |S_j|
@@ -282,13 +290,13 @@ class _Population:
 
     prototypes: Tensor  # (P, d) float64
     labels: Tensor  # (P,) int64 class indices
-    region: Tensor  # (N,) int64 nearest prototype of each pattern at the last assignment; −1: it has died
+    region: Tensor  # (N,) int64 nearest prototype of each pattern at the last assignment; P: it has died
     score: Tensor  # (N,) float64, ||c_region||² − 2·x·c_region
     moved: Tensor  # (P,) bool, prototypes whose position changed since that assignment
 
     @classmethod
     def unassigned(cls, prototypes: Tensor, labels: Tensor, n_patterns: int) -> _Population:
-        region = torch.full((n_patterns,), -1, dtype=torch.int64, device=prototypes.device)
+        region = torch.full((n_patterns,), prototypes.shape[0], dtype=torch.int64, device=prototypes.device)
         score = torch.zeros(n_patterns, dtype=prototypes.dtype, device=prototypes.device)
         moved = torch.zeros(prototypes.shape[0], dtype=torch.bool, device=prototypes.device)
         return cls(prototypes, labels, region, score, moved)
@@ -313,13 +321,12 @@ def _cycle(data: _Data, pop: _Population, gen: torch.Generator, params: ENNC) ->
     # Labeling.
     labels = ops.relabel(V, labels)
     # Reproduction. Existing prototypes have not moved, so only distances to the children are new.
-    sums = ops.cell_sums(X, region, y, prototypes.shape[0], n_classes)
-    children, child_labels = ops.reproduce(V, labels, sums, _uniform(gen, prototypes.shape[0], X.device))
+    children, child_labels = ops.reproduce(X, region, y, V, labels, _uniform(gen, prototypes.shape[0], X.device))
     newborn = torch.zeros(prototypes.shape[0] + children.shape[0], dtype=torch.bool, device=X.device)
     if children.shape[0] > 0:
         first_child = prototypes.shape[0]
         prototypes = torch.cat([prototypes, children])
-        region, score = ops.nearest_among_new(X, prototypes, region, score, first_child, chunk)
+        region, score = ops.nearest_among_new(X, prototypes, region, score, first_child, chunk, data.x_sq)
         newborn[first_child:] = True
         labels = torch.cat([labels, child_labels])
         V = ops.contingency(region, y, prototypes.shape[0], n_classes)
@@ -328,7 +335,7 @@ def _cycle(data: _Data, pop: _Population, gen: torch.Generator, params: ENNC) ->
             region = (torch.cumsum(occupied, dim=0) - 1)[region]
             prototypes, labels, V, newborn = prototypes[occupied], labels[occupied], V[occupied], newborn[occupied]
         q = ops.quality(V, labels, class_sizes)
-        sums = ops.cell_sums(X, region, y, prototypes.shape[0], n_classes)
+    sums = ops.cell_sums(data.columns, region, y, prototypes.shape[0], n_classes)
     # Fight.
     n_proto = prototypes.shape[0]
     u_fight, u_win = _uniform(gen, n_proto, X.device), _uniform(gen, n_proto, X.device)
@@ -340,7 +347,8 @@ def _cycle(data: _Data, pop: _Population, gen: torch.Generator, params: ENNC) ->
     keep = ops.die(q, _uniform(gen, n_proto, X.device))
     if params.newborn_grace:
         keep |= newborn
-    new_index = torch.where(keep, torch.cumsum(keep, dim=0) - 1, -1)
+    survivors = torch.cumsum(keep, dim=0)
+    new_index = torch.where(keep, survivors - 1, survivors[-1])
     return _Population(moved_to[keep], labels[keep], new_index[region], score, moved[keep])
 
 

@@ -8,8 +8,8 @@ Usage::
 
     from learner.validation import compare_with_1nn
 
-    for record in compare_with_1nn(["iris", "wine"], n_splits=5):
-        print(record.dataset, record.ennc_accuracy, record.knn_accuracy, record.n_prototypes)
+    records = compare_with_1nn(["iris", "wine"], n_splits=5)
+    [(r.dataset, r.ennc_accuracy, r.knn_accuracy, r.n_prototypes) for r in records]
 """
 
 from __future__ import annotations

@@ -61,11 +61,40 @@ def test_nearest_among_new_equals_a_full_recomputation() -> None:
     assert torch.equal(updated, full)
 
 
+@pytest.mark.parametrize("seed", range(5))
+def test_refresh_nearest_after_moves_and_removals_equals_a_full_recomputation(
+    seed: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(ops, "REFRESH_FULL_FRACTION", float("inf"))  # always take the pruned path
+    rng = np.random.default_rng(seed)
+    X = torch.from_numpy(rng.normal(size=(2000, 3)))
+    protos = torch.from_numpy(rng.normal(size=(40, 3)))
+    index, score = ops.nearest_prototype(X, protos)
+    moved = torch.from_numpy(rng.random(40) < 0.2)
+    shifted = protos + moved[:, None] * torch.from_numpy(rng.normal(0, 0.3, (40, 3)))
+    keep = torch.from_numpy(rng.random(40) < 0.9)
+    survivors = torch.cumsum(keep, dim=0)
+    index = torch.where(keep, survivors - 1, survivors[-1])[index]
+    refreshed, _ = ops.refresh_nearest(X, shifted[keep], index, score, moved[keep])
+    expected, _ = ops.nearest_prototype(X, shifted[keep])
+    assert torch.equal(refreshed, expected)
+
+
+def test_duplicated_prototypes_never_win_over_the_lower_index() -> None:
+    rng = np.random.default_rng(6)
+    X = torch.from_numpy(rng.normal(size=(300, 2)))
+    protos = torch.from_numpy(rng.normal(size=(6, 2)))
+    protos = torch.cat([protos, protos[2:3], protos[4:5]])
+    index, _ = ops.nearest_prototype(X, protos)
+    assert not bool(((index == 6) | (index == 7)).any())
+    assert bool((index == 2).any()) and bool((index == 4).any())
+
+
 def test_contingency_and_cell_sums() -> None:
     X = t([[0.0], [1.0], [2.0], [4.0]])
     region, y = torch.tensor([0, 0, 1, 1]), torch.tensor([0, 1, 1, 1])
     assert ops.contingency(region, y, 2, 2).tolist() == [[1, 1], [0, 2]]
-    assert ops.cell_sums(X, region, y, 2, 2).flatten().tolist() == [0.0, 1.0, 0.0, 6.0]
+    assert ops.cell_sums(X.T.contiguous(), region, y, 2, 2).flatten().tolist() == [0.0, 1.0, 0.0, 6.0]
 
 
 # --- information gathering and labeling --------------------------------------------------------------------
@@ -97,17 +126,33 @@ def test_reproduction_draw_in_the_other_class_creates_a_child_at_its_centroid() 
     # One region, 50/50: class 0 at x = 0, 2 and class 1 at x = 10, 14. The prototype is labelled 0.
     X, y = t([[0.0], [2.0], [10.0], [14.0]]), torch.tensor([0, 0, 1, 1])
     region = torch.zeros(4, dtype=torch.int64)
-    V, sums = ops.contingency(region, y, 1, 2), ops.cell_sums(X, region, y, 1, 2)
-    children, labels = ops.reproduce(V, torch.tensor([0]), sums, t([0.5]))
+    V = ops.contingency(region, y, 1, 2)
+    children, labels = ops.reproduce(X, region, y, V, torch.tensor([0]), t([0.5]))
     assert children.tolist() == [[12.0]] and labels.tolist() == [1]
-    children, labels = ops.reproduce(V, torch.tensor([0]), sums, t([0.49]))
+    children, labels = ops.reproduce(X, region, y, V, torch.tensor([0]), t([0.49]))
     assert children.shape == (0, 1) and labels.numel() == 0
+
+
+def test_reproduction_draws_each_class_with_its_share_of_the_region() -> None:
+    # Region 0: 6 patterns of class 0, 3 of class 1, 1 of class 2 (label 0); region 1: pure class 2.
+    y = torch.tensor([0] * 6 + [1] * 3 + [2] * 1 + [2] * 4)
+    region = torch.tensor([0] * 10 + [1] * 4)
+    X = torch.arange(14, dtype=F64)[:, None]
+    V = ops.contingency(region, y, 2, 3)
+    labels = torch.tensor([0, 2])
+    drawn = []
+    for u in (0.0, 0.59, 0.6, 0.89, 0.9, 0.99):
+        _, child = ops.reproduce(X, region, y, V, labels, t([u, u]))
+        drawn.append(child.tolist())
+    assert drawn == [[], [], [1], [1], [2], [2]]
+    children, _ = ops.reproduce(X, region, y, V, labels, t([0.95, 0.0]))
+    assert children.tolist() == [[9.0]]
 
 
 def test_pure_and_empty_regions_never_reproduce() -> None:
     V = torch.tensor([[3, 0], [0, 0]])
-    sums = torch.zeros(4, 2, dtype=F64)
-    children, _ = ops.reproduce(V, torch.tensor([0, 1]), sums, t([0.999, 0.999]))
+    X, y, region = torch.zeros(3, 2, dtype=F64), torch.zeros(3, dtype=torch.int64), torch.zeros(3, dtype=torch.int64)
+    children, _ = ops.reproduce(X, region, y, V, torch.tensor([0, 1]), t([0.999, 0.999]))
     assert children.shape[0] == 0
 
 
@@ -120,7 +165,9 @@ FIGHT_REGION = torch.tensor([0, 0, 1, 1, 1, 1])
 
 
 def fight_tables() -> tuple[torch.Tensor, torch.Tensor]:
-    return ops.contingency(FIGHT_REGION, FIGHT_Y, 2, 2), ops.cell_sums(FIGHT_X, FIGHT_REGION, FIGHT_Y, 2, 2)
+    return ops.contingency(FIGHT_REGION, FIGHT_Y, 2, 2), ops.cell_sums(
+        FIGHT_X.T.contiguous(), FIGHT_REGION, FIGHT_Y, 2, 2
+    )
 
 
 def test_cooperation_hands_the_neighbours_patterns_of_my_class_to_me() -> None:
@@ -347,6 +394,15 @@ def test_cuda_fit_matches_the_quality_of_cpu() -> None:
     clf = ENNC(n_cycles=60, random_state=0, device="cuda").fit(X, y)
     assert clf.score(X, y) == 1.0
     assert clf.prototypes_.dtype == np.float64
+
+
+@pytest.mark.parametrize("module", ["learner.ennc", "learner._ennc_ops"])
+def test_documentation_examples_run(module: str) -> None:
+    import doctest
+    import importlib
+
+    result = doctest.testmod(importlib.import_module(module))
+    assert result.attempted > 0 and result.failed == 0
 
 
 # --- validation against 1-NN -------------------------------------------------------------------------------
