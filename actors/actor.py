@@ -54,7 +54,7 @@ class ActorConfig:
     """Tuples per experience message."""
     outbox_limit: int = 256
     """Unacknowledged messages kept for re-sending; when full the actor waits for acks."""
-    resend_after: float = 30.0
+    resend_after: float = 10.0
     """Seconds without an ack after which a message is sent again."""
     flush_timeout: float = 10.0
     """On stopping, seconds to wait for the learner to acknowledge the outbox (it acks after each checkpoint)."""
@@ -299,22 +299,29 @@ class RobotActor:
             self.sent_tables[robot] = agent.tables[robot]
             self.counters["increments_sent"] += 1
 
+    def _resend_due(self) -> None:
+        """Re-send what is overdue, and everything after a learner (re)joined once its subscription is visible here:
+        a message published before the new learner's subscriber reaches this session would be lost again."""
+        now = time.monotonic()
+        with self.lock:
+            if self.resend_all and not self.transport.has_subscribers(self.keys.experience(self.config.actor_id)):
+                return
+            due = [
+                (seq, p)
+                for seq, p in self.outbox.items()
+                if self.resend_all or now - p.sent_at >= self.config.resend_after
+            ]
+            self.resend_all = False
+        for seq, pending in due:
+            pending.sent_at = now
+            self.transport.publish(pending.key, pending.msg)
+            self.counters["resent"] += 1
+            log.debug("re-sent seq %d", seq)
+
     def _service_outbox(self, stop: threading.Event) -> None:
         """Re-send what is due, and wait while the outbox is full (slowing down instead of dropping)."""
         while True:
-            now = time.monotonic()
-            with self.lock:
-                due = [
-                    (seq, p)
-                    for seq, p in self.outbox.items()
-                    if self.resend_all or now - p.sent_at >= self.config.resend_after
-                ]
-                self.resend_all = False
-            for seq, pending in due:
-                pending.sent_at = now
-                self.transport.publish(pending.key, pending.msg)
-                self.counters["resent"] += 1
-                log.debug("re-sent seq %d", seq)
+            self._resend_due()
             with self.lock:
                 if len(self.outbox) < self.config.outbox_limit or stop.is_set():
                     return
@@ -323,8 +330,11 @@ class RobotActor:
 
     def _flush(self, timeout: float) -> None:
         deadline = time.monotonic() + timeout
-        with self.lock:
-            while self.outbox and time.monotonic() < deadline:
+        while time.monotonic() < deadline:
+            self._resend_due()
+            with self.lock:
+                if not self.outbox:
+                    break
                 self.lock.wait(timeout=0.2)
         if self.outbox:
             log.warning("actor %s stops with %d unacknowledged messages", self.config.actor_id, len(self.outbox))

@@ -43,7 +43,7 @@ def test_serial_learner_and_actor_exchange_experience_and_policies(tmp_path: Pat
         thread.join()
         actor.close()
         service.close()
-    assert versions == sorted(set(versions)) and len(versions) >= 3  # strictly increasing broadcasts
+    assert versions == sorted(set(versions)) and len(versions) >= 2  # strictly increasing broadcasts
     assert report["policy_version"] == versions[-1]
     assert report["tuples_by_actor"]["a0"] >= counters["tuples_sent"] - counters["outbox"] * 256
     assert report["gaps"] == 0 and report["duplicates"] == 0 and report["rejected"] == 0
