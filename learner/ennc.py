@@ -332,7 +332,7 @@ def _cycle(data: _Data, pop: _Population, gen: torch.Generator, params: ENNC) ->
         V = ops.contingency(region, y, prototypes.shape[0], n_classes)
         occupied = V.sum(dim=1) > 0
         if not bool(occupied.all()):
-            region = (torch.cumsum(occupied, dim=0) - 1)[region]
+            region = (torch.cumsum(occupied, dim=0) - 1).index_select(0, region)
             prototypes, labels, V, newborn = prototypes[occupied], labels[occupied], V[occupied], newborn[occupied]
         q = ops.quality(V, labels, class_sizes)
     sums = ops.cell_sums(data.columns, region, y, prototypes.shape[0], n_classes)
@@ -349,7 +349,7 @@ def _cycle(data: _Data, pop: _Population, gen: torch.Generator, params: ENNC) ->
         keep |= newborn
     survivors = torch.cumsum(keep, dim=0)
     new_index = torch.where(keep, survivors - 1, survivors[-1])
-    return _Population(moved_to[keep], labels[keep], new_index[region], score, moved[keep])
+    return _Population(moved_to[keep], labels[keep], new_index.index_select(0, region), score, moved[keep])
 
 
 @contextmanager

@@ -90,6 +90,14 @@ def test_duplicated_prototypes_never_win_over_the_lower_index() -> None:
     assert bool((index == 2).any()) and bool((index == 4).any())
 
 
+def test_a_new_prototype_on_top_of_an_old_one_takes_none_of_its_patterns() -> None:
+    X = torch.linspace(-1.0, 7.0, 200, dtype=F64)[:, None]
+    protos = t([[0.0], [5.0], [5.0]])
+    index, score = ops.nearest_prototype(X, protos[:2])
+    updated, _ = ops.nearest_among_new(X, protos, index, score, 2)
+    assert torch.equal(updated, index)
+
+
 def test_contingency_and_cell_sums() -> None:
     X = t([[0.0], [1.0], [2.0], [4.0]])
     region, y = torch.tensor([0, 0, 1, 1]), torch.tensor([0, 1, 1, 1])
