@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import threading
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -21,8 +23,14 @@ FAST = LearnerConfig(
     eval_trials=2,
     eval_steps=100,
     checkpoint_interval=0.5,
-    duration=12.0,
+    duration=120.0,
 )
+
+
+def _stop_when(stop: threading.Event, condition: Callable[[], bool]) -> None:
+    while not stop.is_set() and not condition():
+        time.sleep(0.05)
+    stop.set()
 
 
 def test_serial_learner_and_actor_exchange_experience_and_policies(tmp_path: Path) -> None:
@@ -32,13 +40,21 @@ def test_serial_learner_and_actor_exchange_experience_and_policies(tmp_path: Pat
         watcher.subscribe(watcher.keys.policy(), PolicyUpdate, lambda u: versions.append(u.version))
         service = LearnerService(lt, FAST, tmp_path)
         service.start()
-        actor = RobotActor(at, ActorConfig(actor_id="a0", arenas=16, learn=(0, 1, 2), batch_size=256))
+        actor = RobotActor(
+            at, ActorConfig(actor_id="a0", arenas=16, learn=(0, 1, 2), batch_size=256, flush_timeout=0.5)
+        )
         actor.start()
         stop = threading.Event()
         counters: dict[str, float] = {}
         thread = threading.Thread(target=lambda: counters.update(actor.run(stop)))
         thread.start()
-        report = service.run(threading.Event())
+        # End on the outcome, not on the clock: a loaded CI machine may need most of the time for phase 1.
+        done = threading.Event()
+        watch = threading.Thread(target=_stop_when, args=(done, lambda: service.increments >= 3 and len(versions) >= 2))
+        watch.start()
+        report = service.run(done)
+        done.set()
+        watch.join()
         stop.set()
         thread.join()
         actor.close()
@@ -162,7 +178,7 @@ def test_refits_warm_start_and_carry_q_values_over(tmp_path: Path) -> None:
         eval_trials=1,
         eval_steps=50,
         checkpoint_interval=0.5,
-        duration=14.0,
+        duration=120.0,
     )
     bus = InMemoryBus()
     prototypes_seen: list[int] = []
@@ -170,12 +186,19 @@ def test_refits_warm_start_and_carry_q_values_over(tmp_path: Path) -> None:
         watcher.subscribe(watcher.keys.policy(), PolicyUpdate, lambda u: prototypes_seen.append(u.n_prototypes))
         service = LearnerService(lt, config, tmp_path)
         service.start()
-        actor = RobotActor(at, ActorConfig(actor_id="a0", arenas=16, batch_size=256))
+        actor = RobotActor(at, ActorConfig(actor_id="a0", arenas=16, batch_size=256, flush_timeout=0.5))
         actor.start()
         stop = threading.Event()
         thread = threading.Thread(target=actor.run, args=(stop,))
         thread.start()
-        report = service.run(threading.Event())
+        done = threading.Event()
+        watch = threading.Thread(
+            target=_stop_when, args=(done, lambda: service.fits >= 2 and len(set(prototypes_seen)) >= 2)
+        )
+        watch.start()
+        report = service.run(done)
+        done.set()
+        watch.join()
         stop.set()
         thread.join()
         actor.close()
