@@ -1,0 +1,62 @@
+"""Pure array helpers behind the views: who observes what, the arena outline, prototype projection and Q colours."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+COLORMAP = "viridis"
+
+
+def observed_targets(robot_pos: np.ndarray, target_pos: np.ndarray, sensing_range: float) -> np.ndarray:
+    """(n,) bool: target j lies within ``sensing_range`` (inclusive, as in ``sim``) of at least one robot.
+
+    ``robot_pos`` (m, 2), ``target_pos`` (n, 2), arena units.
+    """
+    robots = np.asarray(robot_pos, dtype=np.float64).reshape(-1, 2)
+    targets = np.asarray(target_pos, dtype=np.float64).reshape(-1, 2)
+    d2 = ((robots[:, None, :] - targets[None, :, :]) ** 2).sum(axis=-1)
+    return np.asarray((d2 <= sensing_range * sensing_range).any(axis=0))
+
+
+def circle(radius: float, segments: int = 128) -> np.ndarray:
+    """(segments + 1, 2) closed polyline of the circle of ``radius`` around the origin."""
+    angle = np.linspace(0.0, 2.0 * np.pi, segments + 1)
+    return radius * np.stack([np.cos(angle), np.sin(angle)], axis=-1)
+
+
+def project_2d(prototypes: np.ndarray) -> np.ndarray:
+    """(p, 2) view coordinates of (p, d) prototypes: their first two features (d = 1 gets y = 0).
+
+    The first two features are kept rather than a PCA because they mean something in the arena and stay the same
+    axes from one policy version to the next: for ``collab6d`` they are (dx, dy) to the nearest target in view, for
+    ``local2d`` (dx, dy) to the tracked target, so each action's panel shows where the target lies relative to the
+    robot, coloured by the value of moving in that compass direction. A PCA's axes would rotate and flip with every
+    refit, and an animation over ``policy_version`` would jump.
+    """
+    points = np.asarray(prototypes, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] < 1:
+        raise ValueError(f"prototypes must have shape (p, d) with d >= 1, got {points.shape}")
+    if points.shape[1] == 1:
+        return np.concatenate([points, np.zeros_like(points)], axis=1)
+    return points[:, :2].copy()
+
+
+def q_colors(q_values: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """(p_k, 4) uint8 RGBA per action, ``COLORMAP`` normalised over the Q range of all actions together.
+
+    One range for all actions keeps colours comparable across the panels; a constant Q gets the middle colour.
+    """
+    import matplotlib
+
+    cmap = matplotlib.colormaps[COLORMAP]
+    arrays = [np.asarray(q, dtype=np.float64).reshape(-1) for q in q_values]
+    finite = np.concatenate([a[np.isfinite(a)] for a in arrays]) if arrays else np.zeros(0)
+    lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
+    span = hi - lo
+    colors = []
+    for a in arrays:
+        scaled = (a - lo) / span if span > 0 else np.full_like(a, 0.5)
+        colors.append(np.asarray(cmap(np.nan_to_num(scaled, nan=0.0), bytes=True), dtype=np.uint8).reshape(-1, 4))
+    return colors

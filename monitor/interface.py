@@ -1,0 +1,111 @@
+"""The monitor interface; this base class is also the no-op monitor that ``--rerun off`` gives.
+
+Every method of :class:`Monitor` returns at once and nothing here imports Rerun, so call sites log
+unconditionally; guard only work done *to prepare* a call (``if monitor.enabled: ...``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from types import TracebackType
+from typing import Self
+
+import numpy as np
+
+
+class Monitor:
+    """Where a process sends what it wants watched. See :mod:`monitor` for the call sequence.
+
+    Timelines: every call takes the sequence timelines that apply as keyword arguments (``sim_step``,
+    ``policy_version``, ``learner_step``); exactly those, plus ``wall_time`` (now), are attached to what it logs.
+    """
+
+    @property
+    def enabled(self) -> bool:
+        """False for the no-op monitor: skip computing what would only be logged."""
+        return False
+
+    def scalars(
+        self,
+        prefix: str,
+        values: Mapping[str, float],
+        *,
+        sim_step: int | None = None,
+        policy_version: int | None = None,
+        learner_step: int | None = None,
+    ) -> None:
+        """Log each ``values[name]`` as a time series at ``<prefix>/<name>``, named ``name`` in the viewer."""
+
+    def arena(
+        self,
+        origin: str,
+        robot_pos: np.ndarray,
+        target_pos: np.ndarray,
+        *,
+        sensing_range: float,
+        arena_radius: float,
+        sim_step: int,
+    ) -> None:
+        """One arena at one step under ``origin`` (``paths.actor_arena(actor_id)`` or ``paths.EVAL_ARENA``).
+
+        ``robot_pos`` (m, 2) and ``target_pos`` (n, 2) in arena units. Draws the boundary (static, once per origin
+        and radius), the sensing disks, the robots, and the targets green when observed (within ``sensing_range``
+        of a robot) and red otherwise.
+        """
+
+    def prototypes(
+        self, prototypes: Sequence[np.ndarray], q_values: Sequence[np.ndarray], *, policy_version: int
+    ) -> None:
+        """Each action's prototypes at ``learner/prototypes/action_<k>``, projected to 2-D, coloured by Q.
+
+        ``prototypes[k]`` (p_k, d) in the standardized space of the discretization, ``q_values[k]`` (p_k,). See
+        :func:`monitor.geometry.project_2d` for the projection and :func:`monitor.geometry.q_colors` for colours.
+        """
+
+    def q_stats(self, q_tables: Sequence[np.ndarray], *, policy_version: int, learner_step: int | None = None) -> None:
+        """Mean, min and max over every finite entry of ``q_tables`` at ``learner/q/{mean,min,max}``."""
+
+    def eval_coverage(self, coverage: float, *, policy_version: int, learner_step: int | None = None) -> None:
+        """Metric A (%) of the current policy on the test trials, at ``learner/coverage/eval``."""
+
+    def learner_metrics(
+        self,
+        *,
+        learner_step: int,
+        policy_version: int,
+        tuples_per_s: float,
+        live_actors: int,
+        store_size: int,
+        rejected: int,
+        lag: Mapping[str, int],
+    ) -> None:
+        """The learner's status figures; ``lag`` maps actor id to policy versions behind (``learner/lag/<id>``)."""
+
+    def actor_metrics(
+        self,
+        actor_id: str,
+        *,
+        sim_step: int,
+        coverage: float | None = None,
+        mean_reward: float | None = None,
+        tuples_per_s: float | None = None,
+        policy_version: int | None = None,
+    ) -> None:
+        """An actor's training figures at ``actors/<actor_id>/...``; figures left ``None`` are not logged.
+
+        ``coverage`` (%) over its arenas, ``mean_reward`` per learning trial, ``policy_version`` it acts with.
+        """
+
+    def send_blueprint(self, actor_ids: Sequence[str] = (), n_actions: int = 0, *, eval_trial: bool = False) -> None:
+        """Lay the viewer out: an arena view per actor, a prototype view per action, the eval trial, the curves."""
+
+    def close(self) -> None:
+        """Flush what is logged and close the sink; later calls are ignored."""
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()

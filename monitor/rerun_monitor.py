@@ -1,0 +1,219 @@
+"""The monitor that logs to a Rerun recording stream. Importing this module imports Rerun and matplotlib: only
+:func:`monitor.open_monitor` does, when a sink other than ``off`` is asked for."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+import rerun as rr
+
+from monitor import geometry, paths
+from monitor.interface import Monitor
+from monitor.layout import default_blueprint
+
+log = logging.getLogger(__name__)
+
+CLOSE_FLUSH_TIMEOUT_S = 10.0
+"""How long :meth:`RerunMonitor.close` waits for buffered data to reach the sink before giving up with a warning."""
+
+_ROBOT_COLOR = (40, 110, 230, 255)
+_SENSING_COLOR = (40, 110, 230, 40)
+_OBSERVED_COLOR = (30, 180, 60, 255)
+_UNOBSERVED_COLOR = (220, 40, 40, 255)
+_BOUNDARY_COLOR = (128, 128, 128, 255)
+# Markers in UI points (negative radii in Rerun) stay visible at any zoom of a 2000-unit arena.
+_MARKER_RADIUS = rr.components.Radius.ui_points(4.0)
+_PROTOTYPE_RADIUS = rr.components.Radius.ui_points(3.0)
+
+
+class RerunMonitor(Monitor):
+    """Logs into ``rec``, a stream whose sink is already set; :func:`monitor.open_monitor` builds one."""
+
+    def __init__(self, rec: rr.RecordingStream, process: str) -> None:
+        self.rec = rec
+        self.process = process
+        self._named: set[str] = set()
+        self._boundaries: dict[str, float] = {}
+        self._closed = False
+        self._lock = threading.Lock()
+
+    @property
+    def enabled(self) -> bool:
+        return not self._closed
+
+    def _at(self, sim_step: int | None, policy_version: int | None, learner_step: int | None) -> None:
+        # Rerun keeps the time cursor per thread and recording id (streams sharing an id in one thread share it);
+        # resetting it first attaches exactly the timelines given to this call, whatever was set before.
+        rec = self.rec
+        rec.reset_time()
+        if sim_step is not None:
+            rec.set_time(paths.SIM_STEP, sequence=sim_step)
+        if policy_version is not None:
+            rec.set_time(paths.POLICY_VERSION, sequence=policy_version)
+        if learner_step is not None:
+            rec.set_time(paths.LEARNER_STEP, sequence=learner_step)
+        rec.set_time(paths.WALL_TIME, timestamp=time.time())
+
+    def _scalar(self, path: str, name: str, value: float) -> None:
+        with self._lock:
+            first = path not in self._named
+            self._named.add(path)
+        if first:
+            self.rec.log(path, rr.SeriesLines(names=name), static=True)
+        self.rec.log(path, rr.Scalars(float(value)))
+
+    def scalars(
+        self,
+        prefix: str,
+        values: Mapping[str, float],
+        *,
+        sim_step: int | None = None,
+        policy_version: int | None = None,
+        learner_step: int | None = None,
+    ) -> None:
+        if self._closed:
+            return
+        self._at(sim_step, policy_version, learner_step)
+        for name, value in values.items():
+            self._scalar(f"{prefix}/{name}", name, value)
+
+    def arena(
+        self,
+        origin: str,
+        robot_pos: np.ndarray,
+        target_pos: np.ndarray,
+        *,
+        sensing_range: float,
+        arena_radius: float,
+        sim_step: int,
+    ) -> None:
+        if self._closed:
+            return
+        rec = self.rec
+        with self._lock:
+            new_boundary = self._boundaries.get(origin) != arena_radius
+            self._boundaries[origin] = arena_radius
+        if new_boundary:
+            outline = rr.LineStrips2D([geometry.circle(arena_radius)], colors=_BOUNDARY_COLOR)
+            rec.log(f"{origin}/{paths.ARENA_BOUNDARY}", outline, static=True)
+        robots = np.asarray(robot_pos, dtype=np.float64).reshape(-1, 2)
+        targets = np.asarray(target_pos, dtype=np.float64).reshape(-1, 2)
+        observed = geometry.observed_targets(robots, targets, sensing_range)
+        target_colors = np.where(observed[:, None], _OBSERVED_COLOR, _UNOBSERVED_COLOR).astype(np.uint8)
+        self._at(sim_step, None, None)
+        rec.log(
+            f"{origin}/{paths.ARENA_SENSING}",
+            rr.Points2D(robots, radii=sensing_range, colors=_SENSING_COLOR, draw_order=10.0),
+        )
+        rec.log(
+            f"{origin}/{paths.ARENA_ROBOTS}",
+            rr.Points2D(robots, radii=_MARKER_RADIUS, colors=_ROBOT_COLOR, draw_order=20.0),
+        )
+        rec.log(
+            f"{origin}/{paths.ARENA_TARGETS}",
+            rr.Points2D(targets, radii=_MARKER_RADIUS, colors=target_colors, draw_order=30.0),
+        )
+
+    def prototypes(
+        self, prototypes: Sequence[np.ndarray], q_values: Sequence[np.ndarray], *, policy_version: int
+    ) -> None:
+        if self._closed:
+            return
+        if len(prototypes) != len(q_values):
+            raise ValueError(f"{len(prototypes)} prototype arrays but {len(q_values)} Q arrays")
+        colors = geometry.q_colors(q_values)
+        self._at(None, policy_version, None)
+        for k, (protos, q, rgba) in enumerate(zip(prototypes, q_values, colors, strict=True)):
+            q = np.asarray(q, dtype=np.float64).reshape(-1)
+            points = geometry.project_2d(protos)
+            if len(points) != len(q):
+                raise ValueError(f"action {k}: {len(points)} prototypes but {len(q)} Q values")
+            self.rec.log(
+                paths.prototypes_of(k),
+                rr.Points2D(points, radii=_PROTOTYPE_RADIUS, colors=rgba),
+                rr.AnyValues(q=q),
+            )
+
+    def q_stats(self, q_tables: Sequence[np.ndarray], *, policy_version: int, learner_step: int | None = None) -> None:
+        if self._closed:
+            return
+        flat = [np.asarray(t, dtype=np.float64).reshape(-1) for t in q_tables]
+        entries = np.concatenate(flat) if flat else np.zeros(0)
+        entries = entries[np.isfinite(entries)]
+        if entries.size == 0:
+            return
+        stats = dict(zip(paths.Q_STATS, (entries.mean(), entries.min(), entries.max()), strict=True))
+        self.scalars(paths.LEARNER_Q, stats, policy_version=policy_version, learner_step=learner_step)
+
+    def eval_coverage(self, coverage: float, *, policy_version: int, learner_step: int | None = None) -> None:
+        if self._closed:
+            return
+        self._at(None, policy_version, learner_step)
+        self._scalar(paths.LEARNER_COVERAGE_EVAL, "test trials", coverage)
+
+    def learner_metrics(
+        self,
+        *,
+        learner_step: int,
+        policy_version: int,
+        tuples_per_s: float,
+        live_actors: int,
+        store_size: int,
+        rejected: int,
+        lag: Mapping[str, int],
+    ) -> None:
+        if self._closed:
+            return
+        self._at(None, policy_version, learner_step)
+        self._scalar(paths.LEARNER_POLICY_VERSION, "learner", policy_version)
+        self._scalar(paths.LEARNER_TUPLES_PER_S, "learner", tuples_per_s)
+        self._scalar(paths.LEARNER_LIVE_ACTORS, "live actors", live_actors)
+        self._scalar(paths.LEARNER_STORE_SIZE, "tuples stored", store_size)
+        self._scalar(paths.LEARNER_REJECTED, "rejected messages", rejected)
+        for actor_id, behind in lag.items():
+            self._scalar(paths.learner_lag(actor_id), actor_id, behind)
+
+    def actor_metrics(
+        self,
+        actor_id: str,
+        *,
+        sim_step: int,
+        coverage: float | None = None,
+        mean_reward: float | None = None,
+        tuples_per_s: float | None = None,
+        policy_version: int | None = None,
+    ) -> None:
+        if self._closed:
+            return
+        figures = {
+            paths.ACTOR_COVERAGE: coverage,
+            paths.ACTOR_REWARD: mean_reward,
+            paths.ACTOR_TUPLES_PER_S: tuples_per_s,
+            paths.ACTOR_POLICY_VERSION: policy_version,
+        }
+        self._at(sim_step, policy_version, None)
+        for metric, value in figures.items():
+            if value is not None:
+                self._scalar(paths.actor(actor_id, metric), actor_id, value)
+
+    def send_blueprint(self, actor_ids: Sequence[str] = (), n_actions: int = 0, *, eval_trial: bool = False) -> None:
+        if self._closed:
+            return
+        self.rec.send_blueprint(default_blueprint(actor_ids, n_actions, eval_trial=eval_trial))
+
+    def close(self) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        try:
+            self.rec.flush(timeout_sec=CLOSE_FLUSH_TIMEOUT_S)
+        except RuntimeError as exc:
+            # An unreachable viewer or a server whose port was taken must not fail the process at exit.
+            log.warning("%s: Rerun data not fully delivered: %s", self.process, exc)
+        self.rec.disconnect()
+        log.info("%s: Rerun monitor closed", self.process)

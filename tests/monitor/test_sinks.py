@@ -1,0 +1,110 @@
+"""The ``--rerun`` / ``--recording-id`` flags and the no-op monitor."""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from monitor import Monitor, Sink, add_rerun_args, open_monitor, sink_from_args
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def parse(*argv: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="proc")
+    add_rerun_args(parser)
+    return parser.parse_args(list(argv))
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        ((), Sink("off")),
+        (("--rerun", "off"), Sink("off")),
+        (("--rerun", "save", "runs/x/rerun/learner.rrd"), Sink("save", "runs/x/rerun/learner.rrd")),
+        (("--rerun", "spawn"), Sink("spawn")),
+        (("--rerun", "serve"), Sink("serve")),
+        (
+            ("--rerun", "connect", "rerun+http://10.0.0.2:9876/proxy"),
+            Sink("connect", "rerun+http://10.0.0.2:9876/proxy"),
+        ),
+        (("--rerun", "connect", "rerun://viewer:9876/proxy"), Sink("connect", "rerun://viewer:9876/proxy")),
+    ],
+)
+def test_good_sinks_parse(argv: tuple[str, ...], expected: Sink) -> None:
+    assert sink_from_args(parse(*argv)) == expected
+
+
+def test_recording_id_is_passed_through() -> None:
+    args = parse("--rerun", "spawn", "--recording-id", "run-42")
+    assert args.recording_id == "run-42"
+    assert parse().recording_id is None
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (("--rerun", "save"), "'save' needs a path"),
+        (("--rerun", "connect"), "'connect' needs a URL"),
+        (("--rerun", "connect", "http://127.0.0.1:9876/proxy"), "rerun+http://"),
+        (("--rerun", "connect", "rerun+http://127.0.0.1:9876/"), "path /proxy"),
+        (("--rerun", "spawn", "extra"), "'spawn' takes no argument"),
+        (("--rerun", "off", "x"), "'off' takes no argument"),
+        (("--rerun", "serve", "9877"), "'serve' takes no argument"),
+        (("--rerun", "save", "a.rrd", "b.rrd"), "at most one argument"),
+        (("--rerun", "file"), "unknown Rerun sink 'file'"),
+        (("--rerun",), "expected at least one argument"),
+    ],
+)
+def test_bad_sinks_are_argparse_errors(argv: tuple[str, ...], message: str, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        parse(*argv)
+    assert exit_info.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_sink_validates_when_built_directly() -> None:
+    with pytest.raises(ValueError, match="needs a path"):
+        Sink("save")
+    with pytest.raises(ValueError, match="takes no argument"):
+        Sink("spawn", "x")
+
+
+def test_off_gives_the_no_op_monitor() -> None:
+    monitor = open_monitor(Sink("off"), process="test", recording_id="r")
+    assert type(monitor) is Monitor and not monitor.enabled
+
+
+NO_OP_SCRIPT = """
+import sys
+import numpy as np
+import monitor
+from monitor import Sink, open_monitor, paths
+m = open_monitor(Sink("off"), process="learner", recording_id="r")
+with m:
+    m.send_blueprint(["actor-0"], 8)
+    m.arena(paths.actor_arena("actor-0"), np.zeros((10, 2)), np.ones((10, 2)),
+            sensing_range=150.0, arena_radius=1000.0, sim_step=0)
+    m.prototypes([np.zeros((3, 6))], [np.zeros(3)], policy_version=1)
+    m.q_stats([np.zeros((3, 8))], policy_version=1)
+    m.eval_coverage(50.0, policy_version=1)
+    m.learner_metrics(learner_step=1, policy_version=1, tuples_per_s=1.0, live_actors=1, store_size=1,
+                      rejected=0, lag={"actor-0": 0})
+    m.actor_metrics("actor-0", sim_step=5, coverage=1.0, mean_reward=0.0, tuples_per_s=1.0)
+    m.scalars("x", {"y": 1.0}, sim_step=1)
+assert "rerun" not in sys.modules, "the no-op monitor imported rerun"
+assert "matplotlib" not in sys.modules, "the no-op monitor imported matplotlib"
+print("ok")
+"""
+
+
+def test_no_op_monitor_never_imports_rerun() -> None:
+    done = subprocess.run(
+        [sys.executable, "-c", NO_OP_SCRIPT], cwd=REPO, capture_output=True, text=True, timeout=60, check=False
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "ok"
