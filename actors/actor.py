@@ -33,8 +33,10 @@ from actors.slice import ExperienceSlice, SliceConfig
 from learner.discretization import Discretization
 from learner.policy import Policy
 from learner.transitions import Transitions
+from monitor import Monitor, paths
 from protocol import Ack, ExperienceBatch, Message, PolicyUpdate, QTableIncrement, Status, Transport
-from sim import FEATURIZERS, scenario
+from sim import FEATURIZERS, ScenarioConfig, scenario
+from sim.world import Observation, WorldState
 
 log = logging.getLogger(__name__)
 
@@ -62,6 +64,8 @@ class ActorConfig:
     """Stop after this many seconds (None: run until stopped)."""
     status_interval: float = 2.0
     phase2: Phase2Config = field(default_factory=Phase2Config)
+    draw_every: int = 10
+    """With monitoring on, every this many trials arena 0 is drawn at each step of the trial."""
 
 
 @dataclass(slots=True)
@@ -114,11 +118,12 @@ def policy_from_update(update: PolicyUpdate, n_robots: int, action_steps: int) -
 
 
 class RobotActor:
-    def __init__(self, transport: Transport, config: ActorConfig) -> None:
+    def __init__(self, transport: Transport, config: ActorConfig, monitor: Monitor | None = None) -> None:
         if config.featurizer not in FEATURIZERS:
             raise ValueError(f"unknown featurizer {config.featurizer!r}")
         self.transport = transport
         self.config = config
+        self.monitor = monitor or Monitor()
         self.keys = transport.keys
         self.cfg = scenario(config.scenario)
         learn = config.learn if config.learn is not None else tuple(range(self.cfg.n_robots))
@@ -205,8 +210,11 @@ class RobotActor:
             if self.config.duration is not None and time.monotonic() - start >= self.config.duration:
                 break
             self._apply_policy()
-            batch = self.slice.run_trial(self.agent, learn=self.agent is not None)
+            watch = self._watch_trial(start) if self.monitor.enabled else None
+            batch = self.slice.run_trial(self.agent, learn=self.agent is not None, on_step=watch)
             self.counters["trials"] += 1
+            if watch is not None:
+                watch.report(batch, self.counters["tuples_sent"] + len(batch), self.version)
             self._send_experience(batch)
             if self.agent is not None:
                 self._send_increments()
@@ -217,6 +225,17 @@ class RobotActor:
         self._flush(timeout=self.config.flush_timeout)
         self._publish_status()
         return dict(self.counters, outbox=len(self.outbox), policy_version=self.version)
+
+    def _watch_trial(self, start: float) -> _TrialWatch:
+        trial = int(self.counters["trials"])
+        return _TrialWatch(
+            self.monitor,
+            self.cfg,
+            self.config.actor_id,
+            first_step=trial * self.cfg.learning_steps,
+            draw=trial % self.config.draw_every == 0,
+            start=start,
+        )
 
     def _apply_policy(self) -> None:
         with self.lock:
@@ -351,6 +370,49 @@ class RobotActor:
             counters={k: float(v) for k, v in counters.items()},
         )
         self.transport.publish(self.keys.status(self.config.actor_id), status)
+
+
+class _TrialWatch:
+    """The step hook of one learning trial under monitoring: arena 0 drawn at each step of a sampled trial, and the
+    trial's coverage over every arena; ``report`` logs the trial's figures on the actor's ``sim_step`` timeline."""
+
+    def __init__(
+        self, monitor: Monitor, cfg: ScenarioConfig, actor_id: str, first_step: int, draw: bool, start: float
+    ) -> None:
+        self.monitor = monitor
+        self.cfg = cfg
+        self.actor_id = actor_id
+        self.origin = paths.actor_arena(actor_id)
+        self.step = first_step
+        self.draw = draw
+        self.start = start
+        self.steps = 0
+        self.covered = 0.0
+
+    def __call__(self, world: WorldState, obs: Observation) -> None:
+        self.step += 1
+        self.steps += 1
+        self.covered += float(obs.covered.mean())
+        if self.draw:
+            self.monitor.arena(
+                self.origin,
+                world.robot_pos[0],
+                world.target_pos[0],
+                sensing_range=self.cfg.sensing_range,
+                arena_radius=self.cfg.arena_radius,
+                sim_step=self.step,
+            )
+
+    def report(self, batch: Transitions, tuples_sent: float, version: int) -> None:
+        final = batch.reward[batch.done]
+        self.monitor.actor_metrics(
+            self.actor_id,
+            sim_step=self.step,
+            coverage=100.0 * self.covered / max(self.steps * self.cfg.n_targets, 1),
+            mean_reward=float(final.mean()) if final.size else None,
+            tuples_per_s=tuples_sent / max(time.monotonic() - self.start, 1e-9),
+            policy_version=version,
+        )
 
 
 def _noop(_key: str) -> None:

@@ -24,6 +24,7 @@ from learner.transitions import Transitions
 from sim import FEATURIZERS, N_ACTIONS, ScenarioConfig
 from sim.controllers import compass_velocity, wander
 from sim.features import featurize, lost, trial_reward
+from sim.rollout import StepHook
 from sim.world import place_near_targets, reset, sense, step
 
 
@@ -60,8 +61,13 @@ class ExperienceSlice:
         self.learner_mask[list(learners)] = True
         self.trials = 0
 
-    def run_trial(self, agent: TabularAgent | None = None, learn: bool = False) -> Transitions:
-        """One learning trial in every arena; ``agent`` None means random actions for every robot."""
+    def run_trial(
+        self, agent: TabularAgent | None = None, learn: bool = False, on_step: StepHook | None = None
+    ) -> Transitions:
+        """One learning trial in every arena; ``agent`` None means random actions for every robot.
+
+        ``on_step`` (optional) sees the world and observation after every step, e.g. to draw an arena.
+        """
         cfg, sc, rng = self.cfg, self.config, self.rng
         n_arenas, m = sc.n_arenas, cfg.n_robots
         is_learner = np.broadcast_to(self.learner_mask, (n_arenas, m))
@@ -86,6 +92,8 @@ class ExperienceSlice:
             velocity = np.where(frozen[..., None], 0.0, velocity)
             world = step(cfg, world, velocity, rng)
             obs = sense(cfg, world, rng)
+            if on_step is not None:
+                on_step(world, obs)
             feats = featurize(cfg, obs, sc.featurizer)
             held += 1
             trial_over = t == cfg.learning_steps

@@ -15,6 +15,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from monitor import add_rerun_args, open_monitor, sink_from_args
+from monitor.trial import trial_hook
 from sim import HAND_MADE, SCENARIOS, Controller, ScenarioConfig, evaluate, scenario
 
 log = logging.getLogger("ennc_ql")
@@ -60,8 +62,15 @@ def _controller(policy: str, scenario_name: str) -> tuple[Controller, ScenarioCo
 
 def cmd_eval(args: argparse.Namespace) -> int:
     controller, cfg, info = _controller(args.policy, args.scenario)
+    if args.record_trial >= args.trials:
+        raise SystemExit(f"ennc-ql eval: --record-trial {args.record_trial} but only {args.trials} trials run")
     start = time.perf_counter()
-    result = evaluate(cfg, controller, trials=args.trials, steps=args.steps, seed=args.seed)
+    with open_monitor(sink_from_args(args), process="eval", recording_id=args.recording_id) as monitor:
+        hook = None
+        if monitor.enabled:
+            monitor.send_blueprint(eval_trial=True)
+            hook = trial_hook(monitor, cfg, arena=args.record_trial)
+        result = evaluate(cfg, controller, trials=args.trials, steps=args.steps, seed=args.seed, on_step=hook)
     out = {
         "policy": args.policy,
         **info,
@@ -144,6 +153,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=_positive_int, default=1000, help="steps per trial (default 1000)")
     p.add_argument("--seed", type=int, default=0, help="seed of the test trials (default 0)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument(
+        "--record-trial", type=int, default=0, metavar="K", help="with --rerun: the trial to draw (default 0)"
+    )
+    add_rerun_args(p)
     p.set_defaults(func=cmd_eval)
 
     from ennc_ql.processes import add_actor_parser, add_learner_parser

@@ -24,6 +24,7 @@ from actors.actor import ActorConfig, RobotActor, parse_robots
 from actors.agent import Phase2Config
 from learner.enncql import Phase1Config
 from learner.service import LearnerConfig, LearnerService
+from monitor import add_rerun_args, open_monitor, sink_from_args
 from protocol import ZenohTransport, add_connection_args, check_id, config_from_args, keys_from_args
 from sim import FEATURIZERS, SCENARIOS
 
@@ -101,6 +102,7 @@ def add_learner_parser(sub: Any) -> None:
     p.add_argument("--threads", type=int, default=0, help="torch threads for phase 1 (default 0: torch's choice)")
     p.add_argument("--json", action="store_true", help="print the final report as one JSON object")
     add_connection_args(p)
+    add_rerun_args(p)
     p.set_defaults(func=cmd_learner)
 
 
@@ -127,9 +129,12 @@ def cmd_learner(args: argparse.Namespace) -> int:
         torch.set_num_threads(args.threads)
     stop = stop_on_signals()
     run_dir = Path(args.run_dir)
-    with ZenohTransport.open(config_from_args(args), keys_from_args(args)) as transport:
+    with (
+        open_monitor(sink_from_args(args), process=args.id, recording_id=args.recording_id) as monitor,
+        ZenohTransport.open(config_from_args(args), keys_from_args(args)) as transport,
+    ):
         try:
-            service = LearnerService(transport, config, run_dir, resume=args.resume)
+            service = LearnerService(transport, config, run_dir, resume=args.resume, monitor=monitor)
         except FileNotFoundError as exc:
             raise SystemExit(f"ennc-ql learner: {exc}") from None
         service.start()
@@ -168,6 +173,7 @@ def add_actor_parser(sub: Any) -> None:
     p.add_argument("--status-interval", type=_positive(float), default=2.0)
     p.add_argument("--json", action="store_true", help="print the final counters as one JSON object")
     add_connection_args(p)
+    add_rerun_args(p)
     p.set_defaults(func=cmd_actor)
 
 
@@ -187,9 +193,12 @@ def cmd_actor(args: argparse.Namespace) -> int:
         flush_timeout=args.flush_timeout,
     )
     stop = stop_on_signals()
-    with ZenohTransport.open(config_from_args(args), keys_from_args(args)) as transport:
+    with (
+        open_monitor(sink_from_args(args), process=args.id, recording_id=args.recording_id) as monitor,
+        ZenohTransport.open(config_from_args(args), keys_from_args(args)) as transport,
+    ):
         try:
-            actor = RobotActor(transport, config)
+            actor = RobotActor(transport, config, monitor=monitor)
         except ValueError as exc:
             raise SystemExit(f"ennc-ql actor: {exc}") from None
         actor.start()

@@ -34,6 +34,7 @@ from learner.ingest import Ingest
 from learner.policy import Policy, PolicyController
 from learner.policy_file import save_policy
 from learner.store import ExperienceStore, SequenceLedger
+from monitor import Monitor
 from protocol import Ack, ExperienceBatch, PolicyUpdate, QTableIncrement, Status, Transport
 from sim import FEATURIZERS, N_ACTIONS, evaluate, scenario
 
@@ -69,10 +70,18 @@ class LearnerConfig:
 
 
 class LearnerService:
-    def __init__(self, transport: Transport, config: LearnerConfig, run_dir: Path, resume: bool = False) -> None:
+    def __init__(
+        self,
+        transport: Transport,
+        config: LearnerConfig,
+        run_dir: Path,
+        resume: bool = False,
+        monitor: Monitor | None = None,
+    ) -> None:
         if config.featurizer not in FEATURIZERS:
             raise ValueError(f"unknown featurizer {config.featurizer!r}")
         self.transport = transport
+        self.monitor = monitor or Monitor()
         self.keys = transport.keys
         self.config = config
         self.run_dir = run_dir
@@ -98,6 +107,8 @@ class LearnerService:
         self.rng = np.random.default_rng(config.seed)
         self._fitter: threading.Thread | None = None
         self._handles: list[Any] = []
+        self._steps = 0  # status publishes so far: the monitor's learner_step timeline
+        self._laid_out: list[str] | None = None  # actors in the viewer layout last sent
         if resume:
             self._restore()
 
@@ -225,6 +236,10 @@ class LearnerService:
             disc.size,
         )
         self._merge_and_broadcast()
+        if self.monitor.enabled:
+            policy = self.policy()
+            assert policy is not None
+            self._monitor_policy(policy)
 
     def _merge_pending(self) -> None:
         """Add, cell by cell, the visit-weighted mean of the changes each actor made to a robot's table.
@@ -275,6 +290,9 @@ class LearnerService:
             return None
         result = evaluate(self.cfg, PolicyController(policy), self.config.eval_trials, self.config.eval_steps, seed=0)
         self.coverage_curve.append((round(self.elapsed(start), 2), round(result.coverage_mean, 3)))
+        if self.monitor.enabled:
+            self.monitor.eval_coverage(result.coverage_mean, policy_version=policy.version, learner_step=self._steps)
+            self._monitor_policy(policy)
         log.info("evaluation of policy version %d: %.2f%% of targets observed", policy.version, result.coverage_mean)
         return result.coverage_mean
 
@@ -309,6 +327,42 @@ class LearnerService:
         status = Status(sender=self.config.learner_id, role="learner", wall_time=time.time(), counters=counters)
         self.transport.publish(self.keys.status(self.config.learner_id), status)
         log.debug("status %s", counters)
+        self._steps += 1
+        self._monitor_status(counters)
+
+    def _monitor_status(self, counters: dict[str, float]) -> None:
+        monitor = self.monitor
+        if not monitor.enabled:
+            return
+        with self.lock:
+            actors = sorted(self.seen_actors)
+        if actors != self._laid_out:  # a new actor gets its arena view
+            monitor.send_blueprint(actors, N_ACTIONS)
+            self._laid_out = actors
+        with self.ingest.lock:
+            lag = {actor: self.version - v for actor, v in self.ingest.latest_version.items()}
+        monitor.learner_metrics(
+            learner_step=self._steps,
+            policy_version=self.version,
+            tuples_per_s=counters["tuples_per_s"],
+            live_actors=int(counters["live_actors"]),
+            store_size=int(counters["store_size"]),
+            rejected=int(counters["rejected"]),
+            lag=lag,
+        )
+
+    def _monitor_policy(self, policy: Policy) -> None:
+        """Prototypes coloured by their Q value (mean over robots) and the tables' statistics."""
+        disc = policy.discretization
+        scale = np.ones(disc.dim) if disc.scale is None else disc.scale
+        q = policy.tables.mean(axis=0)
+        bounds = list(zip(disc.offsets[:-1], disc.offsets[1:], strict=True))
+        self.monitor.prototypes(
+            [disc.prototypes[lo:hi] / scale for lo, hi in bounds],
+            [q[lo:hi] for lo, hi in bounds],
+            policy_version=policy.version,
+        )
+        self.monitor.q_stats([policy.tables], policy_version=policy.version, learner_step=self._steps)
 
     def checkpoint(self) -> Path:
         """Write everything needed to resume, atomically, then acknowledge what it holds."""
