@@ -1,0 +1,104 @@
+"""The learner service and two actors, each with its own monitor on one recording id, in one process.
+
+What the runtime logs (not what the monitor API can log): the merged recording holds the learner's status series,
+its evaluations and prototypes, and each actor's sampled arena and trial figures.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from actors.actor import ActorConfig, RobotActor
+from learner.enncql import Phase1Config
+from learner.service import LearnerConfig, LearnerService
+from monitor import Sink, merge_recordings, open_monitor, paths, summarize_recording
+from protocol import InMemoryBus, InMemoryTransport
+from sim import N_ACTIONS
+from tests.monitor.rrd import rows
+
+CONFIG = LearnerConfig(
+    min_tuples=6000,
+    phase1=Phase1Config(max_iterations=1, n_cycles=10, max_patterns=500),
+    broadcast_interval=0.5,
+    eval_interval=1000.0,  # the final evaluation is the one logged
+    eval_trials=1,
+    eval_steps=50,
+    checkpoint_interval=0.5,
+    status_interval=0.2,
+    duration=120.0,
+)
+
+
+def test_learner_and_actors_log_into_one_recording(tmp_path: Path) -> None:
+    run_id = "runtime-test"
+    bus = InMemoryBus()
+    actor_ids = ["a0", "a1"]
+    with (
+        open_monitor(
+            Sink("save", str(paths.part_file(tmp_path, "learner"))), process="learner", recording_id=run_id
+        ) as learner_monitor,
+        InMemoryTransport(bus) as lt,
+    ):
+        service = LearnerService(lt, CONFIG, tmp_path, monitor=learner_monitor)
+        service.start()
+        actors, threads, monitors, transports = [], [], [], []
+        stop = threading.Event()
+        for i, actor_id in enumerate(actor_ids):
+            monitor = open_monitor(
+                Sink("save", str(paths.part_file(tmp_path, actor_id))), process=actor_id, recording_id=run_id
+            )
+            transport = InMemoryTransport(bus)
+            config = ActorConfig(actor_id=actor_id, arenas=8, seed=i, batch_size=512, flush_timeout=0.5, draw_every=2)
+            actor = RobotActor(transport, config, monitor=monitor)
+            actor.start()
+            actors.append(actor)
+            monitors.append(monitor)
+            transports.append(transport)
+            threads.append(threading.Thread(target=actor.run, args=(stop,)))
+        for thread in threads:
+            thread.start()
+        done = threading.Event()
+
+        def watch() -> None:  # end on the outcome: a policy was broadcast and both actors ran a few trials
+            while not done.is_set():
+                if service.version >= 2 and all(a.counters["trials"] >= 4 for a in actors):
+                    done.set()
+                time.sleep(0.05)
+
+        watcher = threading.Thread(target=watch)
+        watcher.start()
+        report = service.run(done)
+        done.set()
+        watcher.join()
+        stop.set()
+        for thread in threads:
+            thread.join()
+        for actor, monitor, transport in zip(actors, monitors, transports, strict=True):
+            actor.close()
+            monitor.close()
+            transport.close()
+        service.close()
+        trials = {a.config.actor_id: int(a.counters["trials"]) for a in actors}
+
+    recording = merge_recordings(sorted((tmp_path / "rerun").glob("*.rrd")), tmp_path / paths.RECORDING_FILE)
+    summary = summarize_recording(recording)
+    assert summary["recording_ids"] == [run_id]
+    entities = set(summary["entity_paths"])
+    for actor_id in actor_ids:
+        arena = paths.actor_arena(actor_id)
+        assert {f"{arena}/robots", f"{arena}/targets", f"{arena}/sensing"} <= entities
+        # One coverage point per trial, and every step of every drawn trial (trials 0, 2, 4, ...) has an arena.
+        coverage = rows(recording, paths.actor(actor_id, paths.ACTOR_COVERAGE), "Scalars:scalars", paths.SIM_STEP)
+        assert len(coverage) == trials[actor_id]
+        assert all(0.0 <= value[0] <= 100.0 for _, value in coverage)
+        drawn = rows(recording, f"{paths.actor_arena(actor_id)}/robots", "Points2D:positions", paths.SIM_STEP)
+        assert len(drawn) == len(range(0, trials[actor_id], 2)) * 100  # learning trials are 100 steps
+    evaluations = rows(recording, paths.LEARNER_COVERAGE_EVAL, "Scalars:scalars", "policy_version")
+    assert evaluations[-1][1][0] == pytest.approx(report["final_coverage_mean"], abs=1e-3)
+    assert {paths.prototypes_of(k) for k in range(N_ACTIONS)} <= entities
+    assert {paths.learner_lag(a) for a in actor_ids} <= entities
+    assert rows(recording, paths.LEARNER_STORE_SIZE, "Scalars:scalars", paths.LEARNER_STEP)
