@@ -96,6 +96,9 @@ def add_learner_parser(sub: Any) -> None:
     p.add_argument("--broadcast-interval", type=_positive(float), default=3.0, help="seconds between broadcasts")
     p.add_argument("--eval-interval", type=_positive(float), default=20.0, help="seconds between evaluations")
     p.add_argument("--eval-trials", type=_positive(int), default=10, help="test trials per evaluation")
+    p.add_argument(
+        "--final-eval-trials", type=_positive(int), default=50, help="test trials of the final policy's figure"
+    )
     p.add_argument("--checkpoint-interval", type=_positive(float), default=5.0, help="seconds between checkpoints")
     p.add_argument("--status-interval", type=_positive(float), default=2.0, help="seconds between status messages")
     p.add_argument("--seed", type=int, default=0)
@@ -118,6 +121,7 @@ def cmd_learner(args: argparse.Namespace) -> int:
         broadcast_interval=args.broadcast_interval,
         eval_interval=args.eval_interval,
         eval_trials=args.eval_trials,
+        final_eval_trials=args.final_eval_trials,
         checkpoint_interval=args.checkpoint_interval,
         status_interval=args.status_interval,
         duration=args.duration,

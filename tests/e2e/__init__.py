@@ -29,6 +29,7 @@ LEARNER_BUDGET = [
     "--checkpoint-interval=1",
     "--eval-interval=1000",
     "--eval-trials=1",
+    "--final-eval-trials=2",
     "--json",
 ]
 ACTOR_BUDGET = ["--duration=16", "--arenas=16", "--json", "--batch-size=1024", "--flush-timeout=30"]
