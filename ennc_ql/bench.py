@@ -9,7 +9,6 @@ Usage::
 
 from __future__ import annotations
 
-import logging
 import time
 from typing import Any
 
@@ -17,10 +16,9 @@ import numpy as np
 import torch
 
 from actors.slice import ExperienceSlice, SliceConfig
+from ennc_ql.progress import ProgressBar
 from learner.transitions import Transitions
 from sim import HAND_MADE, N_ACTIONS, ScenarioConfig, reset, scenario, sense, step, trial_reward
-
-log = logging.getLogger(__name__)
 
 SIM_TARGETS = {"random": 10e6, "a_cmommt": 3e6}
 """Robot-steps per second the simulator must reach on the 2-core reference machine (issue 2)."""
@@ -58,14 +56,18 @@ def bench_sim(
     computed. Every kernel runs on one thread (see :mod:`sim._kernels`).
     """
     cfg = scenario(scenario_name)
-    for name in ("random", "a-cmommt"):
-        _sim_rate(cfg, name, 8, 0.05)  # compile (or load the numba cache) outside the measurement
+    controllers = ("random", "a-cmommt")
     by_size: dict[str, dict[int, float]] = {"random": {}, "a_cmommt": {}}
-    for arenas in batch_sizes:
-        for name in ("random", "a-cmommt"):
-            rate = _sim_rate(cfg, name, arenas, seconds)
-            by_size[name.replace("-", "_")][arenas] = rate
-            log.info("bench sim: %s, %d arenas: %.2f M robot-steps/s", name, arenas, rate / 1e6)
+    with ProgressBar("bench sim", total=len(batch_sizes) * len(controllers), unit="runs") as bar:
+        bar.show(status="compiling the kernels (or loading numba's cache)")
+        for name in controllers:
+            _sim_rate(cfg, name, 8, 0.05)  # compile (or load the numba cache) outside the measurement
+        for arenas in batch_sizes:
+            for name in controllers:
+                bar.show(status=f"{name}, {arenas} arenas, {seconds:g} s")
+                rate = _sim_rate(cfg, name, arenas, seconds)
+                by_size[name.replace("-", "_")][arenas] = rate
+                bar.mark(f"{name}, {arenas} arenas: {rate / 1e6:.2f} M robot-steps/s", n=bar.n + 1)
     best = {key: max(rates, key=rates.__getitem__) for key, rates in by_size.items()}
     return {
         "benchmark": "sim",
@@ -116,19 +118,37 @@ def bench_ennc(
     from learner.ennc import ENNC
     from learner.enncql import Phase1Config, phase1, standard_scale, to_classes
 
-    sample = cmommt_experience(patterns, seed, action=2)
-    x = sample.state / standard_scale(sample.state)
-    y = to_classes(np.where(sample.done, sample.reward, 0.0), Phase1Config())
-    log.info("bench ennc: %d patterns, %d classes", len(x), np.unique(y).size)
-    start = time.perf_counter()
-    model = ENNC(n_cycles=cycles, random_state=seed).fit(x, y)
-    ennc_seconds = time.perf_counter() - start
-    log.info("bench ennc: ENNC %.2f s, %d prototypes", ennc_seconds, model.n_prototypes_)
-    kmeans = KMeans(n_clusters=model.n_prototypes_, max_iter=cycles, n_init=1, tol=0.0, random_state=seed)
-    start = time.perf_counter()
-    kmeans.fit(x)
-    kmeans_seconds = time.perf_counter() - start
-    log.info("bench ennc: k-means %.2f s (%d iterations)", kmeans_seconds, kmeans.n_iter_)
+    phase1_figures: dict[str, Any] = {}
+    with ProgressBar("bench ennc", total=5 if phase1_tuples else 3, unit="phases") as bar:
+        bar.show(status=f"exploring for {patterns:,} patterns")
+        sample = cmommt_experience(patterns, seed, action=2)
+        x = sample.state / standard_scale(sample.state)
+        y = to_classes(np.where(sample.done, sample.reward, 0.0), Phase1Config())
+        bar.mark(f"{len(x):,} patterns, {np.unique(y).size} classes", n=1)
+        bar.show(status=f"ENNC, {cycles} cycles")
+        start = time.perf_counter()
+        model = ENNC(n_cycles=cycles, random_state=seed).fit(x, y)
+        ennc_seconds = time.perf_counter() - start
+        bar.mark(f"ENNC {ennc_seconds:.2f} s, {model.n_prototypes_} prototypes", n=2)
+        bar.show(status=f"k-means, k = {model.n_prototypes_}")
+        kmeans = KMeans(n_clusters=model.n_prototypes_, max_iter=cycles, n_init=1, tol=0.0, random_state=seed)
+        start = time.perf_counter()
+        kmeans.fit(x)
+        kmeans_seconds = time.perf_counter() - start
+        bar.mark(f"k-means {kmeans_seconds:.2f} s ({kmeans.n_iter_} iterations)", n=3)
+        if phase1_tuples:
+            bar.show(status=f"exploring for {phase1_tuples:,} phase-1 tuples")
+            big = cmommt_experience(phase1_tuples, seed)
+            bar.mark(f"{len(big):,} phase-1 tuples", n=4)
+            bar.show(status="phase 1, one iteration")
+            start = time.perf_counter()
+            result = phase1(big, N_ACTIONS, Phase1Config(max_iterations=1, n_cycles=cycles), seed=seed)
+            phase1_figures = {
+                "phase1_tuples": phase1_tuples,
+                "phase1_seconds": round(time.perf_counter() - start, 3),
+                "phase1_prototypes_per_action": [int(s) for s in result.discretization.sizes()],
+            }
+            bar.mark(f"phase 1 on {phase1_tuples:,} tuples: {phase1_figures['phase1_seconds']:.1f} s", n=5)
     out: dict[str, Any] = {
         "benchmark": "ennc",
         "patterns": len(x),
@@ -144,14 +164,7 @@ def bench_ennc(
         "target": {"ratio": 2.0, "phase1_seconds": 60.0},
         "torch_threads": torch.get_num_threads(),
     }
-    if phase1_tuples:
-        big = cmommt_experience(phase1_tuples, seed)
-        start = time.perf_counter()
-        result = phase1(big, N_ACTIONS, Phase1Config(max_iterations=1, n_cycles=cycles), seed=seed)
-        out["phase1_tuples"] = phase1_tuples
-        out["phase1_seconds"] = round(time.perf_counter() - start, 3)
-        out["phase1_prototypes_per_action"] = [int(s) for s in result.discretization.sizes()]
-        log.info("bench ennc: phase 1 on %d tuples: %.1f s", phase1_tuples, out["phase1_seconds"])
+    out.update(phase1_figures)
     out["meets_target"] = {
         "ratio": out["ratio"] <= 2.0,
         "phase1_seconds": out.get("phase1_seconds", np.inf) <= 60.0,

@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from ennc_ql.progress import ProgressBar
 from ennc_ql.up import free_port
 from protocol import DEFAULT_KEYS, N_ACTIONS, ExperienceBatch, ZenohTransport, encode, zenoh_config
 
@@ -270,24 +271,33 @@ def bench_transport(
         stored.mark()
 
     with ExitStack() as stack:
+        bar = stack.enter_context(ProgressBar("bench transport", total=3, unit="phases"))
         transport = stack.enter_context(ZenohTransport.open(_config(shared_memory, listen=[endpoint])))
         transport.subscribe(DEFAULT_KEYS.experience(), ExperienceBatch, on_experience)
         raw_sub = transport.session.declare_subscriber(f"{RAW_KEY}/*", lambda _sample: raw.mark())
         stack.callback(raw_sub.undeclare)
+        bar.show(status=f"starting {actors} publisher processes")
         publishers = stack.enter_context(_publishers(endpoint, actors, batch_size, shared_memory))
         publishers.wait_ready()
+        bar.mark(f"{actors} publishers matched", n=1)
 
+        bar.show(status=f"protocol path, {seconds:g} s")
         start, cpu = time.perf_counter(), time.process_time()
         sent, publisher_cpu = publishers.run_phase("protocol", seconds)
         _wait_until(lambda: stored.count >= sent, _DRAIN_TIMEOUT_S)
         tuples_per_s = stored.rate(start, batch_size)
         receiver_cpu = time.process_time() - cpu
+        bar.mark(
+            f"protocol path: {tuples_per_s / 1e6:.2f} M tuples/s, {sent - ingest.ledger.accepted} batches lost", n=2
+        )
 
+        bar.show(status=f"raw zenoh, {seconds:g} s")
         start, cpu = time.perf_counter(), time.process_time()
         raw_sent, raw_publisher_cpu = publishers.run_phase("raw", seconds)
         _wait_until(lambda: raw.count >= raw_sent, _DRAIN_TIMEOUT_S)
         raw_tuples_per_s = raw.rate(start, batch_size)
         raw_receiver_cpu = time.process_time() - cpu
+        bar.mark(f"raw zenoh: {raw_tuples_per_s / 1e6:.2f} M tuples/s", n=3)
 
     return {
         "actors": actors,

@@ -11,15 +11,16 @@ from __future__ import annotations
 import json
 import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ennc_ql.experiments import METHODS, Budget, Outcome, train
+from ennc_ql.progress import ProgressBar
 from learner.policy_file import save_policy
-from sim import HAND_MADE, evaluate, scenario
+from sim import HAND_MADE, EvalResult, ScenarioConfig, evaluate, scenario
 
 log = logging.getLogger(__name__)
 
@@ -39,8 +40,6 @@ PAPER: dict[str, dict[str, float | None]] = {
 }
 """Figure 5 / Figure 6 of the paper (% of targets observed; states or mean prototypes per action). The paper
 gives random and local only as bars below 50%, approximate VQQL values, and no exact A-CMOMMT decimals."""
-
-Progress = Callable[[str], None]
 
 
 def _row(name: str, per_run: Sequence[float], states: float | None, per_trial: list[list[float]]) -> dict[str, Any]:
@@ -67,50 +66,85 @@ def _train_job(job: tuple[str, Budget, int]) -> Outcome:
     return train(METHODS[name], budget, seed, scenario())
 
 
+class _Jobs:
+    """The reproduce bar's state: jobs finished, the running job's stage and the latest coverage measured."""
+
+    def __init__(self, bar: ProgressBar) -> None:
+        self.bar = bar
+        self.done = 0
+        self.latest = ""
+
+    def running(self, status: str) -> None:
+        self.bar.show(status=status + (f"; latest {self.latest}" if self.latest else ""))
+
+    def finished(self, message: str) -> None:
+        self.done += 1
+        self.latest = message
+        self.bar.mark(message, n=self.done)
+
+
+def _learn(todo: list[tuple[str, Budget, int]], cfg: ScenarioConfig, jobs: int, progress: _Jobs) -> list[Outcome]:
+    """Every learning process of ``todo``, ``jobs`` at a time (in worker processes when more than one)."""
+    outcomes: list[Outcome] = []
+    if jobs > 1 and todo:
+        import multiprocessing
+
+        progress.running(f"{len(todo)} learning processes on {jobs} workers")
+        with multiprocessing.get_context("spawn").Pool(jobs) as pool:
+            for outcome in pool.imap_unordered(_train_job, todo):
+                outcomes.append(outcome)
+                progress.finished(f"{outcome.method}[{outcome.seed}]: {outcome.coverage_mean:.2f}%")
+                # Workers report nothing until a process ends: the bar can only count what is left.
+                progress.running(f"{len(todo) - len(outcomes)} learning processes left")
+        return outcomes
+    for name, budget, seed in todo:
+
+        def stage(message: str, method: str = name, process: int = seed) -> None:
+            progress.running(f"{method}[{process}]: {message}")
+
+        outcomes.append(train(METHODS[name], budget, seed, cfg, progress=stage))
+        progress.finished(f"{name}[{seed}]: {outcomes[-1].coverage_mean:.2f}%")
+    return outcomes
+
+
 def reproduce(
     budget: Budget,
     processes: int,
     out_dir: Path,
     methods: Sequence[str] | None = None,
-    progress: Progress | None = None,
     jobs: int = 1,
 ) -> dict[str, Any]:
     """Run every method (``processes`` independent learning processes each), write table, JSON and chart.
 
-    ``jobs`` > 1 runs that many learning processes at once in worker processes.
+    ``jobs`` > 1 runs that many learning processes at once in worker processes. Progress goes to stderr: a bar
+    over the jobs (learning processes, then hand-made evaluations) with the latest coverage measured.
     """
     start = time.perf_counter()
-    say = progress or log.info
     names = list(methods) if methods is not None else [*HAND_MADE_ORDER, *METHODS]
     unknown = [n for n in names if n not in PAPER]
     if unknown:
         raise ValueError(f"unknown methods {unknown}; known: {', '.join(PAPER)}")
     out_dir.mkdir(parents=True, exist_ok=True)
     cfg = scenario()
-    learned = [n for n in names if n not in HAND_MADE]
-    outcomes: dict[str, list[Outcome]] = {n: [] for n in learned}
-    todo = [(n, budget, seed) for n in learned for seed in range(processes)]
-    if jobs > 1 and todo:
-        import multiprocessing
-
-        with multiprocessing.get_context("spawn").Pool(jobs) as pool:
-            for outcome in pool.imap_unordered(_train_job, todo):
-                outcomes[outcome.method].append(outcome)
-                say(f"{outcome.method}[{outcome.seed}]: {outcome.coverage_mean:.2f}% ({len(todo)} processes in all)")
-    else:
-        for name, _, seed in todo:
-
-            def stage(message: str, method: str = name, process: int = seed) -> None:
-                say(f"{method}[{process}]: {message}")
-
-            outcomes[name].append(train(METHODS[name], budget, seed, cfg, progress=stage))
+    todo = [(n, budget, seed) for n in names if n not in HAND_MADE for seed in range(processes)]
+    hand_made = [n for n in names if n in HAND_MADE]
+    outcomes: dict[str, list[Outcome]] = {n: [] for n, _, _ in todo}
+    hand_made_results: dict[str, EvalResult] = {}
+    with ProgressBar("reproduce", total=len(todo) + len(hand_made), unit="jobs") as bar:
+        progress = _Jobs(bar)
+        for outcome in _learn(todo, cfg, jobs, progress):
+            outcomes[outcome.method].append(outcome)
+        for name in hand_made:
+            progress.running(f"{name}: evaluating")
+            result = evaluate(cfg, HAND_MADE[name], budget.test_trials, budget.test_steps, seed=budget.test_seed)
+            hand_made_results[name] = result
+            progress.finished(f"{name}: {result.coverage_mean:.2f}%")
     rows: list[dict[str, Any]] = []
     for name in names:
         if name in HAND_MADE:
-            result = evaluate(cfg, HAND_MADE[name], budget.test_trials, budget.test_steps, seed=budget.test_seed)
+            result = hand_made_results[name]
             per_trial = [round(float(c), 3) for c in result.coverage_per_trial]
             rows.append(_row(name, [result.coverage_mean], None, [per_trial]))
-            say(f"{name}: {result.coverage_mean:.2f}%")
             continue
         runs = sorted(outcomes[name], key=lambda o: o.seed)
         for outcome in runs:
@@ -125,7 +159,7 @@ def reproduce(
         row["tuples_per_run"] = [o.tuples for o in runs]
         row["seconds_per_run"] = [round(o.seconds, 1) for o in runs]
         rows.append(row)
-        say(f"{name}: {row['coverage_mean']:.2f}% ± {row['coverage_std']:.2f} over {processes} processes")
+        log.info("%s: %.2f%% ± %.2f over %d processes", name, row["coverage_mean"], row["coverage_std"], processes)
     report = {
         "scenario": cfg.name,
         "processes": processes,

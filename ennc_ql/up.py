@@ -3,8 +3,9 @@
 One learner and N actor processes (real OS processes, the same commands a multi-machine run uses), joined by
 Zenoh in peer mode on a loopback endpoint with multicast scouting off, so nothing leaves the machine and no router
 is needed. Every actor learns every robot's table (option 2); the learner averages their changes by visits.
-Progress comes from the learner's status messages; each process logs to ``runs/<id>/<name>.log``. When
-the learner's duration is over it writes its report, the actors are stopped, and the results are printed.
+Progress (a bar on a terminal, plain lines otherwise, on stderr) comes from the learner's status messages; each
+process logs to ``runs/<id>/<name>.log``. When the learner's duration is over it writes its report, the actors are
+stopped, the results are printed and ``runs/<id>/report.md`` and ``learning_curve.png`` are written.
 """
 
 from __future__ import annotations
@@ -22,14 +23,14 @@ from contextlib import ExitStack
 from pathlib import Path
 from typing import IO, Any
 
+from ennc_ql.progress import ProgressBar
+from ennc_ql.report import results_table, write_run_report
 from protocol import Status, ZenohTransport, zenoh_config
 from protocol.keys import KeySpace
 
 log = logging.getLogger(__name__)
 
 ACTOR_NICENESS = 10
-PROGRESS_EVERY = 5.0
-"""Seconds between progress lines when stderr is not a terminal (a terminal gets one line rewritten each second)."""
 
 
 def free_port() -> int:
@@ -81,16 +82,22 @@ def _stop(proc: subprocess.Popen[bytes], grace: float) -> None:
             proc.wait()
 
 
-def cmd_up(args: argparse.Namespace) -> int:
-    if args.actors < 1:
-        raise SystemExit("ennc-ql up: --actors must be at least 1")
-    run_id = args.run_id or time.strftime("%Y%m%d-%H%M%S")
-    run_dir = Path(args.runs) / run_id
-    run_dir.mkdir(parents=True, exist_ok=True)
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    namespace = f"run-{run_id}".replace(":", "-")
-    common = ["--namespace", namespace, "--no-multicast-scouting"]
-    learner_argv = [
+def _settings(args: argparse.Namespace) -> dict[str, int | float]:
+    """The flags that shape a run, by name: they go into the report and rebuild its command line."""
+    names = ("actors", "duration", "arenas", "min_tuples", "store_capacity", "phase1_patterns", "eval_interval", "seed")
+    return {name: getattr(args, name) for name in names}
+
+
+def _command(settings: dict[str, int | float]) -> str:
+    flags = ["ennc-ql up"]
+    for name, value in settings.items():
+        # Whole-number floats print as ints (480.0 -> 480); ints keep every digit (1000000, not 1e+06).
+        flags.append(f"--{name.replace('_', '-')} {f'{value:g}' if isinstance(value, float) else value}")
+    return " ".join(flags)
+
+
+def _learner_argv(args: argparse.Namespace, common: list[str], endpoint: str, run_dir: Path) -> list[str]:
+    return [
         "learner",
         *common,
         "--listen",
@@ -112,6 +119,17 @@ def cmd_up(args: argparse.Namespace) -> int:
         "--threads",
         "1",
     ]
+
+
+def cmd_up(args: argparse.Namespace) -> int:
+    if args.actors < 1:
+        raise SystemExit("ennc-ql up: --actors must be at least 1")
+    run_id = args.run_id or time.strftime("%Y%m%d-%H%M%S")
+    run_dir = Path(args.runs) / run_id
+    run_dir.mkdir(parents=True, exist_ok=True)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    namespace = f"run-{run_id}".replace(":", "-")
+    common = ["--namespace", namespace, "--no-multicast-scouting"]
     print(
         f"ennc-ql up: run {run_id}: learner + {args.actors} actors on {endpoint}, {args.duration:.0f} s",
         file=sys.stderr,
@@ -119,7 +137,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     started = time.monotonic()
     with ExitStack() as stack:
         learner_log = stack.enter_context(open(run_dir / "learner.log", "w"))
-        learner = _spawn(learner_argv, learner_log)
+        learner = _spawn(_learner_argv(args, common, endpoint, run_dir), learner_log)
         actors: list[subprocess.Popen[bytes]] = []
         try:
             for i in range(args.actors):
@@ -139,7 +157,7 @@ def cmd_up(args: argparse.Namespace) -> int:
                 # Actors produce experience faster than one learner digests it on a shared machine: they yield
                 # the CPU to the learner so phase 1 and evaluations are not starved.
                 actors.append(_spawn(actor_argv, actor_log, nice=ACTOR_NICENESS))
-            _watch(endpoint, KeySpace(namespace), learner, started, args.duration)
+            _watch(endpoint, KeySpace(namespace), learner, args.actors, args.duration)
         finally:
             for proc in actors:
                 _stop(proc, grace=10.0)
@@ -148,61 +166,68 @@ def cmd_up(args: argparse.Namespace) -> int:
     if not report_path.exists():
         raise SystemExit(f"ennc-ql up: the learner wrote no report; see {run_dir / 'learner.log'}")
     report: dict[str, Any] = json.loads(report_path.read_text())
-    report["run_dir"] = str(run_dir)
-    report["wall_seconds"] = round(time.monotonic() - started, 1)
+    settings = _settings(args)
+    report.update(
+        run_id=run_id,
+        run_dir=str(run_dir),
+        command=_command(settings),
+        config={**settings, "endpoint": endpoint},
+        wall_seconds=round(time.monotonic() - started, 1),
+    )
+    markdown, png = write_run_report(report, run_dir)
+    report.update(report_md=str(markdown), learning_curve=str(png))
     report_path.write_text(json.dumps(report, indent=2))
     if args.json:
         print(json.dumps(report))
     else:
         print(results_table(report))
+        print(f"report: {markdown} (learning curve {png})")
     return 0
 
 
-def _watch(endpoint: str, keys: KeySpace, learner: subprocess.Popen[bytes], started: float, duration: float) -> None:
-    """Print the learner's progress from its status messages until it exits."""
+def cluster_status(counters: dict[str, float]) -> str:
+    """The live figures of the learner's status counters, as the progress bar shows them."""
+    version = int(counters.get("policy_version", 0))
+    coverage = counters.get("coverage", -1.0)
+    return (
+        f"{'exploring' if version == 0 else 'phase 2'}: {int(counters.get('tuples_received', 0)):,} tuples "
+        f"({counters.get('tuples_per_s', 0.0) / 1e3:.0f} k/s), policy v{version}, "
+        f"{int(counters.get('live_actors', 0))} actors, coverage {'–' if coverage < 0 else f'{coverage:.1f}%'}"
+    )
+
+
+def _watch(endpoint: str, keys: KeySpace, learner: subprocess.Popen[bytes], actors: int, duration: float) -> None:
+    """Show the learner's progress from its status messages until it exits.
+
+    The bar runs on the learner's own training clock, carried forward between status messages (every 2 s) so it
+    moves each second; past the duration the learner evaluates and writes its report and sends no more status.
+    """
     latest: dict[str, float] = {}
+    received = 0.0
     lock = threading.Lock()
 
     def on_status(status: Status) -> None:
+        nonlocal received
         with lock:
             latest.update(status.counters)
+            received = time.monotonic()
 
     conf = zenoh_config(connect=[endpoint], mode="peer", multicast_scouting=False)
-    with ZenohTransport.open(conf, keys) as transport:
+    with ProgressBar("up", total=duration, unit="s") as bar, ZenohTransport.open(conf, keys) as transport:
         transport.subscribe(keys.status("learner"), Status, on_status)
-        tty = sys.stderr.isatty()
+        bar.show(status=f"starting the learner and {actors} actor(s)")
+        version, coverage = 0, -1.0
         while learner.poll() is None:
-            time.sleep(1.0 if tty else PROGRESS_EVERY)
+            time.sleep(1.0)
             with lock:
-                c = dict(latest)
+                c, age = dict(latest), time.monotonic() - received
             if not c:
                 continue
-            phase = "exploring" if c.get("policy_version", 0) == 0 else "phase 2"
-            coverage = c.get("coverage", -1.0)
-            line = (
-                f"[{time.monotonic() - started:5.0f}/{duration:.0f} s] {phase}: "
-                f"{int(c.get('tuples_received', 0)):>10,} tuples ({c.get('tuples_per_s', 0) / 1e3:6.0f} k/s), "
-                f"policy v{int(c.get('policy_version', 0))}, {int(c.get('live_actors', 0))} actors, "
-                f"coverage {'–' if coverage < 0 else f'{coverage:.1f}%'}"
-            )
-            print(("\r" + line) if tty else line, end="" if tty else "\n", file=sys.stderr, flush=True)
-        if tty:
-            print(file=sys.stderr)
-
-
-def results_table(report: dict[str, Any]) -> str:
-    curve = report.get("coverage_curve") or []
-    rows = [
-        ("run folder", report["run_dir"]),
-        ("actors", ", ".join(report["actors"])),
-        ("tuples received", f"{report['tuples_received']:,}"),
-        ("duplicates / gaps", f"{report['duplicates']} / {report['gaps']}"),
-        ("rejected messages", str(report["rejected"])),
-        ("policy version", str(report["policy_version"])),
-        ("prototypes per action", str(report["prototypes_per_action"])),
-        ("final coverage", "–" if report["final_coverage_mean"] is None else f"{report['final_coverage_mean']:.2f} %"),
-        ("coverage curve", ", ".join(f"{t:.0f}s: {c:.1f}%" for t, c in curve)),
-        ("policy file", str(report["policy_file"])),
-    ]
-    width = max(len(k) for k, _ in rows)
-    return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
+            n = min(c.get("elapsed", 0.0) + age, duration)
+            if version == 0 and c.get("policy_version", 0) > 0:
+                bar.mark(f"phase 1 done: policy v{int(c['policy_version'])} sent, phase 2 starts", n)
+            if c.get("coverage", -1.0) >= 0 and c["coverage"] != coverage:
+                bar.mark(f"evaluation: policy v{int(c['policy_version'])} observes {c['coverage']:.1f}% of targets", n)
+            version, coverage = int(c.get("policy_version", 0)), c.get("coverage", -1.0)
+            finishing = n >= duration
+            bar.show(n, "training over: final evaluation and report" if finishing else cluster_status(c))
