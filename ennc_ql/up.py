@@ -25,6 +25,17 @@ from typing import IO, Any
 
 from ennc_ql.progress import ProgressBar
 from ennc_ql.report import results_table, write_run_report
+from monitor import (
+    Monitor,
+    RecordingError,
+    Sink,
+    add_rerun_args,
+    merge_recordings,
+    open_monitor,
+    paths,
+    summarize_recording,
+)
+from monitor.recordings import rerun_cli
 from protocol import Status, ZenohTransport, zenoh_config
 from protocol.keys import KeySpace
 
@@ -58,7 +69,73 @@ def add_up_parser(sub: Any) -> None:
     p.add_argument("--runs", default="runs", help="parent folder of the run folder (default runs/)")
     p.add_argument("--run-id", help="run folder name (default: a timestamp)")
     p.add_argument("--json", action="store_true", help="print the learner's report as one JSON object")
+    add_rerun_args(p, default=None, default_text="save runs/<id>/recording.rrd")
     p.set_defaults(func=cmd_up)
+
+
+VIEWER_URL = "rerun+http://127.0.0.1:9876/proxy"
+"""Where a viewer spawned by ``up`` (or its ``rerun --serve-grpc`` proxy) takes the children's streams."""
+
+
+class _Monitoring:
+    """The Rerun side of a run: what each child is told, and what ``up`` itself starts and finishes.
+
+    ``save`` (the default): every child saves its own part file with the run's recording id (processes cannot share
+    one file) and the parts are merged into one recording at the end. ``spawn``: ``up`` starts a local viewer and
+    the children stream to it. ``serve``: ``up`` starts a ``rerun --serve-grpc`` proxy on port 9876 that viewers on
+    this or other machines connect to. ``connect URL``: the children stream to that viewer or proxy.
+    """
+
+    def __init__(self, sink: Sink, run_id: str, run_dir: Path) -> None:
+        self.sink = sink
+        self.run_id = run_id
+        self.run_dir = run_dir
+        self.viewer: Monitor | None = None
+        self.proxy: subprocess.Popen[bytes] | None = None
+
+    def start(self) -> None:
+        if self.sink.kind == "spawn":
+            self.viewer = open_monitor(self.sink, process="up", recording_id=self.run_id)
+        elif self.sink.kind == "serve":
+            self.proxy = subprocess.Popen(
+                [*rerun_cli(), "--serve-grpc", "--port", "9876"],
+                stdin=subprocess.DEVNULL,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )
+            print("ennc-ql up: watch with: rerun --connect rerun+http://<this host>:9876/proxy", file=sys.stderr)
+
+    def child_args(self, name: str) -> list[str]:
+        kind = self.sink.kind
+        if kind == "off":
+            return []
+        if kind == "save":
+            target = str(paths.part_file(self.run_dir, name))
+        else:
+            target = str(self.sink.target) if kind == "connect" else VIEWER_URL
+        return ["--rerun", "save" if kind == "save" else "connect", target, "--recording-id", self.run_id]
+
+    def finish(self) -> dict[str, Any] | None:
+        """Merge the part files (``save``) and summarise the recording; stop what ``start`` started."""
+        if self.viewer is not None:
+            self.viewer.close()
+        if self.proxy is not None:
+            _stop(self.proxy, grace=5.0)
+        if self.sink.kind != "save":
+            return None
+        parts = sorted((self.run_dir / "rerun").glob("*.rrd"))
+        if not parts:
+            log.warning("no Rerun part files in %s", self.run_dir / "rerun")
+            return None
+        try:
+            summary = summarize_recording(merge_recordings(parts, Path(str(self.sink.target))))
+        except RecordingError as exc:  # the run's results stand without its recording; the parts stay on disk
+            log.error("could not merge the Rerun part files %s: %s", [str(p) for p in parts], exc)
+            return None
+        for part in parts:  # all of it is in the merged recording now
+            part.unlink()
+        (self.run_dir / "rerun").rmdir()
+        return {k: summary[k] for k in ("path", "size_bytes", "recording_ids", "entity_paths", "rows")}
 
 
 def _spawn(argv: list[str], log_file: IO[str], nice: int = 0) -> subprocess.Popen[bytes]:
@@ -134,10 +211,12 @@ def cmd_up(args: argparse.Namespace) -> int:
         f"ennc-ql up: run {run_id}: learner + {args.actors} actors on {endpoint}, {args.duration:.0f} s",
         file=sys.stderr,
     )
+    monitoring = _Monitoring(args.rerun or Sink("save", str(run_dir / paths.RECORDING_FILE)), run_id, run_dir)
     started = time.monotonic()
     with ExitStack() as stack:
         learner_log = stack.enter_context(open(run_dir / "learner.log", "w"))
-        learner = _spawn(_learner_argv(args, common, endpoint, run_dir), learner_log)
+        learner_argv = [*_learner_argv(args, common, endpoint, run_dir), *monitoring.child_args("learner")]
+        learner = _spawn(learner_argv, learner_log)
         actors: list[subprocess.Popen[bytes]] = []
         try:
             for i in range(args.actors):
@@ -153,15 +232,19 @@ def cmd_up(args: argparse.Namespace) -> int:
                     str(args.arenas),
                     "--seed",
                     str(args.seed),
+                    *monitoring.child_args(f"actor-{i}"),
                 ]
                 # Actors produce experience faster than one learner digests it on a shared machine: they yield
                 # the CPU to the learner so phase 1 and evaluations are not starved.
                 actors.append(_spawn(actor_argv, actor_log, nice=ACTOR_NICENESS))
+            # After the children are spawned: their preexec_fn must not run while this process has threads.
+            monitoring.start()
             _watch(endpoint, KeySpace(namespace), learner, args.actors, args.duration)
         finally:
             for proc in actors:
                 _stop(proc, grace=10.0)
             _stop(learner, grace=60.0)
+            recording = monitoring.finish()
     report_path = run_dir / "report.json"
     if not report_path.exists():
         raise SystemExit(f"ennc-ql up: the learner wrote no report; see {run_dir / 'learner.log'}")
@@ -173,6 +256,7 @@ def cmd_up(args: argparse.Namespace) -> int:
         command=_command(settings),
         config={**settings, "endpoint": endpoint},
         wall_seconds=round(time.monotonic() - started, 1),
+        recording=recording,
     )
     markdown, png = write_run_report(report, run_dir)
     report.update(report_md=str(markdown), learning_curve=str(png))

@@ -80,16 +80,20 @@ class _SinkAction(argparse.Action):
         setattr(namespace, self.dest, sink)
 
 
-def add_rerun_args(parser: argparse.ArgumentParser) -> None:
-    """Add ``--rerun off|save PATH|spawn|connect URL|serve`` (default off) and ``--recording-id ID``."""
+def add_rerun_args(parser: argparse.ArgumentParser, default: Sink | None = Sink(), default_text: str = "off") -> None:
+    """Add ``--rerun off|save PATH|spawn|connect URL|serve`` and ``--recording-id ID``.
+
+    ``default`` is what ``--rerun`` holds when not given (``None`` lets the command choose, e.g. a path inside the
+    run folder it creates), described in the help as ``default_text``.
+    """
     group = parser.add_argument_group("monitoring (Rerun)")
     group.add_argument(
         "--rerun",
         nargs="+",
         action=_SinkAction,
-        default=Sink(),
+        default=default,
         metavar="SINK",
-        help="off (default) | save PATH | spawn | connect URL (rerun+http://HOST:9876/proxy) | serve",
+        help=f"off | save PATH | spawn | connect URL (rerun+http://HOST:9876/proxy) | serve (default: {default_text})",
     )
     group.add_argument(
         "--recording-id",
