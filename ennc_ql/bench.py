@@ -18,14 +18,25 @@ import torch
 from actors.slice import ExperienceSlice, SliceConfig
 from ennc_ql.progress import ProgressBar
 from learner.transitions import Transitions
+from monitor import Monitor, paths
 from sim import HAND_MADE, N_ACTIONS, ScenarioConfig, reset, scenario, sense, step, trial_reward
 
 SIM_TARGETS = {"random": 10e6, "a_cmommt": 3e6}
 """Robot-steps per second the simulator must reach on the 2-core reference machine (issue 2)."""
+DRAW_EVERY = 10
+"""Steps between arena drawings in ``bench sim``: as often as an actor draws (every step of one trial in ten)."""
 
 
-def _sim_rate(cfg: ScenarioConfig, controller_name: str, arenas: int, seconds: float) -> float:
-    """Robot-steps/s of controller + physics + 6-D featurization + reward, for ``arenas`` arenas."""
+def _sim_rate(
+    cfg: ScenarioConfig, controller_name: str, arenas: int, seconds: float, monitor: Monitor | None = None
+) -> float:
+    """Robot-steps/s of controller + physics + 6-D featurization + reward, for ``arenas`` arenas.
+
+    Arena 0 goes to ``monitor`` every ``DRAW_EVERY`` steps; the call is made even when monitoring is off, so the
+    figure includes what the no-op monitor costs.
+    """
+    monitor = monitor or Monitor()
+    origin = paths.actor_arena("bench")
     controller = HAND_MADE[controller_name]
     rng = np.random.default_rng(0)
     world = reset(cfg, arenas, rng)
@@ -40,6 +51,15 @@ def _sim_rate(cfg: ScenarioConfig, controller_name: str, arenas: int, seconds: f
         obs = sense(cfg, world, rng)
         trial_reward(cfg, obs, "collab6d")
         steps += 1
+        if steps % DRAW_EVERY == 0:
+            monitor.arena(
+                origin,
+                world.robot_pos[0],
+                world.target_pos[0],
+                sensing_range=cfg.sensing_range,
+                arena_radius=cfg.arena_radius,
+                sim_step=steps,
+            )
         now = time.perf_counter()
         if now >= deadline:
             return steps * arenas * cfg.n_robots / (now - start)
@@ -49,6 +69,7 @@ def bench_sim(
     scenario_name: str = "cmommt-v1",
     batch_sizes: tuple[int, ...] = (256, 1024, 4096, 16384),
     seconds: float = 1.5,
+    monitor: Monitor | None = None,
 ) -> dict[str, Any]:
     """Best robot-steps/s over ``batch_sizes`` for the random controller and A-CMOMMT.
 
@@ -65,7 +86,7 @@ def bench_sim(
         for arenas in batch_sizes:
             for name in controllers:
                 bar.show(status=f"{name}, {arenas} arenas, {seconds:g} s")
-                rate = _sim_rate(cfg, name, arenas, seconds)
+                rate = _sim_rate(cfg, name, arenas, seconds, monitor)
                 by_size[name.replace("-", "_")][arenas] = rate
                 bar.mark(f"{name}, {arenas} arenas: {rate / 1e6:.2f} M robot-steps/s", n=bar.n + 1)
     best = {key: max(rates, key=rates.__getitem__) for key, rates in by_size.items()}
@@ -78,6 +99,7 @@ def bench_sim(
         "robots": cfg.n_robots,
         "targets": cfg.n_targets,
         "threads": 1,
+        "monitoring": monitor is not None and monitor.enabled,
         "by_batch_size": {key: {str(k): round(v) for k, v in rates.items()} for key, rates in by_size.items()},
         "target": SIM_TARGETS,
         "meets_target": {key: by_size[key][best[key]] >= SIM_TARGETS[key] for key in by_size},

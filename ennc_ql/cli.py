@@ -115,7 +115,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         out = bench_transport(args.actors, args.batch_size, args.seconds, args.shared_memory)
         _emit(out, args.json, transport_table(out))
     if args.what == "sim":
-        out = bench_sim(args.scenario, seconds=args.seconds)
+        with open_monitor(sink_from_args(args), process="bench", recording_id=args.recording_id) as monitor:
+            out = bench_sim(args.scenario, seconds=args.seconds, monitor=monitor)
         rates = out["robot_steps_per_s"]
         table = "\n".join(
             f"{name:>9}: {rates[name] / 1e6:6.2f} M robot-steps/s at {out['arenas_by_controller'][name]} arenas "
@@ -194,6 +195,7 @@ def build_parser() -> argparse.ArgumentParser:
     from ennc_ql.bench_transport import add_bench_transport_args
 
     add_bench_transport_args(p)  # --actors, --batch-size, --shared-memory; --seconds is per phase
+    add_rerun_args(p)  # sim: arena 0 drawn every few steps, to measure what monitoring costs
     p.set_defaults(func=cmd_bench)
     return parser
 
