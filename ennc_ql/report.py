@@ -108,6 +108,9 @@ def _policy(report: Mapping[str, Any]) -> list[str]:
         lines.append(f"Prototypes per action (mean {sum(sizes) / len(sizes):.1f}):")
         lines.append("")
         lines += _table(tuple(COMPASS_NAMES[: len(sizes)]), [tuple(sizes)])
+    if report.get("policy_figure"):
+        name = Path(str(report["policy_figure"])).name
+        lines += ["", f"![a test arena under the policy, and its prototypes per action coloured by Q]({name})"]
     return lines
 
 

@@ -258,6 +258,13 @@ def cmd_up(args: argparse.Namespace) -> int:
         wall_seconds=round(time.monotonic() - started, 1),
         recording=recording,
     )
+    if report.get("policy_file"):
+        # Imported here: bench_transport's publisher processes import this module and need no simulator.
+        from ennc_ql.figures import policy_figure
+        from learner.policy_file import load_policy, scenario_from_header
+
+        policy, header = load_policy(report["policy_file"])
+        report["policy_figure"] = str(policy_figure(policy, scenario_from_header(header), run_dir / "policy.png"))
     markdown, png = write_run_report(report, run_dir)
     report.update(report_md=str(markdown), learning_curve=str(png))
     report_path.write_text(json.dumps(report, indent=2))

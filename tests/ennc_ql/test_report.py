@@ -10,9 +10,12 @@ import pytest
 from matplotlib.image import imread
 
 from ennc_ql.cli import build_parser
+from ennc_ql.figures import _snapshot, policy_figure
 from ennc_ql.report import HAND_MADE_COVERAGE, learning_curve_figure, results_table, write_run_report
 from ennc_ql.up import _command, _settings
+from learner.policy import PolicyController
 from sim import HAND_MADE, evaluate, scenario
+from tests.learner.test_policy_file import make_policy
 
 CURVE_BLUE = (0x3B / 255, 0x7D / 255, 0xD8 / 255)
 
@@ -145,3 +148,20 @@ def test_reference_levels_are_measured(name: str) -> None:
     """The chart's hand-made levels are what ``ennc-ql eval --trials 10 --steps 1000 --seed 0`` measures."""
     result = evaluate(scenario(), HAND_MADE[name.lower()], trials=10, steps=1000, seed=0)
     assert result.coverage_mean == pytest.approx(HAND_MADE_COVERAGE[name], abs=0.01)
+
+
+def test_policy_figure_draws_the_arena_and_every_action(tmp_path: Path) -> None:
+    policy = make_policy(np.random.default_rng(1))
+    cfg = scenario()
+    robots, targets, coverage = _snapshot(policy, cfg, seed=0, step=40)
+    # The snapshot is test trial 0 as evaluate scores it: its metric A over the same steps.
+    assert coverage == pytest.approx(evaluate(cfg, PolicyController(policy), 1, 40, seed=0).coverage_mean)
+    assert robots.shape == (cfg.n_robots, 2) and targets.shape == (cfg.n_targets, 2)
+    assert (np.hypot(*robots.T) <= cfg.arena_radius + 1e-9).all()
+
+    out = policy_figure(policy, cfg, tmp_path / "policy.png", step=40)
+    image = imread(out)
+    assert image.shape == (560, 1300, 4)
+    report = run_report(tmp_path) | {"policy_figure": str(out)}
+    markdown_path, _ = write_run_report(report, tmp_path)
+    assert "](policy.png)" in markdown_path.read_text()
