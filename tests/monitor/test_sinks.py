@@ -108,3 +108,21 @@ def test_no_op_monitor_never_imports_rerun() -> None:
     )
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "ok"
+
+
+PROCESSES_SCRIPT = """
+import sys
+import ennc_ql.cli, ennc_ql.processes, ennc_ql.up, learner.service, actors.actor
+from ennc_ql.cli import build_parser
+args = build_parser().parse_args(["actor", "--id", "a0"])
+assert args.rerun.kind == "off"
+print(sorted(m for m in ("rerun", "rerun_bindings") if m in sys.modules))
+"""
+
+
+def test_processes_with_monitoring_off_never_import_rerun() -> None:
+    done = subprocess.run(
+        [sys.executable, "-c", PROCESSES_SCRIPT], cwd=REPO, capture_output=True, text=True, timeout=120, check=False
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"
