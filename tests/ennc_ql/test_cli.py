@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 
 from ennc_ql.cli import main
+from monitor import paths, summarize_recording
 from sim import HAND_MADE, evaluate, scenario
+from tests.monitor.rrd import rows
 
 
 def run_json(capsys: pytest.CaptureFixture[str], *argv: str) -> dict:
@@ -120,3 +122,19 @@ def test_resume_without_a_checkpoint_is_a_clear_error(tmp_path: Path) -> None:
 def test_actor_for_a_robot_that_does_not_exist_is_a_clear_error() -> None:
     with pytest.raises(SystemExit, match="robot 12 does not exist"):
         main(["actor", "--id", "a0", "--learn", "12", "--listen", "tcp/127.0.0.1:0", "--duration", "1"])
+
+
+def test_eval_records_the_chosen_trial_for_replay(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    path = tmp_path / "trial.rrd"
+    argv = ["eval", "--policy", "a-cmommt", "--trials", "3", "--steps", "40", "--json", "--record-trial", "2"]
+    out = run_json(capsys, *argv, "--rerun", "save", str(path))
+    assert summarize_recording(path)["rows_per_entity"][f"{paths.EVAL_ARENA}/{paths.ARENA_TARGETS}"] == 40
+    coverage = [value[0] for _, value in rows(path, paths.EVAL_COVERAGE, "Scalars:scalars", paths.SIM_STEP)]
+    assert len(coverage) == 40
+    # The recorded trial is trial 2 as scored: its per-step coverage averages to its metric A.
+    assert np.mean(coverage) == pytest.approx(out["coverage_per_trial"][2], abs=1e-3)
+
+
+def test_eval_refuses_to_record_a_trial_it_does_not_run() -> None:
+    with pytest.raises(SystemExit, match="--record-trial 3 but only 3 trials"):
+        main(["eval", "--trials", "3", "--steps", "10", "--record-trial", "3", "--rerun", "save", "x.rrd"])
