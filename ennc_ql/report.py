@@ -158,12 +158,16 @@ def learning_curve_figure(report: Mapping[str, Any]) -> Figure:
         ax.axhline(level, ls="--", lw=1, color=_REFERENCE_COLOURS[name], label=f"{name}, hand-made ({level:.2f} %)")
     if curve:
         ax.plot([t for t, _ in curve], [c for _, c in curve], "o-", color="#3b7dd8", label="learned policy")
+    final = report.get("final_coverage_mean")
+    if final is not None:
+        trials = report.get("final_eval_trials", report.get("eval_trials", 10))
+        ax.plot([report["seconds"]], [final], "*", ms=14, color="#d84b3b", label=f"final policy ({trials} test trials)")
     else:
         ax.text(0.5, 0.5, "no evaluation: no policy was learned", transform=ax.transAxes, ha="center")
     ax.set_xlim(0, max([float(duration), *(t for t, _ in curve)]) * 1.02)
     ax.set_ylim(0, 100)
     ax.set_xlabel("training time (s)")
-    ax.set_ylabel("% of targets observed (10 test trials)")
+    ax.set_ylabel(f"% of targets observed ({report.get('eval_trials', 10)} test trials)")
     title = report.get("run_id") or Path(str(report.get("run_dir", ""))).name
     ax.set_title(f"run {title}: {report['tuples_received']:,} tuples from {len(report['actors'])} actor(s)")
     ax.legend(loc="best", fontsize="small")

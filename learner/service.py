@@ -292,9 +292,11 @@ class LearnerService:
         policy = self.policy()
         if policy is None:
             return None
+        periodic = trials is None
         trials = trials or self.config.eval_trials
         result = evaluate(self.cfg, PolicyController(policy), trials, self.config.eval_steps, seed=0)
-        self.coverage_curve.append((round(self.elapsed(start), 2), round(result.coverage_mean, 3)))
+        if periodic:  # the curve keeps one protocol; the final figure is reported on its own
+            self.coverage_curve.append((round(self.elapsed(start), 2), round(result.coverage_mean, 3)))
         if self.monitor.enabled:
             self.monitor.eval_coverage(result.coverage_mean, policy_version=policy.version, learner_step=self._steps)
             self._monitor_policy(policy)
