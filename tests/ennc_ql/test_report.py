@@ -42,6 +42,8 @@ def run_report(run_dir: Path) -> dict[str, Any]:
         "overwritten": 2_057_600,
         "policy_lag": {"actor-0": 0, "actor-1": 1},
         "final_coverage_mean": 61.234,
+        "final_eval_trials": 50,
+        "eval_trials": 10,
         "coverage_curve": [[95.2, 48.5], [215.7, 57.125], [337.9, 60.4], [480.3, 61.234]],
         "policy_file": str(run_dir / "policy.npz"),
         "checkpoint": str(run_dir / "checkpoint.npz"),
@@ -92,8 +94,11 @@ def test_learning_curve_plots_the_curve_and_the_reference_levels(tmp_path: Path)
         "random, hand-made (16.60 %)",
         "local, hand-made (56.32 %)",
         "A-CMOMMT, hand-made (72.14 %)",
+        "final policy (50 test trials)",
     }
     assert np.asarray(lines["A-CMOMMT, hand-made (72.14 %)"].get_ydata()).tolist() == [72.14, 72.14]
+    # The final figure is its own point, at the end of training.
+    assert lines["final policy (50 test trials)"].get_xydata().tolist() == [[report["seconds"], 61.234]]
     assert ax.get_xlim()[1] >= 480.3 and ax.get_ylim() == (0, 100)
 
 
