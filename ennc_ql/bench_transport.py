@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from ennc_ql.allocator import keep_freed_memory
 from ennc_ql.progress import ProgressBar
 from ennc_ql.up import free_port
 from protocol import DEFAULT_KEYS, N_ACTIONS, ExperienceBatch, ZenohTransport, encode, zenoh_config
@@ -367,6 +368,7 @@ def _publisher_entry(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     endpoint, actor_id, batch_size = args.publisher
     logging.basicConfig(level=logging.WARNING, stream=sys.stderr, format="%(asctime)s %(name)s: %(message)s")
+    keep_freed_memory()  # as every ennc-ql process does: the publishers stand for actors
     return publisher_main(endpoint, actor_id, int(batch_size), args.shared_memory)
 
 

@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from ennc_ql.allocator import keep_freed_memory
 from monitor import add_rerun_args, open_monitor, sink_from_args
 from monitor.trial import trial_hook
 from sim import HAND_MADE, SCENARIOS, Controller, ScenarioConfig, evaluate, scenario
@@ -207,6 +208,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         stream=sys.stderr,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
+    keep_freed_memory()  # every process of ours churns ~1 MB message buffers
     code: int = args.func(args)
     return code
 
