@@ -59,14 +59,12 @@ def policy_figure(policy: Policy, cfg: ScenarioConfig, out: Path, seed: int = 0,
     ax.legend(loc="lower left", fontsize=7, framealpha=0.8)
     ax.set_title(f"test trial {seed}, step {step}: {observed.sum()}/{len(targets)} observed (A = {coverage:.1f}%)")
 
-    disc = policy.discretization
-    scale = np.ones(disc.dim) if disc.scale is None else disc.scale
-    q = policy.tables.mean(axis=0)
-    bounds = list(zip(disc.offsets[:-1], disc.offsets[1:], strict=True))
-    points = [project_2d(disc.prototypes[lo:hi] / scale) for lo, hi in bounds]
-    colors = q_colors([q[lo:hi] for lo, hi in bounds])
+    prototypes, q_values = policy.prototypes_by_action()
+    points = [project_2d(p) for p in prototypes]
+    colors = q_colors(q_values)
+    scale = policy.discretization.scale
     # The masked feature value (nothing in view) sits far out; clip the panels to where the targets in view lie.
-    reach = cfg.sensing_range / float(scale[0])
+    reach = cfg.sensing_range / (1.0 if scale is None else float(scale[0]))
     axes = right.subplots(2, 4, sharex=True, sharey=True)
     for k, panel in enumerate(axes.flat):
         if k >= len(points):

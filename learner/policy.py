@@ -79,6 +79,15 @@ class Policy:
         cells = self.discretization.cells(states) if cells is None else cells
         return greedy(self.tables[self.rows(robots)], cells)
 
+    def prototypes_by_action(self) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """Per action: its prototypes in the standardized space the cells are measured in (p_a, d), and each one's
+        Q value averaged over the tables (p_a,); what the monitor and the policy figure draw."""
+        disc = self.discretization
+        scale = np.ones(disc.dim) if disc.scale is None else disc.scale
+        q = self.tables.mean(axis=0)
+        bounds = list(zip(disc.offsets[:-1], disc.offsets[1:], strict=True))
+        return [disc.prototypes[lo:hi] / scale for lo, hi in bounds], [q[lo:hi] for lo, hi in bounds]
+
 
 @dataclass(frozen=True, slots=True)
 class _Memory:

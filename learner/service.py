@@ -360,15 +360,8 @@ class LearnerService:
 
     def _monitor_policy(self, policy: Policy) -> None:
         """Prototypes coloured by their Q value (mean over robots) and the tables' statistics."""
-        disc = policy.discretization
-        scale = np.ones(disc.dim) if disc.scale is None else disc.scale
-        q = policy.tables.mean(axis=0)
-        bounds = list(zip(disc.offsets[:-1], disc.offsets[1:], strict=True))
-        self.monitor.prototypes(
-            [disc.prototypes[lo:hi] / scale for lo, hi in bounds],
-            [q[lo:hi] for lo, hi in bounds],
-            policy_version=policy.version,
-        )
+        prototypes, q_values = policy.prototypes_by_action()
+        self.monitor.prototypes(prototypes, q_values, policy_version=policy.version)
         self.monitor.q_stats([policy.tables], policy_version=policy.version, learner_step=self._steps)
 
     def checkpoint(self) -> Path:

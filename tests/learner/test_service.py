@@ -6,6 +6,7 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -27,10 +28,23 @@ FAST = LearnerConfig(
 )
 
 
-def _stop_when(stop: threading.Event, condition: Callable[[], bool]) -> None:
-    while not stop.is_set() and not condition():
-        time.sleep(0.05)
-    stop.set()
+def run_until(service: LearnerService, condition: Callable[[], bool]) -> dict[str, Any]:
+    """``service.run`` until ``condition()`` holds (or its duration ends): a loaded CI machine may need most of
+    the time for phase 1, so the tests end on the outcome, not on the clock."""
+    done = threading.Event()
+
+    def watch() -> None:
+        while not done.is_set() and not condition():
+            time.sleep(0.05)
+        done.set()
+
+    watcher = threading.Thread(target=watch)
+    watcher.start()
+    try:
+        return service.run(done)
+    finally:
+        done.set()
+        watcher.join()
 
 
 def test_serial_learner_and_actor_exchange_experience_and_policies(tmp_path: Path) -> None:
@@ -48,13 +62,7 @@ def test_serial_learner_and_actor_exchange_experience_and_policies(tmp_path: Pat
         counters: dict[str, float] = {}
         thread = threading.Thread(target=lambda: counters.update(actor.run(stop)))
         thread.start()
-        # End on the outcome, not on the clock: a loaded CI machine may need most of the time for phase 1.
-        done = threading.Event()
-        watch = threading.Thread(target=_stop_when, args=(done, lambda: service.increments >= 3 and len(versions) >= 2))
-        watch.start()
-        report = service.run(done)
-        done.set()
-        watch.join()
+        report = run_until(service, lambda: service.increments >= 3 and len(versions) >= 2)
         stop.set()
         thread.join()
         actor.close()
@@ -191,14 +199,7 @@ def test_refits_warm_start_and_carry_q_values_over(tmp_path: Path) -> None:
         stop = threading.Event()
         thread = threading.Thread(target=actor.run, args=(stop,))
         thread.start()
-        done = threading.Event()
-        watch = threading.Thread(
-            target=_stop_when, args=(done, lambda: service.fits >= 2 and len(set(prototypes_seen)) >= 2)
-        )
-        watch.start()
-        report = service.run(done)
-        done.set()
-        watch.join()
+        report = run_until(service, lambda: service.fits >= 2 and len(set(prototypes_seen)) >= 2)
         stop.set()
         thread.join()
         actor.close()

@@ -7,7 +7,6 @@ its evaluations and prototypes, and each actor's sampled arena and trial figures
 from __future__ import annotations
 
 import threading
-import time
 from pathlib import Path
 
 import pytest
@@ -18,6 +17,7 @@ from learner.service import LearnerConfig, LearnerService
 from monitor import Sink, merge_recordings, open_monitor, paths, summarize_recording
 from protocol import InMemoryBus, InMemoryTransport
 from sim import N_ACTIONS
+from tests.learner.test_service import run_until
 from tests.monitor.rrd import rows
 
 CONFIG = LearnerConfig(
@@ -61,19 +61,8 @@ def test_learner_and_actors_log_into_one_recording(tmp_path: Path) -> None:
             threads.append(threading.Thread(target=actor.run, args=(stop,)))
         for thread in threads:
             thread.start()
-        done = threading.Event()
-
-        def watch() -> None:  # end on the outcome: a policy was broadcast and both actors ran a few trials
-            while not done.is_set():
-                if service.version >= 2 and all(a.counters["trials"] >= 4 for a in actors):
-                    done.set()
-                time.sleep(0.05)
-
-        watcher = threading.Thread(target=watch)
-        watcher.start()
-        report = service.run(done)
-        done.set()
-        watcher.join()
+        # A policy was broadcast and both actors ran a few trials.
+        report = run_until(service, lambda: service.version >= 2 and all(a.counters["trials"] >= 4 for a in actors))
         stop.set()
         for thread in threads:
             thread.join()
