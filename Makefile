@@ -4,7 +4,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 PYTHON ?= python3
-LIBS   := sim learner actors protocol monitor ennc_ql
+LIBS   := sim algorithm learner actors protocol monitor ennc_ql
 
 .PHONY: run test lint typecheck clean
 

@@ -1,1 +1,1 @@
-"""Robot actors: simulator slices that run learning trials, collect experience and learn per-robot Q tables."""
+"""The robot actor process: a simulator slice that streams experience and learns per-robot Q tables."""

@@ -28,11 +28,11 @@ from typing import Any
 
 import numpy as np
 
-from actors.agent import Phase2Config, TabularAgent
-from actors.slice import ExperienceSlice, SliceConfig
-from learner.discretization import Discretization
-from learner.policy import Policy
-from learner.transitions import Transitions
+from algorithm.agent import Phase2Config, TabularAgent
+from algorithm.discretization import Discretization
+from algorithm.policy import Policy
+from algorithm.transitions import Transitions
+from algorithm.trials import ExperienceSlice, SliceConfig
 from monitor import Monitor, paths
 from protocol import Ack, ExperienceBatch, Message, PolicyUpdate, QTableIncrement, Status, Transport
 from sim import FEATURIZERS, ScenarioConfig, scenario

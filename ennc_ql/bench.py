@@ -15,9 +15,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from actors.slice import ExperienceSlice, SliceConfig
+from algorithm.transitions import Transitions
+from algorithm.trials import ExperienceSlice, SliceConfig
 from ennc_ql.progress import ProgressBar
-from learner.transitions import Transitions
 from monitor import Monitor, paths
 from sim import HAND_MADE, N_ACTIONS, ScenarioConfig, reset, scenario, sense, step, trial_reward
 
@@ -137,8 +137,8 @@ def bench_ennc(
     """
     from sklearn.cluster import KMeans
 
-    from learner.ennc import ENNC
-    from learner.enncql import Phase1Config, phase1, standard_scale, to_classes
+    from algorithm.ennc import ENNC
+    from algorithm.phase1 import Phase1Config, phase1, standard_scale, to_classes
 
     phase1_figures: dict[str, Any] = {}
     with ProgressBar("bench ennc", total=5 if phase1_tuples else 3, unit="phases") as bar:

@@ -49,8 +49,8 @@ def _controller(policy: str, scenario_name: str) -> tuple[Controller, ScenarioCo
         raise SystemExit(
             f"ennc-ql eval: {policy!r} is neither a hand-made policy ({', '.join(HAND_MADE)}) nor a policy file"
         )
-    from learner.policy import PolicyController
-    from learner.policy_file import PolicyFileError, load_policy, scenario_from_header
+    from algorithm.policy import PolicyController
+    from algorithm.policy_file import PolicyFileError, load_policy, scenario_from_header
 
     try:
         learned, header = load_policy(path)

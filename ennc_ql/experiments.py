@@ -18,13 +18,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from actors.agent import Phase2Config, TabularAgent
-from actors.slice import ExperienceSlice, SliceConfig
-from learner.discretization import Discretization
-from learner.enncql import Phase1Config, phase1
-from learner.policy import Policy, PolicyController
-from learner.transitions import Transitions
-from learner.vqql import lbg
+from algorithm.agent import Phase2Config, TabularAgent
+from algorithm.discretization import Discretization
+from algorithm.phase1 import Phase1Config, phase1
+from algorithm.policy import Policy, PolicyController
+from algorithm.transitions import Transitions
+from algorithm.trials import ExperienceSlice, SliceConfig
+from algorithm.vqql import lbg
 from sim import N_ACTIONS, ScenarioConfig, evaluate, scenario
 
 log = logging.getLogger(__name__)

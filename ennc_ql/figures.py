@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from learner.policy import Policy, PolicyController
+from algorithm.policy import Policy, PolicyController
 from monitor.geometry import observed_targets, project_2d, q_colors
 from sim import ScenarioConfig, evaluate
 from sim.controllers import COMPASS_NAMES

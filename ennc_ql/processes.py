@@ -21,8 +21,8 @@ from pathlib import Path
 from typing import Any
 
 from actors.actor import ActorConfig, RobotActor, parse_robots
-from actors.agent import Phase2Config
-from learner.enncql import Phase1Config
+from algorithm.agent import Phase2Config
+from algorithm.phase1 import Phase1Config
 from learner.service import LearnerConfig, LearnerService
 from monitor import add_rerun_args, open_monitor, sink_from_args
 from protocol import ZenohTransport, add_connection_args, check_id, config_from_args, keys_from_args

@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
+from algorithm.policy_file import save_policy
 from ennc_ql.experiments import METHODS, Budget, Outcome, train
 from ennc_ql.progress import ProgressBar
-from learner.policy_file import save_policy
 from sim import HAND_MADE, EvalResult, ScenarioConfig, evaluate, scenario
 
 log = logging.getLogger(__name__)

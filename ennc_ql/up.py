@@ -260,8 +260,8 @@ def cmd_up(args: argparse.Namespace) -> int:
     )
     if report.get("policy_file"):
         # Imported here: bench_transport's publisher processes import this module and need no simulator.
+        from algorithm.policy_file import load_policy, scenario_from_header
         from ennc_ql.figures import policy_figure
-        from learner.policy_file import load_policy, scenario_from_header
 
         policy, header = load_policy(report["policy_file"])
         report["policy_figure"] = str(policy_figure(policy, scenario_from_header(header), run_dir / "policy.png"))

@@ -1,5 +1,1 @@
-"""Learning algorithms of ENNC-QL."""
-
-from learner.ennc import ENNC
-
-__all__ = ["ENNC"]
+"""The central ENNC-QL learner process: experience intake, policy state, phase-1 fits, evaluation, checkpoints."""

@@ -18,8 +18,8 @@ from collections import defaultdict
 
 import numpy as np
 
+from algorithm.transitions import Transitions
 from learner.store import ExperienceStore, SequenceLedger
-from learner.transitions import Transitions
 from protocol import ExperienceBatch
 
 log = logging.getLogger(__name__)

@@ -28,11 +28,11 @@ from typing import Any
 
 import numpy as np
 
-from learner.discretization import Discretization
-from learner.enncql import Phase1Config, phase1
+from algorithm.discretization import Discretization
+from algorithm.phase1 import Phase1Config, phase1
+from algorithm.policy import Policy, PolicyController
+from algorithm.policy_file import save_policy
 from learner.ingest import Ingest
-from learner.policy import Policy, PolicyController
-from learner.policy_file import save_policy
 from learner.store import ExperienceStore, SequenceLedger
 from monitor import Monitor
 from protocol import Ack, ExperienceBatch, PolicyUpdate, QTableIncrement, Status, Transport

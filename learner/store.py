@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from learner.transitions import Transitions
+from algorithm.transitions import Transitions
 
 
 class ExperienceStore:

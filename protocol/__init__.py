@@ -9,9 +9,10 @@ languages in docs/protocol.md. Typical use::
         t.publish(t.keys.experience("actor-0"), batch)
 """
 
+import importlib
+from typing import TYPE_CHECKING, Any
+
 from protocol.codec import MAX_PAYLOAD_BYTES, decode, decode_as, encode
-from protocol.keys import DEFAULT_KEYS, QOS, Channel, KeySpace, QoS
-from protocol.memory import InMemoryBus, InMemoryTransport
 from protocol.messages import (
     FEATURIZER_DIMS,
     N_ACTIONS,
@@ -32,14 +33,46 @@ from protocol.messages import (
     check_id,
     message_equal,
 )
-from protocol.transport import Closeable, Transport, TransportClosed, TransportStats
-from protocol.zenoh_transport import (
-    ZenohTransport,
-    add_connection_args,
-    config_from_args,
-    keys_from_args,
-    zenoh_config,
-)
+
+# Key spaces, QoS and the transports need zenoh; they load on first use (PEP 562), so code that only builds or
+# encodes messages (the algorithm package's wire conversions) never imports it.
+_LAZY = {
+    "DEFAULT_KEYS": "protocol.keys",
+    "QOS": "protocol.keys",
+    "Channel": "protocol.keys",
+    "KeySpace": "protocol.keys",
+    "QoS": "protocol.keys",
+    "InMemoryBus": "protocol.memory",
+    "InMemoryTransport": "protocol.memory",
+    "Closeable": "protocol.transport",
+    "Transport": "protocol.transport",
+    "TransportClosed": "protocol.transport",
+    "TransportStats": "protocol.transport",
+    "ZenohTransport": "protocol.zenoh_transport",
+    "add_connection_args": "protocol.zenoh_transport",
+    "config_from_args": "protocol.zenoh_transport",
+    "keys_from_args": "protocol.zenoh_transport",
+    "zenoh_config": "protocol.zenoh_transport",
+}
+
+if TYPE_CHECKING:
+    from protocol.keys import DEFAULT_KEYS, QOS, Channel, KeySpace, QoS
+    from protocol.memory import InMemoryBus, InMemoryTransport
+    from protocol.transport import Closeable, Transport, TransportClosed, TransportStats
+    from protocol.zenoh_transport import (
+        ZenohTransport,
+        add_connection_args,
+        config_from_args,
+        keys_from_args,
+        zenoh_config,
+    )
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'protocol' has no attribute {name!r}")
+
 
 __all__ = [
     "DEFAULT_KEYS",

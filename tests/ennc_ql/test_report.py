@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
+from algorithm.policy import PolicyController
 from ennc_ql.cli import build_parser
 from ennc_ql.figures import _snapshot, policy_figure
 from ennc_ql.report import HAND_MADE_COVERAGE, learning_curve_figure, results_table, write_run_report
 from ennc_ql.up import _command, _settings
-from learner.policy import PolicyController
 from sim import HAND_MADE, evaluate, scenario
-from tests.learner.test_policy_file import make_policy
+from tests.algorithm.test_policy_file import make_policy
 
 CURVE_BLUE = (0x3B / 255, 0x7D / 255, 0xD8 / 255)
 

@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from algorithm.phase1 import Phase1Config
+from algorithm.policy_file import load_policy
 from ennc_ql.cli import main
 from ennc_ql.experiments import Budget
 from ennc_ql.reproduce import reproduce
-from learner.enncql import Phase1Config
-from learner.policy_file import load_policy
 
 TINY = Budget(
     arenas=24,

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from actors.actor import ActorConfig, RobotActor, parse_robots
-from learner.enncql import Phase1Config
+from algorithm.phase1 import Phase1Config
 from learner.service import LearnerConfig, LearnerService
 from protocol import ExperienceBatch, InMemoryBus, InMemoryTransport, PolicyUpdate, QTableIncrement
 
@@ -82,7 +82,7 @@ def test_serial_learner_and_actor_exchange_experience_and_policies(tmp_path: Pat
 def test_merge_adds_the_visit_weighted_mean_of_the_actors_changes(tmp_path: Path) -> None:
     with InMemoryTransport(InMemoryBus()) as t:
         service = LearnerService(t, FAST, tmp_path)
-        from learner.discretization import Discretization
+        from algorithm.discretization import Discretization
 
         service.disc = Discretization.from_per_action([np.zeros((1, 6))] * 8)
         service.tables = np.zeros((10, 8))
@@ -118,7 +118,7 @@ def test_merge_adds_the_visit_weighted_mean_of_the_actors_changes(tmp_path: Path
 def test_stale_increments_over_an_old_discretization_are_dropped(tmp_path: Path) -> None:
     with InMemoryTransport(InMemoryBus()) as t:
         service = LearnerService(t, FAST, tmp_path)
-        from learner.discretization import Discretization
+        from algorithm.discretization import Discretization
 
         service.disc = Discretization.from_per_action([np.zeros((1, 6))] * 8)
         service.tables = np.zeros((10, 8))

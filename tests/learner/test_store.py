@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from algorithm.transitions import Transitions
 from learner.store import ExperienceStore, SequenceLedger
-from learner.transitions import Transitions
 
 
 def batch(start: int, n: int, dim: int = 2) -> Transitions:

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from actors.actor import ActorConfig, RobotActor
-from learner.enncql import Phase1Config
+from algorithm.phase1 import Phase1Config
 from learner.service import LearnerConfig, LearnerService
 from monitor import Sink, merge_recordings, open_monitor, paths, summarize_recording
 from protocol import InMemoryBus, InMemoryTransport

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from learner.discretization import nearest
-from learner.vqql import lbg
+from algorithm.discretization import nearest
+from algorithm.vqql import lbg
 
 
 def distortion(x: np.ndarray, codebook: np.ndarray) -> float:

@@ -6,7 +6,7 @@ figures are means over the folds. scikit-learn is a development dependency, impo
 
 Usage::
 
-    from learner.validation import compare_with_1nn
+    from algorithm.validation import compare_with_1nn
 
     records = compare_with_1nn(["iris", "wine"], n_splits=5)
     [(r.dataset, r.ennc_accuracy, r.knn_accuracy, r.n_prototypes) for r in records]
@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from learner.ennc import ENNC
+from algorithm.ennc import ENNC
 
 logger = logging.getLogger(__name__)
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from learner import ENNC
-from learner import _ennc_ops as ops
+from algorithm import ENNC
+from algorithm import _ennc_ops as ops
 
 F64 = torch.float64
 
@@ -404,7 +404,7 @@ def test_cuda_fit_matches_the_quality_of_cpu() -> None:
     assert clf.prototypes_.dtype == np.float64
 
 
-@pytest.mark.parametrize("module", ["learner.ennc", "learner._ennc_ops"])
+@pytest.mark.parametrize("module", ["algorithm.ennc", "algorithm._ennc_ops"])
 def test_documentation_examples_run(module: str) -> None:
     import doctest
     import importlib
@@ -417,7 +417,7 @@ def test_documentation_examples_run(module: str) -> None:
 
 
 def test_ennc_is_close_to_1nn_with_far_fewer_prototypes() -> None:
-    from learner.validation import compare_with_1nn
+    from algorithm.validation import compare_with_1nn
 
     # Over split seeds 0-7 the worst gap measured was 0.027 (iris) and the largest prototype share 16%.
     for record in compare_with_1nn(["iris", "wine", "breast_cancer"], n_splits=5, random_state=0):

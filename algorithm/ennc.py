@@ -2,7 +2,7 @@
 
 A 1-nearest-prototype classifier whose only essential parameter is the number of cycles [paper]. It starts from
 ONE prototype and runs ``n_cycles`` cycles of six operators, in this order [paper][KEEL]: information gathering
-→ labeling → reproduction → fight → move → die (see :mod:`learner._ennc_ops` for each operator and its
+→ labeling → reproduction → fight → move → die (see :mod:`algorithm._ennc_ops` for each operator and its
 provenance tags). The number of prototypes is not given: it settles where the prototypes' quality does.
 
 Class values may be any numbers: in ENNC-QL they are Q values, and ``labels_`` holds the values themselves.
@@ -10,7 +10,7 @@ The prototypes also serve as a discretization of the input space (:meth:`ENNC.pr
 
 Cost: a cycle is dominated by region assignment, O(N·P·d). The first one is a full chunked GEMM pass; later
 cycles only re-examine patterns that the last move, die or reproduction can have re-assigned (centre–centre
-bound, :func:`learner._ennc_ops.refresh_nearest`), typically a fifth of a full pass once the population settles.
+bound, :func:`algorithm._ennc_ops.refresh_nearest`), typically a fifth of a full pass once the population settles.
 
 Usage::
 
@@ -45,7 +45,7 @@ import torch
 from numpy.typing import ArrayLike, NDArray
 from torch import Tensor
 
-from learner import _ennc_ops as ops
+from algorithm import _ennc_ops as ops
 
 logger = logging.getLogger(__name__)
 
@@ -85,7 +85,7 @@ class ENNC:
         E ≡ 1 bug.
     chunk_rows:
         Rows of X per distance block in region assignment; ``None`` sizes blocks at about 4 MiB on CPU and
-        256 MiB on CUDA (:func:`learner._ennc_ops.default_chunk_rows`). Only memory and speed depend on it.
+        256 MiB on CUDA (:func:`algorithm._ennc_ops.default_chunk_rows`). Only memory and speed depend on it.
     n_threads:
         torch intra-op CPU threads while ``fit`` and ``predict_index`` run (torch's setting is process-wide;
         it is restored afterwards); ``None`` leaves it alone. Use 1 when other busy processes share the

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from actors.agent import TabularAgent
-from learner.transitions import Transitions
+from algorithm.agent import TabularAgent
+from algorithm.transitions import Transitions
 from sim import FEATURIZERS, N_ACTIONS, ScenarioConfig
 from sim.controllers import compass_velocity, wander
 from sim.features import featurize, lost, trial_reward

@@ -45,7 +45,7 @@ class Discretization:
     scale: np.ndarray | None = None
     """(d,) float32 per-dimension scale of the metric: a state's cell is its nearest prototype under
     |(x − c) / scale|. None means plain Euclidean. ENNC-QL fits on standardized states (see
-    :class:`~learner.enncql.Phase1Config`), so its discretizations carry the scale they were fitted with."""
+    :class:`~algorithm.phase1.Phase1Config`), so its discretizations carry the scale they were fitted with."""
 
     def __post_init__(self) -> None:
         p = self.prototypes

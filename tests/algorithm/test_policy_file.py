@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from learner.discretization import Discretization
-from learner.policy import Policy, PolicyController
-from learner.policy_file import FORMAT_VERSION, PolicyFileError, load_policy, save_policy, scenario_from_header
+from algorithm.discretization import Discretization
+from algorithm.policy import Policy, PolicyController
+from algorithm.policy_file import FORMAT_VERSION, PolicyFileError, load_policy, save_policy, scenario_from_header
 from sim import evaluate, scenario
 
 

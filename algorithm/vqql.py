@@ -15,7 +15,7 @@ import logging
 
 import numpy as np
 
-from learner.discretization import nearest
+from algorithm.discretization import nearest
 
 log = logging.getLogger(__name__)
 

@@ -1,6 +1,6 @@
 """Tabular Q-learning over per-action discretizations (ENNC-QL phase 2, VQQL).
 
-A table is a flat vector over the concatenated cells of a :class:`~learner.discretization.Discretization`;
+A table is a flat vector over the concatenated cells of a :class:`~algorithm.discretization.Discretization`;
 ``Q[cells[n, a]]`` is Q(s_n, a). Per-robot tables (option 2) are rows of a (R, Σ P_a) array.
 
 Update (paper Eq. 1): Q(s,a) ← (1−α)·Q(s,a) + α·(r + γ·max_b Q(s′,b)), with no bootstrap when s′ is terminal.

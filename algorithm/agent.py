@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from learner.policy import Policy
-from learner.qtable import q_update
+from algorithm.policy import Policy
+from algorithm.qtable import q_update
 from sim import N_ACTIONS
 
 

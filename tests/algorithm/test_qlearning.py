@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from learner.discretization import Discretization, nearest
-from learner.enncql import Phase1Config, phase1, to_classes
-from learner.qtable import greedy, merge_tables, q_targets, q_update
-from learner.transitions import Transitions
+from algorithm.discretization import Discretization, nearest
+from algorithm.phase1 import Phase1Config, phase1, to_classes
+from algorithm.qtable import greedy, merge_tables, q_targets, q_update
+from algorithm.transitions import Transitions
 
 GAMMA = 0.9
 

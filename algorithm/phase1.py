@@ -19,9 +19,9 @@ from typing import Literal
 
 import numpy as np
 
-from learner.discretization import Discretization
-from learner.ennc import ENNC
-from learner.transitions import Transitions
+from algorithm.discretization import Discretization
+from algorithm.ennc import ENNC
+from algorithm.transitions import Transitions
 
 log = logging.getLogger(__name__)
 

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from actors.agent import Phase2Config, TabularAgent
-from actors.slice import ExperienceSlice, SliceConfig
-from learner.discretization import Discretization
-from learner.policy import Policy
+from algorithm.agent import Phase2Config, TabularAgent
+from algorithm.discretization import Discretization
+from algorithm.policy import Policy
+from algorithm.trials import ExperienceSlice, SliceConfig
 from sim import scenario
 
 

@@ -32,8 +32,8 @@ from typing import Any
 
 import numpy as np
 
-from learner.discretization import Discretization
-from learner.policy import Policy
+from algorithm.discretization import Discretization
+from algorithm.policy import Policy
 from sim import COMPASS, FEATURIZERS, ScenarioConfig
 from sim.controllers import COMPASS_NAMES
 

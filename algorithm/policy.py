@@ -14,8 +14,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from learner.discretization import Discretization
-from learner.qtable import greedy
+from algorithm.discretization import Discretization
+from algorithm.qtable import greedy
 from sim import FEATURIZERS, ScenarioConfig
 from sim.controllers import compass_velocity, wander
 from sim.features import featurize, lost
