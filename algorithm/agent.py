@@ -2,9 +2,10 @@
 
 Usage::
 
-    agent = TabularAgent.from_policy(policy, Phase2Config())
-    actions = agent.act(states, robots, cells, rng, explore=True)     # ε-greedy
-    agent.learn(robots, cell_sa, next_cells, rewards, dones)           # Eq. 1 on each robot's own table
+    agent = TabularAgent(policy, Phase2Config())
+    cells = agent.cells(states)                                        # (N, L) cell of each (s, a)
+    actions = agent.act(robots, cells, rng, explore=True)              # ε-greedy on each robot's own table
+    agent.learn(robots, cell_sa, next_cells, rewards, dones)           # Eq. 1
     snapshot = agent.policy()
 """
 
@@ -15,8 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from algorithm.discretization import Discretization
 from algorithm.policy import Policy
-from algorithm.qtable import q_update
+from algorithm.qtable import q_targets, q_update
 from sim import N_ACTIONS
 
 
@@ -49,7 +51,7 @@ class TabularAgent:
         )
 
     @property
-    def discretization(self):
+    def discretization(self) -> Discretization:
         return self.template.discretization
 
     def cells(self, states: np.ndarray) -> np.ndarray:
@@ -75,8 +77,7 @@ class TabularAgent:
         """Eq. 1 for N tuples: ``cell_sa`` (N,) cell of (s, a), ``next_cells`` (N, L) cells of s′."""
         if robots.size == 0:
             return
-        bootstrap = self._lookup(robots, next_cells).max(axis=1)
-        targets = np.where(dones, rewards, rewards + self.config.gamma * bootstrap)
+        targets = q_targets(self._lookup(robots, next_cells).max(axis=1), rewards, dones, self.config.gamma)
         rows = self.template.rows(robots)
         size = self.tables.shape[1]
         q_update(self.tables.reshape(-1), self.visits.reshape(-1), rows * size + cell_sa, targets, self.config.alpha)

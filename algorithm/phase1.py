@@ -15,13 +15,15 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
 from algorithm.discretization import Discretization
-from algorithm.ennc import ENNC
 from algorithm.transitions import Transitions
+
+if TYPE_CHECKING:
+    from algorithm.ennc import ENNC
 
 log = logging.getLogger(__name__)
 
@@ -113,6 +115,14 @@ def standard_scale(states: np.ndarray) -> np.ndarray:
 Progress = Callable[[int, int], None]
 
 
+def estimator() -> type[ENNC]:
+    """The ENNC class, imported on first use: ``Phase1Config`` is read by processes that never fit and must not load
+    torch; a process that will fit calls this early so its first fit does not wait for torch and scikit-learn."""
+    from algorithm.ennc import ENNC
+
+    return ENNC
+
+
 def phase1(
     data: Transitions,
     n_actions: int,
@@ -126,6 +136,7 @@ def phase1(
     ``warm_start`` seeds every action's first fit with its prototypes and labels (the learner's refits as data
     grows). ``progress(iteration, action)`` is called after each fit.
     """
+    ennc_class = estimator()
     config = config or Phase1Config()
     if len(data) == 0:
         raise ValueError("phase 1 needs at least one tuple")
@@ -155,7 +166,7 @@ def phase1(
                 continue
             if config.max_patterns is not None and rows.size > config.max_patterns:
                 rows = np.sort(rng.choice(rows, config.max_patterns, replace=False))
-            model = ENNC(
+            model = ennc_class(
                 n_cycles=config.n_cycles,
                 k_fight=config.k_fight,
                 random_state=int(rng.integers(2**31)),

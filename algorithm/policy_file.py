@@ -26,13 +26,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from algorithm.discretization import Discretization
+from algorithm.files import save_npz_atomic
 from algorithm.policy import Policy
 from sim import COMPASS, FEATURIZERS, ScenarioConfig
 from sim.controllers import COMPASS_NAMES
@@ -85,9 +85,8 @@ def header_for(policy: Policy, cfg: ScenarioConfig) -> dict[str, Any]:
 
 
 def save_policy(policy: Policy, cfg: ScenarioConfig, path: str | os.PathLike[str]) -> Path:
-    """Write atomically (temporary file, then rename) and return the path."""
+    """Write atomically (temporary file, fsync, then rename) and return the path."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     header = json.dumps(header_for(policy, cfg), sort_keys=True).encode()
     arrays: dict[str, np.ndarray] = {
         "header": np.frombuffer(header, dtype=np.uint8),
@@ -101,15 +100,7 @@ def save_policy(policy: Policy, cfg: ScenarioConfig, path: str | os.PathLike[str
         arrays["visits"] = policy.visits.astype(np.uint64)
     if policy.discretization.scale is not None:
         arrays["scale"] = policy.discretization.scale.astype(np.float32)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **arrays)  # type: ignore[arg-type]
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return save_npz_atomic(path, arrays)
 
 
 def load_policy(path: str | os.PathLike[str]) -> tuple[Policy, dict[str, Any]]:

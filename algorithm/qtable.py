@@ -10,14 +10,13 @@ tuples, Q ← Q + (1 − (1−α)^c)·(mean target − Q), which equals Eq. 1 ex
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 
-def q_targets(
-    table: np.ndarray, next_cells: np.ndarray, rewards: np.ndarray, dones: np.ndarray, gamma: float
-) -> np.ndarray:
-    """(N,) r + γ·max_b Q(s′, b), or r where ``dones``; ``table`` (Σ P_a,), ``next_cells`` (N, L)."""
-    bootstrap = table[next_cells].max(axis=1)
+def q_targets(bootstrap: np.ndarray, rewards: np.ndarray, dones: np.ndarray, gamma: float) -> np.ndarray:
+    """(N,) Eq. 1's target r + γ·max_b Q(s′, b), or r where ``dones``; ``bootstrap`` (N,) holds max_b Q(s′, b)."""
     return np.where(dones, rewards, rewards + gamma * bootstrap).astype(np.float64)
 
 
@@ -52,10 +51,31 @@ def greedy(table: np.ndarray, cells: np.ndarray) -> np.ndarray:
     return np.argmax(np.take_along_axis(table, cells, axis=1), axis=1)
 
 
-def merge_tables(tables: np.ndarray, visits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Visit-count-weighted mean of K tables (K, Σ P_a) and their summed visits; unvisited cells average evenly."""
-    tables = np.asarray(tables, dtype=np.float64)
-    weights = np.asarray(visits, dtype=np.float64)
-    total = weights.sum(axis=0)
-    merged = np.where(total > 0, (tables * weights).sum(axis=0) / np.maximum(total, 1.0), tables.mean(axis=0))
-    return merged.astype(np.float32), total.astype(np.uint64)
+def merge_increments(
+    tables: np.ndarray, visits: np.ndarray, increments: Sequence[tuple[int, np.ndarray, np.ndarray]]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-robot tables (R, Σ P_a) and visits after adding K increments ``(robot, change (Σ P_a,), visits (Σ P_a,))``.
+
+    Each cell of a robot's table moves by the visit-weighted mean of the changes made to it: with one increment
+    per robot this applies the change exactly; several actors learning one robot move each cell by the mean of
+    their changes, weighted by how often each visited it. Cells no increment visited keep their value. Pure: the
+    inputs are not modified.
+
+    >>> changes = [(0, np.array([2.0, 0.0]), np.array([2, 0])), (0, np.array([4.0, 1.0]), np.array([6, 0]))]
+    >>> t, v = merge_increments(np.zeros((1, 2)), np.zeros((1, 2), np.uint64), changes)
+    >>> t.tolist(), v.tolist()
+    ([[3.5, 0.0]], [[8, 0]])
+    """
+    tables = np.array(tables, np.float64)
+    visits = np.array(visits, np.uint64)
+    by_robot: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+    for robot, change, weight in increments:
+        by_robot.setdefault(int(robot), []).append((np.asarray(change, np.float64), np.asarray(weight, np.float64)))
+    for robot, entries in by_robot.items():
+        change = np.stack([c for c, _ in entries])
+        weight = np.stack([w for _, w in entries])
+        total = weight.sum(axis=0)
+        visited = total > 0
+        tables[robot, visited] += (change * weight).sum(axis=0)[visited] / total[visited]
+        visits[robot] += total.astype(np.uint64)
+    return tables, visits

@@ -5,7 +5,7 @@ congestion control, reliable):
 
 1. **protocol**: each publisher builds an :class:`~protocol.ExperienceBatch` per sequence number (d = 6) and
    publishes it through :class:`~protocol.ZenohTransport` (validation + msgpack codec), as an actor does; the
-   receiver is the learner's real receive path, :class:`learner.ingest.Ingest` behind a ZenohTransport
+   receiver is the learner's real receive path, :class:`learner.intake.ExperienceIntake` behind a ZenohTransport
    subscription (decode, validate, de-duplicate by (actor, incarnation, seq), store in the ring buffer).
 2. **raw zenoh**: the publishers ``put`` one pre-built byte string of the same size in a loop; a plain subscriber
    only counts.
@@ -43,8 +43,9 @@ import numpy as np
 import zenoh
 
 from ennc_ql.allocator import keep_freed_memory
+from ennc_ql.config import positive
 from ennc_ql.progress import ProgressBar
-from ennc_ql.up import free_port
+from ennc_ql.system import free_port
 from protocol import DEFAULT_KEYS, N_ACTIONS, ExperienceBatch, ZenohTransport, encode, zenoh_config
 
 log = logging.getLogger(__name__)
@@ -258,13 +259,11 @@ def bench_transport(
     actors: int = 2, batch_size: int = 16384, seconds: float = 3.0, shared_memory: bool = False
 ) -> dict[str, Any]:
     """Run both phases for ``seconds`` each; the keys are those of the module docstring plus counts."""
-    # Imported here, not at the top: the publisher subprocesses run this module and need no learner (whose package
-    # imports torch, seconds of start-up per process on a small machine).
-    from learner.ingest import Ingest
-    from learner.store import ExperienceStore
+    # Imported here, not at the top: the publisher subprocesses run this module and need no learner.
+    from learner.intake import ExperienceIntake
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    ingest = Ingest(ExperienceStore(STORE_CAPACITY, DIM))
+    ingest = ExperienceIntake(STORE_CAPACITY, DIM)
     stored, raw = _Arrivals(), _Arrivals()
 
     def on_experience(msg: ExperienceBatch) -> None:
@@ -289,7 +288,7 @@ def bench_transport(
         tuples_per_s = stored.rate(start, batch_size)
         receiver_cpu = time.process_time() - cpu
         bar.mark(
-            f"protocol path: {tuples_per_s / 1e6:.2f} M tuples/s, {sent - ingest.ledger.accepted} batches lost", n=2
+            f"protocol path: {tuples_per_s / 1e6:.2f} M tuples/s, {sent - ingest.figures().accepted} batches lost", n=2
         )
 
         bar.show(status=f"raw zenoh, {seconds:g} s")
@@ -300,6 +299,7 @@ def bench_transport(
         raw_receiver_cpu = time.process_time() - cpu
         bar.mark(f"raw zenoh: {raw_tuples_per_s / 1e6:.2f} M tuples/s", n=3)
 
+    figures = ingest.figures()
     return {
         "actors": actors,
         "batch_size": batch_size,
@@ -309,11 +309,11 @@ def bench_transport(
         "tuples_per_s": round(tuples_per_s),
         "raw_zenoh_tuples_per_s": round(raw_tuples_per_s),
         "ratio": round(tuples_per_s / raw_tuples_per_s, 3) if raw_tuples_per_s else 0.0,
-        "lost": sent - ingest.ledger.accepted,
+        "lost": sent - figures.accepted,
         "batches_sent": sent,
-        "tuples_stored": ingest.tuples_received,
-        "gaps": ingest.ledger.gaps,
-        "duplicates": ingest.ledger.duplicates,
+        "tuples_stored": figures.tuples_received,
+        "gaps": figures.gaps,
+        "duplicates": figures.duplicates,
         "raw_batches_sent": raw_sent,
         "raw_batches_received": raw.count,
         # CPU time per batch of each side (all threads, zenoh's included): what the rates cost, whatever else
@@ -341,17 +341,11 @@ def transport_table(out: dict[str, Any]) -> str:
     )
 
 
-def _positive_int(text: str) -> int:
-    if not text.isdigit() or int(text) < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return int(text)
-
-
 def add_bench_transport_args(parser: argparse.ArgumentParser) -> None:
     """The ``bench transport`` flags (its measuring time per phase is the bench command's ``--seconds``)."""
-    parser.add_argument("--actors", type=_positive_int, default=2, help="transport: publisher processes (default 2)")
+    parser.add_argument("--actors", type=positive(int), default=2, help="transport: publisher processes (default 2)")
     parser.add_argument(
-        "--batch-size", type=_positive_int, default=16384, help="transport: tuples per batch (default 16384)"
+        "--batch-size", type=positive(int), default=16384, help="transport: tuples per batch (default 16384)"
     )
     parser.add_argument(
         "--shared-memory",

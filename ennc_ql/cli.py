@@ -16,21 +16,12 @@ from pathlib import Path
 from typing import Any
 
 from ennc_ql.allocator import keep_freed_memory
+from ennc_ql.config import positive
 from monitor import add_rerun_args, open_monitor, sink_from_args
 from monitor.trial import trial_hook
 from sim import HAND_MADE, SCENARIOS, Controller, ScenarioConfig, evaluate, scenario
 
 log = logging.getLogger("ennc_ql")
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
 
 
 def _emit(result: dict[str, Any], as_json: bool, table: str) -> None:
@@ -129,7 +120,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    from ennc_ql.experiments import Budget
+    from algorithm.experiments import Budget
     from ennc_ql.reproduce import markdown_table, reproduce
 
     budget = Budget.quick() if args.quick else Budget()
@@ -143,6 +134,14 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+def method_names() -> list[str]:
+    """Every method ``reproduce`` knows, in the order of its table."""
+    from algorithm.experiments import METHODS
+    from ennc_ql.reproduce import HAND_MADE_ORDER
+
+    return [*HAND_MADE_ORDER, *METHODS]
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="ennc-ql", description=__doc__.splitlines()[0])
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging on stderr")
@@ -151,8 +150,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("eval", help="evaluate a policy on seeded test trials (metric A)")
     p.add_argument("--policy", default="a-cmommt", help=f"one of {', '.join(HAND_MADE)}, or a policy file (.npz)")
     p.add_argument("--scenario", default="cmommt-v1", choices=sorted(SCENARIOS))
-    p.add_argument("--trials", type=_positive_int, default=10, help="independent test trials (default 10)")
-    p.add_argument("--steps", type=_positive_int, default=1000, help="steps per trial (default 1000)")
+    p.add_argument("--trials", type=positive(int), default=10, help="independent test trials (default 10)")
+    p.add_argument("--steps", type=positive(int), default=1000, help="steps per trial (default 1000)")
     p.add_argument("--seed", type=int, default=0, help="seed of the test trials (default 0)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument(
@@ -172,10 +171,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("reproduce", help="the paper's Figure 5 and 6: every method, tables and a bar chart")
     p.add_argument("--quick", action="store_true", help="reduced budget: 1 process per method, shorter learning")
-    p.add_argument("--processes", type=_positive_int, help="learning processes per method (default 5, quick 1)")
-    p.add_argument("--methods", nargs="+", help="run only these methods (names as in the results table)")
+    p.add_argument("--processes", type=positive(int), help="learning processes per method (default 5, quick 1)")
+    names = method_names()
+    p.add_argument("--methods", nargs="+", choices=names, metavar="METHOD", help=f"run only these: {', '.join(names)}")
     p.add_argument("--out", help="output folder (default runs/reproduce[-quick])")
-    p.add_argument("--jobs", type=_positive_int, default=1, help="learning processes run at once (default 1)")
+    p.add_argument("--jobs", type=positive(int), default=1, help="learning processes run at once (default 1)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_reproduce)
 
@@ -187,8 +187,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--scenario", default="cmommt-v1", choices=sorted(SCENARIOS))
     p.add_argument("--seconds", type=float, default=1.5, help="sim: measuring time per configuration")
-    p.add_argument("--patterns", type=_positive_int, default=100_000, help="ennc: patterns of the ENNC fit")
-    p.add_argument("--cycles", type=_positive_int, default=250, help="ennc: ENNC cycles / k-means iterations")
+    p.add_argument("--patterns", type=positive(int), default=100_000, help="ennc: patterns of the ENNC fit")
+    p.add_argument("--cycles", type=positive(int), default=250, help="ennc: ENNC cycles / k-means iterations")
     p.add_argument(
         "--phase1-tuples", type=int, default=1_000_000, help="ennc: tuples of the timed phase 1 (0 skips it)"
     )

@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from algorithm.experiments import METHODS, Budget, Outcome, train
 from algorithm.policy_file import save_policy
-from ennc_ql.experiments import METHODS, Budget, Outcome, train
 from ennc_ql.progress import ProgressBar
 from sim import HAND_MADE, EvalResult, ScenarioConfig, evaluate, scenario
 

@@ -19,13 +19,12 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import signal
 import threading
-from types import FrameType
 from typing import Any
 
 import zenoh
 
+from ennc_ql.system import stop_on_signals
 from protocol import add_connection_args, config_from_args
 
 log = logging.getLogger(__name__)
@@ -62,15 +61,7 @@ def cmd_router(args: argparse.Namespace) -> int:
     if not args.listen and not args.zenoh_config:
         args.listen = [DEFAULT_LISTEN]
     conf = config_from_args(args)
-    stop = threading.Event()
-
-    def on_signal(signum: int, _frame: FrameType | None) -> None:
-        log.info("%s: stopping", signal.Signals(signum).name)
-        stop.set()
-
-    for signum in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(signum, on_signal)
-    run_router(conf, stop)
+    run_router(conf, stop_on_signals())
     return 0
 
 

@@ -14,6 +14,10 @@ To record trial k of an evaluation exactly as it was scored, pass ``trial_hook(m
 
 from __future__ import annotations
 
+import time
+
+import numpy as np
+
 from monitor import paths
 from monitor.interface import Monitor
 from sim.config import ScenarioConfig
@@ -54,3 +58,54 @@ def record_trial(
     """
     result = evaluate(cfg, controller, trials=1, steps=steps, seed=seed, on_step=trial_hook(monitor, cfg))
     return float(result.coverage_per_trial[0])
+
+
+class TrialWatch:
+    """The step hook of one learning trial of an actor under monitoring: arena 0 drawn at each step of a sampled
+    trial, and the trial's coverage over every arena; ``report`` logs the trial's figures on the actor's
+    ``sim_step`` timeline.
+
+    Usage (an actor's loop)::
+
+        watch = TrialWatch(monitor, cfg, "actor-0", first_step=trial * cfg.learning_steps, draw=trial % 10 == 0)
+        batch = experience_slice.run_trial(agent, learn=True, on_step=watch)
+        watch.report(batch.reward[batch.done], tuples_sent=..., policy_version=...)
+    """
+
+    def __init__(
+        self, monitor: Monitor, cfg: ScenarioConfig, actor_id: str, first_step: int, draw: bool, start: float
+    ) -> None:
+        self.monitor = monitor
+        self.cfg = cfg
+        self.actor_id = actor_id
+        self.origin = paths.actor_arena(actor_id)
+        self.step = first_step
+        self.draw = draw
+        self.start = start
+        self.steps = 0
+        self.covered = 0.0
+
+    def __call__(self, world: WorldState, obs: Observation) -> None:
+        self.step += 1
+        self.steps += 1
+        self.covered += float(obs.covered.mean())
+        if self.draw:
+            self.monitor.arena(
+                self.origin,
+                world.robot_pos[0],
+                world.target_pos[0],
+                sensing_range=self.cfg.sensing_range,
+                arena_radius=self.cfg.arena_radius,
+                sim_step=self.step,
+            )
+
+    def report(self, final_rewards: np.ndarray, tuples_sent: float, policy_version: int) -> None:
+        """``final_rewards``: the rewards of the trial's terminal tuples (delayed rewards, Eq. 2)."""
+        self.monitor.actor_metrics(
+            self.actor_id,
+            sim_step=self.step,
+            coverage=100.0 * self.covered / max(self.steps * self.cfg.n_targets, 1),
+            mean_reward=float(final_rewards.mean()) if final_rewards.size else None,
+            tuples_per_s=tuples_sent / max(time.monotonic() - self.start, 1e-9),
+            policy_version=policy_version,
+        )

@@ -90,17 +90,6 @@ class TransportStats:
         with self._lock:
             return sum(self.rejected.values())
 
-    def snapshot(self) -> dict[str, float]:
-        """Flat copy suitable for ``Status.counters``."""
-        with self._lock:
-            out = {
-                "published": float(self.published),
-                "delivered": float(self.delivered),
-                "handler_errors": float(self.handler_errors),
-            }
-            out.update({f"rejected_{name}": float(n) for name, n in self.rejected.items()})
-            return out
-
 
 def _should_log(n: int) -> bool:
     # A hostile or broken peer can send garbage at line rate; log the first few and then a sample.

@@ -7,7 +7,7 @@ import pytest
 
 from algorithm.discretization import Discretization, nearest
 from algorithm.phase1 import Phase1Config, phase1, to_classes
-from algorithm.qtable import greedy, merge_tables, q_targets, q_update
+from algorithm.qtable import greedy, merge_increments, q_targets, q_update
 from algorithm.transitions import Transitions
 
 GAMMA = 0.9
@@ -90,7 +90,7 @@ def test_tabular_q_learning_converges_to_known_values_on_a_chain() -> None:
         done = nxt == 3
         reward = done.astype(float)
         next_cells = disc.cells(np.minimum(nxt, 2)[:, None].astype(float))
-        targets = q_targets(table, next_cells, reward, done, GAMMA)
+        targets = q_targets(table[next_cells].max(axis=1), reward, done, GAMMA)
         q_update(table, visits, disc.cells(s[:, None].astype(float))[np.arange(64), a], targets, alpha=0.2)
     v = np.array([GAMMA**2, GAMMA, 1.0])
     right = v
@@ -99,10 +99,18 @@ def test_tabular_q_learning_converges_to_known_values_on_a_chain() -> None:
     assert (greedy(table, disc.cells(np.arange(3.0)[:, None])) == 1).all()
 
 
-def test_merge_weights_tables_by_visits() -> None:
-    merged, total = merge_tables(np.array([[1.0, 4.0, 0.0], [3.0, 8.0, 2.0]]), np.array([[1, 3, 0], [3, 1, 0]]))
-    np.testing.assert_allclose(merged, [2.5, 5.0, 1.0])
-    np.testing.assert_array_equal(total, [4, 4, 0])
+def test_merge_adds_the_visit_weighted_mean_of_the_changes() -> None:
+    tables = np.array([[1.0, 1.0, 1.0], [5.0, 5.0, 5.0]])
+    visits = np.array([[1, 0, 0], [0, 0, 0]], np.uint64)
+    increments = [
+        (0, np.array([2.0, 1.0, 0.0]), np.array([2, 1, 0])),
+        (0, np.array([4.0, 0.0, 0.0]), np.array([6, 0, 0])),
+    ]
+    merged, total = merge_increments(tables, visits, increments)
+    # Cell 0: changes 2 over 2 visits and 4 over 6 visits -> (2*2 + 4*6) / 8 = 3.5; unvisited cells keep their value.
+    np.testing.assert_allclose(merged, [[4.5, 2.0, 1.0], [5.0, 5.0, 5.0]])
+    np.testing.assert_array_equal(total, [[9, 1, 0], [0, 0, 0]])
+    assert tables[0, 0] == 1.0 and visits[0, 0] == 1  # pure: the inputs are untouched
 
 
 def test_to_classes_keeps_few_values_and_bins_many() -> None:

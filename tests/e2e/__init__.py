@@ -20,11 +20,13 @@ from typing import Any, Self
 
 # Budgets of the short cluster runs: small enough for a first policy within seconds on two busy cores, and the
 # actors stop ten seconds before the learner does, so all they sent is acknowledged and in the learner's report.
+# The actors start at once while the learner loads torch and scikit-learn (several seconds on loaded cores), so the
+# actors' time leaves room for that before the first policy.
 LEARNER_BUDGET = [
-    "--duration=26",
+    "--duration=34",
     "--min-tuples=5000",
-    "--phase1-patterns=300",
-    "--phase1-cycles=10",
+    "--phase1-max-patterns=300",
+    "--phase1-n-cycles=10",
     "--broadcast-interval=1",
     "--checkpoint-interval=1",
     "--eval-interval=1000",
@@ -32,7 +34,7 @@ LEARNER_BUDGET = [
     "--final-eval-trials=2",
     "--json",
 ]
-ACTOR_BUDGET = ["--duration=16", "--arenas=16", "--json", "--batch-size=1024", "--flush-timeout=30"]
+ACTOR_BUDGET = ["--duration=24", "--arenas=16", "--json", "--batch-size=1024", "--flush-timeout=30"]
 
 
 def ennc_ql(*argv: str) -> list[str]:

@@ -17,16 +17,16 @@ from pathlib import Path
 
 import pytest
 
-from ennc_ql.up import free_port
+from ennc_ql.system import free_port
 
 pytestmark = pytest.mark.slow
 
 FAST_LEARNER = [
     "--min-tuples",
     "20000",
-    "--phase1-patterns",
+    "--phase1-max-patterns",
     "1500",
-    "--phase1-cycles",
+    "--phase1-n-cycles",
     "30",
     "--broadcast-interval",
     "1",
@@ -74,7 +74,7 @@ class Cluster:
             "actor",
             "--connect",
             self.endpoint,
-            "--id",
+            "--actor-id",
             ident,
             "--arenas",
             "32",

@@ -16,7 +16,7 @@ import pytest
 import yaml
 
 from ennc_ql.cli import build_parser
-from ennc_ql.up import free_port
+from ennc_ql.system import free_port
 from tests.e2e import ACTOR_BUDGET, LEARNER_BUDGET, Processes, ennc_ql
 
 pytestmark = pytest.mark.slow
@@ -62,11 +62,11 @@ def test_compose_structure() -> None:
         assert args.connect == ["tcp/router:7447"]
         assert args.multicast_scouting is False
     learner_args = parser.parse_args(services["learner"]["command"])
-    assert learner_args.run_dir.startswith("/runs/")
+    assert str(learner_args.run_dir).startswith("/runs/")
     assert "runs:/runs" in services["learner"]["volumes"]
     assert services["actor"]["deploy"]["replicas"] >= 2
     # One command line for every replica: the id must be derived at start-up.
-    assert flag_values(services["actor"]["command"], "--id") == ["auto"]
+    assert flag_values(services["actor"]["command"], "--actor-id") == ["auto"]
 
 
 def local_command(argv: list[str], router_port: int, runs: Path) -> list[str]:
@@ -110,7 +110,7 @@ def test_compose_topology_runs_as_local_processes(tmp_path: Path) -> None:
 
     run_dir = Path(flag_values(learner_argv, "--run-dir")[0])
     assert (run_dir / "report.json").exists() and (run_dir / "policy.npz").exists()
-    # `--id auto` gave every replica its own id, and each one's experience reached the learner's store once.
+    # `--actor-id auto` gave every replica its own id, and each one's experience reached the learner's store once.
     assert len(report["actors"]) == replicas
     assert all(a["tuples_sent"] > 0 for a in actors)
     assert sorted(report["tuples_by_actor"].values()) == sorted(a["tuples_sent"] for a in actors)

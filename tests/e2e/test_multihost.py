@@ -110,7 +110,7 @@ def test_router_learner_and_actors_on_separate_hosts(network: Network, tmp_path:
             network.run("learner", ennc_ql("learner", *client, f"--run-dir={tmp_path / 'run'}", *LEARNER_BUDGET)),
         )
         for actor in ("actor-0", "actor-1"):
-            procs.start(actor, network.run(actor, ennc_ql("actor", *client, f"--id={actor}", *ACTOR_BUDGET)))
+            procs.start(actor, network.run(actor, ennc_ql("actor", *client, f"--actor-id={actor}", *ACTOR_BUDGET)))
 
         counters = {actor: procs.json_result(actor, timeout=90) for actor in ("actor-0", "actor-1")}
         report = procs.json_result("learner", timeout=90)

@@ -99,10 +99,15 @@ def test_console_script_runs_as_a_process() -> None:
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["actor", "--id", "a/b"], "a/b"),
-        (["actor", "--id", "a0", "--learn", "5-2"], "bad robot range"),
-        (["actor", "--id", "a0", "--arenas", "0"], "positive int"),
-        (["learner", "--run-dir", "x", "--min-tuples", "-3"], "positive int"),
+        (["actor", "--actor-id", "a/b"], "actor_id: 'a/b' is not"),
+        (["actor", "--actor-id", "a0", "--learn", "5-2"], "bad robot range"),
+        (["actor", "--actor-id", "a0", "--arenas", "0"], "arenas must be at least 1, got 0"),
+        (["actor", "--actor-id", "a0", "--arenas", "x"], "--arenas"),
+        (["learner", "--run-dir", "x", "--min-tuples", "-3"], "min_tuples must be at least 1, got -3"),
+        (["learner", "--run-dir", "x", "--phase1-n-cycles", "0"], "phase1: n_cycles"),
+        (["learner", "--run-dir", "x", "--featurizer", "raw"], "featurizer: unknown 'raw'"),
+        (["up", "--actor-arenas", "-5"], "arenas must be at least 1, got -5"),
+        (["up", "--actors", "0"], "actors must be at least 1"),
         (["learner", "--run-dir", "x", "--mode", "satellite"], "invalid choice"),
         (["learner"], "--run-dir"),
     ],
@@ -114,14 +119,47 @@ def test_process_flags_are_checked(capsys: pytest.CaptureFixture[str], argv: lis
     assert message in capsys.readouterr().err
 
 
-def test_resume_without_a_checkpoint_is_a_clear_error(tmp_path: Path) -> None:
-    with pytest.raises(SystemExit, match="no checkpoint"):
+def test_up_rejects_a_bad_child_value_before_anything_starts(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(["up", "--actor-arenas", "-5", "--runs", str(tmp_path)])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["ennc-ql up: error: actor: arenas must be at least 1, got -5"]
+    assert list(tmp_path.iterdir()) == []  # no run folder, no process
+
+
+def test_config_file_unknown_key_is_named(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    path = tmp_path / "learner.toml"
+    path.write_text("min_tuples = 5000\n[phase1]\nn_cycle = 10\n")
+    with pytest.raises(SystemExit) as exc:
+        main(["learner", "--config", str(path), "--run-dir", str(tmp_path / "run")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "unknown key 'phase1.n_cycle'" in err and "n_cycles" in err and "Traceback" not in err
+
+
+def test_unwritable_run_dir_is_one_line(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    with pytest.raises(SystemExit) as exc:
+        main(["learner", "--run-dir", str(blocker / "run"), "--listen", "tcp/127.0.0.1:0", "--duration", "1"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--run-dir" in err[0] and "not a writable folder" in err[0]
+
+
+def test_resume_without_a_checkpoint_is_a_clear_error(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    with pytest.raises(SystemExit):
         main(["learner", "--run-dir", str(tmp_path), "--resume", "--listen", "tcp/127.0.0.1:0", "--duration", "1"])
+    assert "no checkpoint" in capsys.readouterr().err
 
 
-def test_actor_for_a_robot_that_does_not_exist_is_a_clear_error() -> None:
-    with pytest.raises(SystemExit, match="robot 12 does not exist"):
-        main(["actor", "--id", "a0", "--learn", "12", "--listen", "tcp/127.0.0.1:0", "--duration", "1"])
+def test_actor_for_a_robot_that_does_not_exist_is_a_clear_error(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit):
+        main(["actor", "--actor-id", "a0", "--learn", "12", "--listen", "tcp/127.0.0.1:0", "--duration", "1"])
+    assert "robots (12,) do not all exist" in capsys.readouterr().err
 
 
 def test_eval_records_the_chosen_trial_for_replay(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:

@@ -10,14 +10,15 @@ from pathlib import Path
 import pytest
 
 from ennc_ql.cli import main
+from ennc_ql.launch import cluster_status
 from ennc_ql.progress import ProgressBar, plain_line
 from ennc_ql.reproduce import reproduce
-from ennc_ql.up import cluster_status
+from learner.report import LearnerStatus
 from tests.ennc_ql.test_reproduce import TINY
 
 
 def counters(**figures: float) -> dict[str, float]:
-    """The learner's status counters (learner.service.LearnerService.counters)."""
+    """The learner's status counters as a Status message carries them (learner.report.LearnerStatus)."""
     base = {
         "tuples_received": 0.0,
         "store_size": 0.0,
@@ -37,12 +38,18 @@ def counters(**figures: float) -> dict[str, float]:
 
 
 def test_cluster_status_while_exploring() -> None:
-    line = cluster_status(counters(tuples_received=1_234_567, tuples_per_s=250_400.0, elapsed=35.0))
+    line = cluster_status(
+        LearnerStatus.from_counters(counters(tuples_received=1_234_567, tuples_per_s=250_400.0, elapsed=35.0))
+    )
     assert line == "exploring: 1,234,567 tuples (250 k/s), policy v0, 2 actors, coverage –"
 
 
 def test_cluster_status_in_phase_2() -> None:
-    line = cluster_status(counters(tuples_received=9e6, tuples_per_s=31_000.0, policy_version=12, coverage=57.25))
+    line = cluster_status(
+        LearnerStatus.from_counters(
+            counters(tuples_received=9e6, tuples_per_s=31_000.0, policy_version=12, coverage=57.25)
+        )
+    )
     assert line == "phase 2: 9,000,000 tuples (31 k/s), policy v12, 2 actors, coverage 57.2%"
 
 
@@ -55,8 +62,10 @@ def test_off_a_terminal_live_figures_are_rate_limited_and_milestones_are_not() -
     stream = io.StringIO()
     with ProgressBar("up", total=480, unit="s", every=3600, stream=stream) as bar:
         assert not bar.tty
-        bar.show(5, cluster_status(counters(tuples_received=1000, tuples_per_s=200.0)))
-        bar.show(6, cluster_status(counters(tuples_received=2000, tuples_per_s=300.0)))  # within `every`: no line
+        bar.show(5, cluster_status(LearnerStatus.from_counters(counters(tuples_received=1000, tuples_per_s=200.0))))
+        bar.show(
+            6, cluster_status(LearnerStatus.from_counters(counters(tuples_received=2000, tuples_per_s=300.0)))
+        )  # within `every`: no line
         bar.mark("evaluation: policy v3 observes 55.1% of targets", n=40)
     assert stream.getvalue().splitlines() == [
         "up [5/480 s] exploring: 1,000 tuples (0 k/s), policy v0, 2 actors, coverage –",

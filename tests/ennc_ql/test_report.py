@@ -2,20 +2,19 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pytest
 from matplotlib.image import imread
 
-from algorithm.policy import PolicyController
+from actors.config import ActorConfig
 from ennc_ql.cli import build_parser
-from ennc_ql.figures import _snapshot, policy_figure
+from ennc_ql.config import load_config
+from ennc_ql.launch import UP_PRESETS, UpConfig, child_configs, write_configs
 from ennc_ql.report import HAND_MADE_COVERAGE, learning_curve_figure, results_table, write_run_report
-from ennc_ql.up import _command, _settings
-from sim import HAND_MADE, evaluate, scenario
-from tests.algorithm.test_policy_file import make_policy
+from learner.config import LearnerConfig
 
 CURVE_BLUE = (0x3B / 255, 0x7D / 255, 0xD8 / 255)
 
@@ -140,33 +139,27 @@ def test_results_table_lists_the_figures(tmp_path: Path) -> None:
     assert "duplicates / gaps      3 / 1" in lines
 
 
-def test_up_command_line_is_rebuilt_from_its_flags() -> None:
-    args = build_parser().parse_args(["up", "--actors", "3", "--duration", "60", "--store-capacity", "1000000"])
-    command = _command(_settings(args))
-    assert command.startswith("ennc-ql up --actors 3 --duration 60 --arenas 500 ")
-    assert "--store-capacity 1000000 " in command and command.endswith("--seed 0")
-    assert build_parser().parse_args(command.split()[1:]) == args
-
-
-@pytest.mark.parametrize("name", sorted(HAND_MADE_COVERAGE))
-def test_reference_levels_are_measured(name: str) -> None:
-    """The chart's hand-made levels are what ``ennc-ql eval --trials 10 --steps 1000 --seed 0`` measures."""
-    result = evaluate(scenario(), HAND_MADE[name.lower()], trials=10, steps=1000, seed=0)
-    assert result.coverage_mean == pytest.approx(HAND_MADE_COVERAGE[name], abs=0.01)
-
-
-def test_policy_figure_draws_the_arena_and_every_action(tmp_path: Path) -> None:
-    policy = make_policy(np.random.default_rng(1))
-    cfg = scenario()
-    robots, targets, coverage = _snapshot(policy, cfg, seed=0, step=40)
-    # The snapshot is test trial 0 as evaluate scores it: its metric A over the same steps.
-    assert coverage == pytest.approx(evaluate(cfg, PolicyController(policy), 1, 40, seed=0).coverage_mean)
-    assert robots.shape == (cfg.n_robots, 2) and targets.shape == (cfg.n_targets, 2)
-    assert (np.hypot(*robots.T) <= cfg.arena_radius + 1e-9).all()
-
-    out = policy_figure(policy, cfg, tmp_path / "policy.png", step=40)
-    image = imread(out)
-    assert image.shape == (560, 1300, 4)
-    report = run_report(tmp_path) | {"policy_figure": str(out)}
-    markdown_path, _ = write_run_report(report, tmp_path)
-    assert "](policy.png)" in markdown_path.read_text()
+def test_up_writes_every_process_configuration_and_they_load_back(tmp_path: Path) -> None:
+    argv = ["up", "--actors", "3", "--duration", "60", "--learner-store-capacity", "1000000", "--actor-learn", "0-4"]
+    args = build_parser().parse_args(argv)
+    config = load_config(UpConfig, args=args, defaults=UP_PRESETS)
+    assert config.learner.store_capacity == 1_000_000  # the flag beats up's preset
+    assert config.actor.arenas == UP_PRESETS["actor.arenas"] != ActorConfig().arenas  # the preset beats the default
+    learner, actors = child_configs(config)
+    write_configs(config, learner, actors, tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "actor-0.toml",
+        "actor-1.toml",
+        "actor-2.toml",
+        "learner.toml",
+        "up.toml",
+    ]
+    assert load_config(UpConfig, file=tmp_path / "up.toml") == config
+    assert load_config(LearnerConfig, file=tmp_path / "learner.toml") == learner
+    assert learner.duration == 60.0 and learner.seed == 0
+    for i, actor in enumerate(actors):
+        assert load_config(ActorConfig, file=tmp_path / f"actor-{i}.toml") == actor
+        assert actor.actor_id == f"actor-{i}" and actor.learn == (0, 1, 2, 3, 4)
+    # The children's own command lines read the same files; a flag given there still wins.
+    child = build_parser().parse_args(["actor", "--config", str(tmp_path / "actor-1.toml"), "--arenas", "7"])
+    assert load_config(ActorConfig, file=child.config, args=child) == dataclasses.replace(actors[1], arenas=7)

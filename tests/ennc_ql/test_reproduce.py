@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from algorithm.experiments import Budget
 from algorithm.phase1 import Phase1Config
 from algorithm.policy_file import load_policy
 from ennc_ql.cli import main
-from ennc_ql.experiments import Budget
 from ennc_ql.reproduce import reproduce
 
 TINY = Budget(

@@ -6,14 +6,20 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
 
-from actors.actor import ActorConfig, RobotActor, parse_robots
+from actors.actor import ActorStatus, RobotActor
+from actors.config import ActorConfig, parse_robots
+from actors.wiring import connect as connect_actor
+from algorithm.discretization import Discretization
 from algorithm.phase1 import Phase1Config
-from learner.service import LearnerConfig, LearnerService
+from learner.config import LearnerConfig
+from learner.policy_state import PolicyState
+from learner.report import LearnerReport
+from learner.service import LearnerService
+from learner.wiring import connect as connect_learner
 from protocol import ExperienceBatch, InMemoryBus, InMemoryTransport, PolicyUpdate, QTableIncrement
 
 FAST = LearnerConfig(
@@ -28,7 +34,7 @@ FAST = LearnerConfig(
 )
 
 
-def run_until(service: LearnerService, condition: Callable[[], bool]) -> dict[str, Any]:
+def run_until(service: LearnerService, condition: Callable[[], bool]) -> LearnerReport:
     """``service.run`` until ``condition()`` holds (or its duration ends): a loaded CI machine may need most of
     the time for phase 1, so the tests end on the outcome, not on the clock."""
     done = threading.Event()
@@ -53,89 +59,80 @@ def test_serial_learner_and_actor_exchange_experience_and_policies(tmp_path: Pat
     with InMemoryTransport(bus) as lt, InMemoryTransport(bus) as at, InMemoryTransport(bus) as watcher:
         watcher.subscribe(watcher.keys.policy(), PolicyUpdate, lambda u: versions.append(u.version))
         service = LearnerService(lt, FAST, tmp_path)
-        service.start()
+        handles = connect_learner(service, lt)
         actor = RobotActor(
             at, ActorConfig(actor_id="a0", arenas=16, learn=(0, 1, 2), batch_size=256, flush_timeout=0.5)
         )
-        actor.start()
+        handles += connect_actor(actor, at)
         stop = threading.Event()
-        counters: dict[str, float] = {}
-        thread = threading.Thread(target=lambda: counters.update(actor.run(stop)))
+        result: list[ActorStatus] = []
+        thread = threading.Thread(target=lambda: result.append(actor.run(stop)))
         thread.start()
-        report = run_until(service, lambda: service.increments >= 3 and len(versions) >= 2)
+        report = run_until(service, lambda: service.state.increments >= 3 and len(versions) >= 2)
         stop.set()
         thread.join()
-        actor.close()
-        service.close()
+        for handle in reversed(handles):
+            handle.close()
+    status = result[0]
     assert versions == sorted(set(versions)) and len(versions) >= 2  # strictly increasing broadcasts
-    assert report["policy_version"] == versions[-1]
-    assert report["tuples_by_actor"]["a0"] >= counters["tuples_sent"] - counters["outbox"] * 256
-    assert report["gaps"] == 0 and report["duplicates"] == 0 and report["rejected"] == 0
-    assert report["increments"] > 0 and counters["policies_applied"] >= 1
+    assert report.policy_version == versions[-1]
+    assert report.tuples_by_actor["a0"] >= status.tuples_sent - status.outbox * 256
+    assert report.gaps == 0 and report.duplicates == 0 and report.rejected == 0
+    assert report.increments > 0 and status.policies_applied >= 1
     # Only the learned robots produced tuples, and their tables moved away from the phase-1 labels.
-    assert report["prototypes_per_action"] and (tmp_path / "checkpoint.npz").exists()
-    assert service.disc is not None
-    moved = np.abs(service.tables - service.disc.labels[None, :]).sum(axis=1)
+    assert report.prototypes_per_action and (tmp_path / "checkpoint.npz").exists()
+    policy = service.state.policy()
+    assert policy is not None
+    moved = np.abs(policy.tables - policy.discretization.labels[None, :]).sum(axis=1)
     assert (moved[[0, 1, 2]] > 0).all() and (moved[3:] == 0).all()
+
+
+def one_cell_per_action() -> Discretization:
+    return Discretization.from_per_action([np.zeros((1, 6), np.float32)] * 8)
+
+
+def increment(actor: str, seq: int, q: list[float], visits: list[int], version: int = 1) -> QTableIncrement:
+    return QTableIncrement(
+        actor_id=actor,
+        incarnation=1,
+        seq=seq,
+        policy_version=version,
+        robot=2,
+        q=np.array(q, np.float32),
+        visits=np.array(visits, np.uint32),
+        offsets=one_cell_per_action().offsets,
+    )
 
 
 def test_merge_adds_the_visit_weighted_mean_of_the_actors_changes(tmp_path: Path) -> None:
     with InMemoryTransport(InMemoryBus()) as t:
         service = LearnerService(t, FAST, tmp_path)
-        from algorithm.discretization import Discretization
-
-        service.disc = Discretization.from_per_action([np.zeros((1, 6))] * 8)
-        service.tables = np.zeros((10, 8))
-        service.visits = np.zeros((10, 8), np.uint64)
-        service.disc_of_version = {1: service.disc_id}
-        offsets = service.disc.offsets
-
-        def inc(actor: str, seq: int, q: list[float], visits: list[int]) -> QTableIncrement:
-            return QTableIncrement(
-                actor_id=actor,
-                incarnation=1,
-                seq=seq,
-                policy_version=1,
-                robot=2,
-                q=np.array(q, np.float32),
-                visits=np.array(visits, np.uint32),
-                offsets=offsets,
-            )
-
-        service._on_increment(inc("a", 0, [1, 0, 0, 0, 0, 0, 0, 0], [1, 0, 0, 0, 0, 0, 0, 0]))
-        service._on_increment(inc("a", 1, [1, 2, 0, 0, 0, 0, 0, 0], [1, 2, 0, 0, 0, 0, 0, 0]))  # adds up
-        service._on_increment(inc("b", 0, [4, 0, 0, 0, 0, 0, 0, 0], [6, 0, 0, 0, 0, 0, 0, 0]))
-        service._on_increment(inc("b", 0, [9, 9, 9, 9, 9, 9, 9, 9], [9, 9, 9, 9, 9, 9, 9, 9]))  # duplicate seq
-        with service.lock:
-            service._merge_pending()
+        service.state.adopt(one_cell_per_action())
+        first = service.state.publish()  # version 1 over the labels (all 0)
+        service.on_increment(increment("a", 0, [1, 0, 0, 0, 0, 0, 0, 0], [1, 0, 0, 0, 0, 0, 0, 0]))
+        service.on_increment(increment("a", 1, [1, 2, 0, 0, 0, 0, 0, 0], [1, 2, 0, 0, 0, 0, 0, 0]))  # adds up
+        service.on_increment(increment("b", 0, [4, 0, 0, 0, 0, 0, 0, 0], [6, 0, 0, 0, 0, 0, 0, 0]))
+        service.on_increment(increment("b", 0, [9, 9, 9, 9, 9, 9, 9, 9], [9, 9, 9, 9, 9, 9, 9, 9]))  # duplicate seq
+        update = service.state.publish()
     # Cell 0: actor a changed it by 2 over 2 visits, actor b by 4 over 6 visits -> (2*2 + 4*6) / 8 = 3.5.
-    assert service.tables[2, 0] == pytest.approx(3.5)
-    assert service.tables[2, 1] == pytest.approx(2.0)
-    assert service.tables[2, 2:].sum() == 0 and service.tables[[0, 1, 3]].sum() == 0
-    assert service.visits[2, 0] == 8 and service.ingest.ledger.duplicates == 1
+    assert first.version == 1 and update.version == 2
+    assert update.q_tables[2, 0] == pytest.approx(3.5)
+    assert update.q_tables[2, 1] == pytest.approx(2.0)
+    assert update.q_tables[2, 2:].sum() == 0 and update.q_tables[[0, 1, 3]].sum() == 0
+    assert update.visits[2, 0] == 8 and service.intake.figures().duplicates == 1
 
 
-def test_stale_increments_over_an_old_discretization_are_dropped(tmp_path: Path) -> None:
-    with InMemoryTransport(InMemoryBus()) as t:
-        service = LearnerService(t, FAST, tmp_path)
-        from algorithm.discretization import Discretization
-
-        service.disc = Discretization.from_per_action([np.zeros((1, 6))] * 8)
-        service.tables = np.zeros((10, 8))
-        service.disc_id = 2
-        service.disc_of_version = {1: 1, 2: 2}
-        msg = QTableIncrement(
-            actor_id="a",
-            incarnation=1,
-            seq=0,
-            policy_version=1,
-            robot=0,
-            q=np.ones(8, np.float32),
-            visits=np.ones(8, np.uint32),
-            offsets=service.disc.offsets,
-        )
-        service._on_increment(msg)
-    assert service.stale_increments == 1 and not service.pending
+def test_increments_over_an_old_discretization_are_dropped() -> None:
+    state = PolicyState(n_robots=10, featurizer="collab6d", scenario="cmommt-v1", action_steps=5, method="m")
+    state.adopt(one_cell_per_action())
+    state.publish()  # version 1 over the first discretization
+    state.adopt(one_cell_per_action())  # a refit: version 1's cells mean something else now
+    state.publish()
+    assert not state.add_increment(increment("a", 0, [1.0] * 8, [1] * 8, version=1))
+    assert state.add_increment(increment("a", 1, [1.0] * 8, [1] * 8, version=2))
+    assert state.stale_increments == 1 and state.increments == 2
+    update = state.publish()
+    assert update.q_tables[2].tolist() == [1.0] * 8  # only the current discretization's increment was merged
 
 
 def experience(seq: int, dim: int, n: int = 3) -> ExperienceBatch:
@@ -156,17 +153,19 @@ def experience(seq: int, dim: int, n: int = 3) -> ExperienceBatch:
 def test_experience_of_the_wrong_dimension_is_rejected_and_counted(tmp_path: Path) -> None:
     with InMemoryTransport(InMemoryBus()) as t:
         service = LearnerService(t, FAST, tmp_path)
-        service.start()
+        handles = connect_learner(service, t)
         good = experience(seq=0, dim=6)
         bad = experience(seq=1, dim=2)
         t.publish(t.keys.experience("a"), good)
         t.publish(t.keys.experience("a"), bad)
         t.inject_raw(t.keys.experience("a"), b"\x93\x01garbage")
         t.publish(t.keys.experience("a"), good)  # a re-sent duplicate
-        service.close()
-    assert service.ingest.tuples_received == 3 and len(service.ingest.store) == 3
-    assert service.ingest.rejected == 1 and sum(t.stats.rejected.values()) == 1
-    assert service.ingest.ledger.duplicates == 1
+        for handle in reversed(handles):
+            handle.close()
+    figures = service.intake.figures()
+    assert figures.tuples_received == 3 and figures.store_size == 3
+    assert figures.rejected == 1 and sum(t.stats.rejected.values()) == 1
+    assert figures.duplicates == 1
 
 
 def test_parse_robots() -> None:
@@ -193,19 +192,20 @@ def test_refits_warm_start_and_carry_q_values_over(tmp_path: Path) -> None:
     with InMemoryTransport(bus) as lt, InMemoryTransport(bus) as at, InMemoryTransport(bus) as watcher:
         watcher.subscribe(watcher.keys.policy(), PolicyUpdate, lambda u: prototypes_seen.append(u.n_prototypes))
         service = LearnerService(lt, config, tmp_path)
-        service.start()
+        handles = connect_learner(service, lt)
         actor = RobotActor(at, ActorConfig(actor_id="a0", arenas=16, batch_size=256, flush_timeout=0.5))
-        actor.start()
+        handles += connect_actor(actor, at)
         stop = threading.Event()
         thread = threading.Thread(target=actor.run, args=(stop,))
         thread.start()
         report = run_until(service, lambda: service.fits >= 2 and len(set(prototypes_seen)) >= 2)
         stop.set()
         thread.join()
-        actor.close()
-        service.close()
-    assert report["phase1_fits"] >= 2  # refitted as the data grew
+        for handle in reversed(handles):
+            handle.close()
+    assert report.phase1_fits >= 2  # refitted as the data grew
     assert len(set(prototypes_seen)) >= 2  # broadcasts carried the new discretization
-    assert service.disc is not None and service.disc_id == report["phase1_fits"]
+    policy = service.state.policy()
+    assert policy is not None
     # Carried-over tables are not the new labels: learned values survived the change of cells.
-    assert not np.allclose(service.tables, service.disc.labels[None, :])
+    assert not np.allclose(policy.tables, policy.discretization.labels[None, :])

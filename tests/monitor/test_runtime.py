@@ -11,9 +11,13 @@ from pathlib import Path
 
 import pytest
 
-from actors.actor import ActorConfig, RobotActor
+from actors.actor import RobotActor
+from actors.config import ActorConfig
+from actors.wiring import connect as connect_actor
 from algorithm.phase1 import Phase1Config
-from learner.service import LearnerConfig, LearnerService
+from learner.config import LearnerConfig
+from learner.service import LearnerService
+from learner.wiring import connect as connect_learner
 from monitor import Sink, merge_recordings, open_monitor, paths, summarize_recording
 from protocol import InMemoryBus, InMemoryTransport
 from sim import N_ACTIONS
@@ -44,7 +48,7 @@ def test_learner_and_actors_log_into_one_recording(tmp_path: Path) -> None:
         InMemoryTransport(bus) as lt,
     ):
         service = LearnerService(lt, CONFIG, tmp_path, monitor=learner_monitor)
-        service.start()
+        handles = connect_learner(service, lt)
         actors, threads, monitors, transports = [], [], [], []
         stop = threading.Event()
         for i, actor_id in enumerate(actor_ids):
@@ -54,7 +58,7 @@ def test_learner_and_actors_log_into_one_recording(tmp_path: Path) -> None:
             transport = InMemoryTransport(bus)
             config = ActorConfig(actor_id=actor_id, arenas=8, seed=i, batch_size=512, flush_timeout=0.5, draw_every=2)
             actor = RobotActor(transport, config, monitor=monitor)
-            actor.start()
+            handles += connect_actor(actor, transport)
             actors.append(actor)
             monitors.append(monitor)
             transports.append(transport)
@@ -62,16 +66,16 @@ def test_learner_and_actors_log_into_one_recording(tmp_path: Path) -> None:
         for thread in threads:
             thread.start()
         # A policy was broadcast and both actors ran a few trials.
-        report = run_until(service, lambda: service.version >= 2 and all(a.counters["trials"] >= 4 for a in actors))
+        report = run_until(service, lambda: service.state.version >= 2 and all(a.status().trials >= 4 for a in actors))
         stop.set()
         for thread in threads:
             thread.join()
-        for actor, monitor, transport in zip(actors, monitors, transports, strict=True):
-            actor.close()
+        for handle in reversed(handles):
+            handle.close()
+        for monitor, transport in zip(monitors, transports, strict=True):
             monitor.close()
             transport.close()
-        service.close()
-        trials = {a.config.actor_id: int(a.counters["trials"]) for a in actors}
+        trials = {a.config.actor_id: a.status().trials for a in actors}
 
     recording = merge_recordings(sorted((tmp_path / "rerun").glob("*.rrd")), tmp_path / paths.RECORDING_FILE)
     summary = summarize_recording(recording)
@@ -87,7 +91,7 @@ def test_learner_and_actors_log_into_one_recording(tmp_path: Path) -> None:
         drawn = rows(recording, f"{paths.actor_arena(actor_id)}/robots", "Points2D:positions", paths.SIM_STEP)
         assert len(drawn) == len(range(0, trials[actor_id], 2)) * 100  # learning trials are 100 steps
     evaluations = rows(recording, paths.LEARNER_COVERAGE_EVAL, "Scalars:scalars", "policy_version")
-    assert evaluations[-1][1][0] == pytest.approx(report["final_coverage_mean"], abs=1e-3)
+    assert evaluations[-1][1][0] == pytest.approx(report.final_coverage_mean, abs=1e-3)
     assert {paths.prototypes_of(k) for k in range(N_ACTIONS)} <= entities
     assert {paths.learner_lag(a) for a in actor_ids} <= entities
     assert rows(recording, paths.LEARNER_STORE_SIZE, "Scalars:scalars", paths.LEARNER_STEP)

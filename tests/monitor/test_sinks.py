@@ -114,7 +114,7 @@ PROCESSES_SCRIPT = """
 import sys
 import ennc_ql.cli, ennc_ql.processes, ennc_ql.up, learner.service, actors.actor
 from ennc_ql.cli import build_parser
-args = build_parser().parse_args(["actor", "--id", "a0"])
+args = build_parser().parse_args(["actor", "--actor-id", "a0"])
 assert args.rerun.kind == "off"
 print(sorted(m for m in ("rerun", "rerun_bindings") if m in sys.modules))
 """

@@ -1,0 +1,109 @@
+"""The actor process's configuration: every default of ``ennc-ql actor`` is written here, once.
+
+The command's flags are generated from these fields (their docstrings are the ``--help`` text), ``--config FILE``
+reads the same fields from TOML, and ``ennc-ql up`` builds one of these instead of a command line.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import socket
+from dataclasses import dataclass, field
+
+from algorithm.agent import Phase2Config
+from protocol import FEATURIZER_DIMS, check_id
+from sim import SCENARIOS
+
+
+def parse_robots(text: str) -> tuple[int, ...]:
+    """Robot ids from ranges and lists.
+
+    >>> parse_robots("0-4,7")
+    (0, 1, 2, 3, 4, 7)
+    """
+    robots: list[int] = []
+    for part in text.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        lo, _, hi = part.partition("-")
+        try:
+            first, last = int(lo), int(hi or lo)
+        except ValueError:
+            raise ValueError(f"bad robot range {part!r} (expected e.g. 0-4,7)") from None
+        if first < 0 or last < first:
+            raise ValueError(f"bad robot range {part!r}")
+        robots.extend(range(first, last + 1))
+    if not robots:
+        raise ValueError("no robots given")
+    return tuple(sorted(set(robots)))
+
+
+def resolve_actor_id(text: str) -> str:
+    """``auto`` becomes ``actor-<hostname>-<pid>``: replicas started from one command line (compose
+    ``deploy.replicas``) need distinct ids, and a container's hostname is unique per replica, a pid per process."""
+    if text == "auto":
+        host = re.sub(r"[^A-Za-z0-9_.-]", "-", socket.gethostname())[:40]
+        return f"actor-{host}-{os.getpid()}"
+    return text
+
+
+@dataclass(frozen=True, slots=True)
+class ActorConfig:
+    actor_id: str = field(default="actor-0", metadata={"parse": resolve_actor_id})
+    """Actor id, unique in the run (letters, digits, '_', '.', '-'); 'auto': from the hostname and pid."""
+    scenario: str = "cmommt-v1"
+    """Scenario the actor simulates."""
+    featurizer: str = "collab6d"
+    """State definition of the experience: local2d or collab6d."""
+    learn: tuple[int, ...] | None = field(default=None, metadata={"parse": parse_robots})
+    """Robot ids whose tables this actor learns (and whose tuples it streams), e.g. 0-4,7; None = every robot."""
+    arenas: int = 256
+    """Arenas simulated side by side; every arena holds all m robots."""
+    seed: int = 0
+    """Run seed; the actor's random stream is derived from (seed, actor id), so no two actors share one."""
+    batch_size: int = 16384
+    """Tuples per experience message."""
+    outbox_limit: int = 256
+    """Unacknowledged messages kept for re-sending; when full the actor waits for acks."""
+    resend_after: float = 10.0
+    """Seconds without an ack after which a message is sent again."""
+    flush_timeout: float = 10.0
+    """On stopping, seconds to wait for the learner to acknowledge the outbox (it acks after each checkpoint)."""
+    duration: float | None = None
+    """Stop after this many seconds (None: run until stopped)."""
+    status_interval: float = 2.0
+    """Seconds between status messages."""
+    phase2: Phase2Config = field(default_factory=Phase2Config)
+    """On-line Q-learning of the robots this actor learns."""
+    draw_every: int = 10
+    """With monitoring on, every this many trials arena 0 is drawn at each step of the trial."""
+
+    def __post_init__(self) -> None:
+        try:
+            check_id(self.actor_id, "actor_id")
+        except ValueError as exc:
+            raise ValueError(str(exc)) from None
+        if self.scenario not in SCENARIOS:
+            raise ValueError(f"scenario: unknown {self.scenario!r} (known: {', '.join(sorted(SCENARIOS))})")
+        if self.featurizer not in FEATURIZER_DIMS:
+            raise ValueError(f"featurizer: unknown {self.featurizer!r} (known: {', '.join(FEATURIZER_DIMS)})")
+        for name in ("arenas", "batch_size", "outbox_limit", "draw_every"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+        for name in ("resend_after", "status_interval"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if self.flush_timeout < 0:
+            raise ValueError(f"flush_timeout must be 0 or more, got {self.flush_timeout}")
+        if self.duration is not None and not self.duration > 0:
+            raise ValueError(f"duration must be positive, got {self.duration}")
+        n_robots = SCENARIOS[self.scenario].n_robots
+        if self.learn is not None and (not self.learn or max(self.learn) >= n_robots or min(self.learn) < 0):
+            raise ValueError(
+                f"learn: robots {self.learn} do not all exist: the scenario has {n_robots} (0-{n_robots - 1})"
+            )
+
+    def learned_robots(self) -> tuple[int, ...]:
+        return self.learn if self.learn is not None else tuple(range(SCENARIOS[self.scenario].n_robots))

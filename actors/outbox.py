@@ -1,0 +1,123 @@
+"""The actor's outbox (Acme's ``Adder``): sequence numbers, unacknowledged messages, cumulative acks, re-sends,
+back-pressure and the final flush.
+
+Usage (``send``/``wait_for_room``/``flush`` from the actor's loop; ``on_ack``/``on_learner_join`` from transport
+threads)::
+
+    outbox = Outbox(transport, incarnation, limit=256, resend_after=10.0, probe_key=keys.experience("actor-0"))
+    seq = outbox.reserve()
+    outbox.send(key, message_with(seq), seq)  # published now, kept until acknowledged
+    outbox.wait_for_room(stop)              # re-sends what is overdue; blocks while `limit` messages are unacked
+    outbox.flush(timeout=10.0)              # on stopping: re-send and wait for the last acks
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import OrderedDict
+from dataclasses import dataclass
+
+from protocol import Ack, Message, Transport
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(slots=True)
+class _Pending:
+    key: str
+    msg: Message
+    sent_at: float
+
+
+class Outbox:
+    def __init__(self, transport: Transport, incarnation: int, limit: int, resend_after: float, probe_key: str) -> None:
+        self.transport = transport
+        self.incarnation = incarnation
+        self.limit = limit
+        self.resend_after = resend_after
+        self.probe_key = probe_key
+        """A key of ours the learner subscribes to: a re-send after a learner (re)joined waits until it is matched."""
+        self._cond = threading.Condition()
+        self._pending: OrderedDict[int, _Pending] = OrderedDict()
+        self._seq = 0
+        self._acked = -1
+        self._resend_all = False
+        self.resent = 0
+        self.waits = 0
+
+    def reserve(self, count: int = 1) -> int:
+        """The first of ``count`` consecutive sequence numbers for messages about to be sent."""
+        first = self._seq
+        self._seq += count
+        return first
+
+    def send(self, key: str, msg: Message, seq: int) -> None:
+        with self._cond:
+            self._pending[seq] = _Pending(key, msg, time.monotonic())
+        self.transport.publish(key, msg)
+
+    def on_ack(self, ack: Ack) -> None:
+        if ack.incarnation != self.incarnation:
+            return  # meant for an earlier incarnation of this actor id
+        with self._cond:
+            self._acked = max(self._acked, ack.seq)
+            while self._pending and next(iter(self._pending)) <= ack.seq:
+                self._pending.popitem(last=False)
+            self._cond.notify_all()
+
+    def on_learner_join(self, key: str) -> None:
+        # A (re)started learner has not seen what it did not acknowledge: send the whole outbox again.
+        with self._cond:
+            if self._pending:
+                self._resend_all = True
+                log.info("learner %s joined: re-sending %d unacknowledged messages", key, len(self._pending))
+
+    def wait_for_room(self, stop: threading.Event) -> None:
+        """Re-send what is due, and wait while the outbox is full (slowing down instead of dropping)."""
+        while True:
+            self._resend_due()
+            with self._cond:
+                if len(self._pending) < self.limit or stop.is_set():
+                    return
+                self.waits += 1
+                self._cond.wait(timeout=1.0)
+
+    def flush(self, timeout: float) -> int:
+        """Re-send and wait up to ``timeout`` seconds for the outbox to drain; the messages still unacknowledged."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            self._resend_due()
+            with self._cond:
+                if not self._pending:
+                    break
+                self._cond.wait(timeout=0.2)
+        return len(self)
+
+    def __len__(self) -> int:
+        with self._cond:
+            return len(self._pending)
+
+    @property
+    def acked(self) -> int:
+        """The cumulative acknowledgement: every seq up to it is stored by the learner (-1: none yet)."""
+        with self._cond:
+            return self._acked
+
+    def _resend_due(self) -> None:
+        """Re-send what is overdue, and everything after a learner (re)joined once its subscription is visible here:
+        a message published before the new learner's subscriber reaches this session would be lost again."""
+        now = time.monotonic()
+        with self._cond:
+            if self._resend_all and not self.transport.has_subscribers(self.probe_key):
+                return
+            due = [
+                (seq, p) for seq, p in self._pending.items() if self._resend_all or now - p.sent_at >= self.resend_after
+            ]
+            self._resend_all = False
+        for seq, pending in due:
+            pending.sent_at = now
+            self.transport.publish(pending.key, pending.msg)
+            self.resent += 1
+            log.debug("re-sent seq %d", seq)

@@ -1,0 +1,67 @@
+"""The actor's policy client (Acme's ``VariableClient``): keeps the newest broadcast and adopts it between trials.
+
+Usage (``offer`` from the transport's thread, ``adopt`` from the actor's loop)::
+
+    client = PolicyClient(n_robots=10, phase2=Phase2Config(), tracker=IncrementTracker(learn))
+    client.offer(update)                   # newest version wins; older ones are ignored
+    update = client.take()                 # None while nothing newer than the adopted version has come
+    agent = client.adopt(update, agent)    # the agent over the new tables
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+
+import numpy as np
+
+from actors.increments import IncrementTracker
+from algorithm.agent import Phase2Config, TabularAgent
+from algorithm.discretization import Discretization
+from algorithm.wire import policy_from_update
+from protocol import PolicyUpdate
+
+log = logging.getLogger(__name__)
+
+
+class PolicyClient:
+    def __init__(self, n_robots: int, phase2: Phase2Config, tracker: IncrementTracker) -> None:
+        self.n_robots = n_robots
+        self.phase2 = phase2
+        self.tracker = tracker
+        self._lock = threading.Lock()
+        self._newest: PolicyUpdate | None = None
+        self.version = 0
+        """Version of the adopted policy (0: none yet)."""
+        self.adopted = 0
+
+    def offer(self, update: PolicyUpdate) -> None:
+        with self._lock:
+            if update.version > max(self.version, 0 if self._newest is None else self._newest.version):
+                self._newest = update
+
+    def take(self) -> PolicyUpdate | None:
+        """The newest broadcast if it is newer than the adopted one (once)."""
+        with self._lock:
+            update, self._newest = self._newest, None
+        return None if update is None or update.version <= self.version else update
+
+    def adopt(self, update: PolicyUpdate, agent: TabularAgent | None) -> TabularAgent:
+        """The agent over ``update``'s tables, replacing ``agent``.
+
+        Over the same cells, the learning of ``agent`` not yet handed in is kept on top of the broadcast tables;
+        over new cells, the tracker starts afresh (the learner carries values over itself).
+        """
+        new = TabularAgent(policy_from_update(update, self.n_robots), self.phase2)
+        if agent is not None and _same_cells(agent.discretization, new.discretization):
+            self.tracker.rebase(new, agent)
+        else:
+            self.tracker.reset(new)
+        self.version = int(update.version)
+        self.adopted += 1
+        log.debug("adopted policy version %d", self.version)
+        return new
+
+
+def _same_cells(a: Discretization, b: Discretization) -> bool:
+    return a.prototypes.shape == b.prototypes.shape and bool(np.array_equal(a.prototypes, b.prototypes))

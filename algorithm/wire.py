@@ -1,0 +1,153 @@
+"""Conversions between the algorithm's types and the wire messages, both directions in one place.
+
+The learner and the actors never build or unpack a message field by field themselves; they call these::
+
+    update = policy_update(policy, scenario="cmommt-v1")                  # learner: Policy -> PolicyUpdate
+    policy = policy_from_update(update, n_robots=10)                      # actor: PolicyUpdate -> Policy
+    batches = experience_batches(transitions, actor_id="actor-0", incarnation=7, first_seq=0,
+                                 policy_version=3, batch_size=16384)      # actor: Transitions -> ExperienceBatch
+    transitions = transitions_from_batch(batches[0])                      # learner: ExperienceBatch -> Transitions
+    msg = increment_message(actor_id="actor-0", incarnation=7, seq=5, policy_version=3, robot=2,
+                            change=change, visits=visits, offsets=disc.offsets)
+    robot, change, visits = increment_arrays(msg)                        # learner: QTableIncrement -> arrays
+
+Imports only the message definitions (no transport, no zenoh, no torch).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from algorithm.discretization import Discretization
+from algorithm.policy import Policy
+from algorithm.transitions import Transitions
+from protocol.messages import ExperienceBatch, PolicyUpdate, QTableIncrement
+
+_U32_MAX = np.iinfo(np.uint32).max
+
+
+def _u32(counts: np.ndarray) -> np.ndarray:
+    # Visit counts saturate on the wire instead of wrapping round.
+    return np.minimum(counts, _U32_MAX).astype(np.uint32)
+
+
+def policy_update(policy: Policy, scenario: str) -> PolicyUpdate:
+    """The broadcast message of ``policy``: one table row per robot (robot i's row is ``tables[robot_table[i]]``)."""
+    disc = policy.discretization
+    tables = policy.tables[policy.robot_table]
+    visits = np.zeros(tables.shape, np.uint64) if policy.visits is None else policy.visits[policy.robot_table]
+    return PolicyUpdate(
+        version=policy.version,
+        scenario=scenario,
+        featurizer=policy.featurizer,
+        action_steps=policy.action_steps,
+        prototypes=disc.prototypes.astype(np.float32),
+        labels=disc.labels.astype(np.float32),
+        offsets=disc.offsets.astype(np.int64),
+        robots=np.arange(policy.n_robots, dtype=np.int16),
+        q_tables=tables.astype(np.float32),
+        visits=_u32(visits),
+        scale=np.ones(disc.dim, np.float32) if disc.scale is None else disc.scale.astype(np.float32),
+    )
+
+
+def policy_from_update(update: PolicyUpdate, n_robots: int, method: str = "") -> Policy:
+    """The acting policy of a broadcast for ``n_robots`` robots: robot i uses the update's row for robot i; robots
+    the update does not name use the mean of its rows (with no visits)."""
+    disc = Discretization(
+        prototypes=np.array(update.prototypes),
+        labels=np.array(update.labels),
+        offsets=np.array(update.offsets),
+        scale=np.array(update.scale),
+    )
+    tables = np.tile(np.asarray(update.q_tables, np.float32).mean(axis=0), (n_robots, 1))
+    visits = np.zeros((n_robots, disc.size), np.uint64)
+    for row, robot in enumerate(np.asarray(update.robots)):
+        if robot < n_robots:
+            tables[robot] = update.q_tables[row]
+            visits[robot] = update.visits[row]
+    return Policy(
+        featurizer=update.featurizer,
+        discretization=disc,
+        tables=tables,
+        robot_table=np.arange(n_robots),
+        action_steps=int(update.action_steps),
+        visits=visits,
+        version=int(update.version),
+        method=method,
+    )
+
+
+def experience_batches(
+    transitions: Transitions,
+    *,
+    actor_id: str,
+    incarnation: int,
+    first_seq: int,
+    policy_version: int,
+    batch_size: int,
+) -> list[ExperienceBatch]:
+    """``transitions`` split into messages of at most ``batch_size`` tuples with seqs ``first_seq, first_seq+1, …``.
+
+    Building the message validates it, so a tuple the learner would refuse (NaN, a wrong dtype) fails here, in the
+    actor that made it, not on the wire.
+    """
+    out = []
+    for k, start in enumerate(range(0, len(transitions), batch_size)):
+        part = transitions.take(np.arange(start, min(start + batch_size, len(transitions))))
+        out.append(
+            ExperienceBatch(
+                actor_id=actor_id,
+                incarnation=incarnation,
+                seq=first_seq + k,
+                policy_version=policy_version,
+                robot=part.robot,
+                state=part.state,
+                action=part.action,
+                reward=part.reward,
+                next_state=part.next_state,
+                done=part.done,
+            )
+        )
+    return out
+
+
+def transitions_from_batch(msg: ExperienceBatch) -> Transitions:
+    """The tuples of one experience message (arrays decoded from the wire are read-only views)."""
+    return Transitions(
+        robot=np.asarray(msg.robot),
+        state=np.asarray(msg.state),
+        action=np.asarray(msg.action),
+        reward=np.asarray(msg.reward),
+        next_state=np.asarray(msg.next_state),
+        done=np.asarray(msg.done),
+    )
+
+
+def increment_message(
+    *,
+    actor_id: str,
+    incarnation: int,
+    seq: int,
+    policy_version: int,
+    robot: int,
+    change: np.ndarray,
+    visits: np.ndarray,
+    offsets: np.ndarray,
+) -> QTableIncrement:
+    """The change (Σ P_a,) of one robot's table since the previous increment, with the visits behind it."""
+    return QTableIncrement(
+        actor_id=actor_id,
+        incarnation=incarnation,
+        seq=seq,
+        policy_version=policy_version,
+        robot=int(robot),
+        q=np.asarray(change, np.float32),
+        visits=_u32(np.asarray(visits)),
+        offsets=np.asarray(offsets, np.int64),
+    )
+
+
+def increment_arrays(msg: QTableIncrement) -> tuple[int, np.ndarray, np.ndarray]:
+    """(robot, change (Σ P_a,) float64, visits (Σ P_a,) float64) of an increment, ready for ``merge_increments``."""
+    return int(msg.robot), np.array(msg.q, np.float64), np.asarray(msg.visits, np.float64)

@@ -1,0 +1,327 @@
+"""The local cluster as a library: one learner and N actors, as OS processes on loopback Zenoh or as objects in
+this process on the in-memory bus (serial mode, for a debugger or a profiler), with the same report.
+
+Usage::
+
+    config = load_config(UpConfig, defaults=UP_PRESETS)
+    learner, actors = child_configs(config)
+    report = run_serial(learner, actors, run_dir)                        # one process
+    report = run_processes(learner, actors, run_dir, Sink("off"), run_id)  # learner + actors as processes
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import subprocess
+import sys
+import threading
+import time
+from contextlib import ExitStack
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+from actors.config import ActorConfig
+from ennc_ql.config import dump_config
+from ennc_ql.progress import ProgressBar
+from ennc_ql.system import free_port
+from learner.config import LearnerConfig
+from learner.report import LearnerReport, LearnerStatus
+from monitor import (
+    Monitor,
+    RecordingError,
+    Sink,
+    merge_recordings,
+    open_monitor,
+    paths,
+    summarize_recording,
+)
+from monitor.recordings import rerun_cli
+from protocol import Status
+
+log = logging.getLogger(__name__)
+
+ACTOR_NICENESS = 10
+"""Actors produce experience faster than one learner digests it on a shared machine: they yield the CPU to the
+learner so phase 1 and evaluations are not starved."""
+
+
+@dataclass(frozen=True, slots=True)
+class UpConfig:
+    actors: int = 2
+    """Actor processes (each learns every robot's table: option 2)."""
+    duration: float = 480.0
+    """Seconds of training."""
+    seed: int = 0
+    """Run seed, given to the learner and to every actor (each derives its own stream from it and its id)."""
+    learner: LearnerConfig = field(default_factory=LearnerConfig)
+    """The learner process."""
+    actor: ActorConfig = field(default_factory=ActorConfig)
+    """Every actor process (ids actor-0, actor-1, ...)."""
+
+    def __post_init__(self) -> None:
+        if self.actors < 1:
+            raise ValueError(f"actors must be at least 1, got {self.actors}")
+        if not self.duration > 0:
+            raise ValueError(f"duration must be positive, got {self.duration}")
+
+
+UP_PRESETS: dict[str, Any] = {
+    # A 400 000-tuple store holds ~1.5 minutes of two actors' experience and keeps the learner's RSS modest.
+    "learner.store_capacity": 400_000,
+    # Evaluations cost CPU the actors share: every 30 s gives a 16-point learning curve in 8 minutes.
+    "learner.eval_interval": 30.0,
+    # Multi-threaded torch stalls on cores the actors keep busy; one thread is as fast there.
+    "learner.threads": 1,
+    # Two actors x 500 arenas saturate the 2-core machine without starving the learner.
+    "actor.arenas": 500,
+}
+"""What ``ennc-ql up`` sets differently from the processes' own defaults, named once."""
+
+SET_BY_UP = ("learner.duration", "learner.seed", "actor.actor_id", "actor.seed", "actor.duration")
+"""Fields ``up`` fills in itself from its own settings (no flags for them)."""
+
+
+def child_configs(config: UpConfig) -> tuple[LearnerConfig, list[ActorConfig]]:
+    learner = dataclasses.replace(config.learner, duration=config.duration, seed=config.seed)
+    actors = [
+        dataclasses.replace(config.actor, actor_id=f"actor-{i}", seed=config.seed, duration=None)
+        for i in range(config.actors)
+    ]
+    return learner, actors
+
+
+def write_configs(config: UpConfig, learner: LearnerConfig, actors: list[ActorConfig], run_dir: Path) -> None:
+    """Every process's resolved configuration in the run folder: the run can be repeated exactly from them."""
+    (run_dir / "up.toml").write_text(dump_config(config))
+    (run_dir / "learner.toml").write_text(dump_config(learner))
+    for actor in actors:
+        (run_dir / f"{actor.actor_id}.toml").write_text(dump_config(actor))
+
+
+# -- serial mode ------------------------------------------------------------------------------------------------------
+
+
+def run_serial(learner: LearnerConfig, actors: list[ActorConfig], run_dir: Path) -> LearnerReport:
+    """The learner and the actors as objects in this process on one in-memory bus, each on its own thread; ends when
+    the learner's duration is over, as the process topology does."""
+    from actors.actor import RobotActor
+    from actors.wiring import connect as connect_actor
+    from learner.service import LearnerService
+    from learner.wiring import connect as connect_learner
+    from protocol import InMemoryBus, InMemoryTransport
+
+    bus = InMemoryBus()
+    stop_actors = threading.Event()
+    with ExitStack() as stack:
+        learner_transport = stack.enter_context(InMemoryTransport(bus))
+        service = LearnerService(learner_transport, learner, run_dir)
+        handles = connect_learner(service, learner_transport)
+        threads = []
+        for config in actors:
+            transport = stack.enter_context(InMemoryTransport(bus))
+            actor = RobotActor(transport, config)
+            handles += connect_actor(actor, transport)
+            threads.append(threading.Thread(target=actor.run, args=(stop_actors,), name=config.actor_id))
+        for thread in threads:
+            thread.start()
+        try:
+            log.info(
+                "serial: the learner and %d actor(s) in this process for %.0f s", len(actors), learner.duration or 0
+            )
+            report = service.run(threading.Event())
+        finally:
+            stop_actors.set()
+            for thread in threads:
+                thread.join()
+            for handle in reversed(handles):
+                handle.close()
+    return report
+
+
+# -- processes --------------------------------------------------------------------------------------------------------
+
+
+VIEWER_URL = "rerun+http://127.0.0.1:9876/proxy"
+"""Where a viewer spawned by ``up`` (or its ``rerun --serve-grpc`` proxy) takes the children's streams."""
+
+
+class Monitoring:
+    """The Rerun side of a run: what each child is told, and what ``up`` itself starts and finishes.
+
+    ``save`` (the default): every child saves its own part file with the run's recording id (processes cannot share
+    one file) and the parts are merged into one recording at the end. ``spawn``: ``up`` starts a local viewer and
+    the children stream to it. ``serve``: ``up`` starts a ``rerun --serve-grpc`` proxy on port 9876 that viewers on
+    this or other machines connect to. ``connect URL``: the children stream to that viewer or proxy.
+    """
+
+    def __init__(self, sink: Sink, run_id: str, run_dir: Path) -> None:
+        self.sink = sink
+        self.run_id = run_id
+        self.run_dir = run_dir
+        self.viewer: Monitor | None = None
+        self.proxy: subprocess.Popen[bytes] | None = None
+
+    def start(self) -> None:
+        if self.sink.kind == "spawn":
+            self.viewer = open_monitor(self.sink, process="up", recording_id=self.run_id)
+        elif self.sink.kind == "serve":
+            self.proxy = subprocess.Popen(
+                [*rerun_cli(), "--serve-grpc", "--port", "9876"],
+                stdin=subprocess.DEVNULL,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )
+            log.warning("watch with: rerun --connect rerun+http://<this host>:9876/proxy")
+
+    def child_args(self, name: str) -> list[str]:
+        kind = self.sink.kind
+        if kind == "off":
+            return []
+        if kind == "save":
+            target = str(paths.part_file(self.run_dir, name))
+        else:
+            target = str(self.sink.target) if kind == "connect" else VIEWER_URL
+        return ["--rerun", "save" if kind == "save" else "connect", target, "--recording-id", self.run_id]
+
+    def finish(self) -> dict[str, Any] | None:
+        """Merge the part files (``save``) and summarise the recording; stop what ``start`` started."""
+        if self.viewer is not None:
+            self.viewer.close()
+        if self.proxy is not None:
+            _stop(self.proxy, grace=5.0)
+        if self.sink.kind != "save":
+            return None
+        parts = sorted((self.run_dir / "rerun").glob("*.rrd"))
+        if not parts:
+            log.warning("no Rerun part files in %s", self.run_dir / "rerun")
+            return None
+        try:
+            summary = summarize_recording(merge_recordings(parts, Path(str(self.sink.target))))
+        except RecordingError as exc:  # the run's results stand without its recording; the parts stay on disk
+            log.error("could not merge the Rerun part files %s: %s", [str(p) for p in parts], exc)
+            return None
+        for part in parts:  # all of it is in the merged recording now
+            part.unlink()
+        (self.run_dir / "rerun").rmdir()
+        return {k: summary[k] for k in ("path", "size_bytes", "recording_ids", "entity_paths", "rows")}
+
+
+def run_processes(
+    learner: LearnerConfig, actors: list[ActorConfig], run_dir: Path, monitoring: Monitoring, namespace: str
+) -> str:
+    """Spawn the learner and the actors with their configuration files, show progress until the learner exits, stop
+    the actors; the endpoint they used is returned (the learner's report is in the run folder)."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    common = ["--namespace", namespace, "--no-multicast-scouting"]
+    log.info("learner + %d actors on %s, %.0f s", len(actors), endpoint, learner.duration or 0.0)
+    with ExitStack() as stack:
+        learner_log = stack.enter_context(open(run_dir / "learner.log", "w"))
+        learner_argv = [
+            "learner",
+            "--config",
+            str(run_dir / "learner.toml"),
+            "--run-dir",
+            str(run_dir),
+            "--listen",
+            endpoint,
+            *common,
+            *monitoring.child_args("learner"),
+        ]
+        learner_proc = _spawn(learner_argv, learner_log)
+        procs: list[subprocess.Popen[bytes]] = []
+        try:
+            for config in actors:
+                actor_log = stack.enter_context(open(run_dir / f"{config.actor_id}.log", "w"))
+                argv = [
+                    "actor",
+                    "--config",
+                    str(run_dir / f"{config.actor_id}.toml"),
+                    "--connect",
+                    endpoint,
+                    *common,
+                    *monitoring.child_args(config.actor_id),
+                ]
+                procs.append(_spawn(argv, actor_log, nice=ACTOR_NICENESS))
+            # After the children are spawned: their preexec_fn must not run while this process has threads.
+            monitoring.start()
+            _watch(endpoint, namespace, learner.learner_id, learner_proc, len(actors), learner.duration or 0.0)
+        finally:
+            for proc in procs:
+                _stop(proc, grace=10.0)
+            _stop(learner_proc, grace=60.0)
+    return endpoint
+
+
+def _spawn(argv: list[str], log_file: IO[str], nice: int = 0) -> subprocess.Popen[bytes]:
+    return subprocess.Popen(
+        [sys.executable, "-m", "ennc_ql.cli", *argv],
+        stdout=subprocess.DEVNULL,
+        stderr=log_file,
+        stdin=subprocess.DEVNULL,
+        # preexec_fn is unsafe with threads; every child is spawned before the launcher opens its Zenoh session.
+        preexec_fn=(lambda: os.nice(nice)) if nice else None,
+    )
+
+
+def _stop(proc: subprocess.Popen[bytes], grace: float) -> None:
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(timeout=grace)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def cluster_status(status: LearnerStatus) -> str:
+    """The live figures of the learner's status, as the progress bar shows them."""
+    coverage = "–" if status.coverage < 0 else f"{status.coverage:.1f}%"
+    return (
+        f"{'exploring' if status.policy_version == 0 else 'phase 2'}: {status.tuples_received:,} tuples "
+        f"({status.tuples_per_s / 1e3:.0f} k/s), policy v{status.policy_version}, "
+        f"{status.live_actors} actors, coverage {coverage}"
+    )
+
+
+def _watch(
+    endpoint: str, namespace: str, learner_id: str, learner: subprocess.Popen[bytes], actors: int, duration: float
+) -> None:
+    """Show the learner's progress from its status messages until it exits.
+
+    The bar runs on the learner's own training clock, carried forward between status messages (every 2 s) so it
+    moves each second; past the duration the learner evaluates and writes its report and sends no more status.
+    """
+    from protocol import KeySpace, ZenohTransport, zenoh_config
+
+    keys = KeySpace(namespace)
+    latest: LearnerStatus | None = None
+    received = 0.0
+    lock = threading.Lock()
+
+    def on_status(msg: Status) -> None:
+        nonlocal latest, received
+        with lock:
+            latest = LearnerStatus.from_counters(msg.counters)
+            received = time.monotonic()
+
+    conf = zenoh_config(connect=[endpoint], mode="peer", multicast_scouting=False)
+    with ProgressBar("up", total=duration, unit="s") as bar, ZenohTransport.open(conf, keys) as transport:
+        transport.subscribe(keys.status(learner_id), Status, on_status)
+        bar.show(status=f"starting the learner and {actors} actor(s)")
+        version, coverage = 0, -1.0
+        while learner.poll() is None:
+            time.sleep(1.0)
+            with lock:
+                status, age = latest, time.monotonic() - received
+            if status is None:
+                continue
+            n = min(status.elapsed + age, duration)
+            if version == 0 and status.policy_version > 0:
+                bar.mark(f"phase 1 done: policy v{status.policy_version} sent, phase 2 starts", n)
+            if status.coverage >= 0 and status.coverage != coverage:
+                bar.mark(f"evaluation: policy v{status.policy_version} observes {status.coverage:.1f}% of targets", n)
+            version, coverage = status.policy_version, status.coverage
+            bar.show(n, "training over: final evaluation and report" if n >= duration else cluster_status(status))

@@ -1,0 +1,45 @@
+"""The learner's checkpoint: one ``.npz`` in the run folder, written atomically (temporary file, fsync, rename).
+
+Usage::
+
+    checkpointer = Checkpointer(run_dir)
+    checkpointer.save(arrays, meta)          # arrays of the intake and policy state, JSON-able meta
+    arrays, meta = checkpointer.load()       # raises CheckpointError if there is none or it is unreadable
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from algorithm.files import save_npz_atomic
+
+CHECKPOINT = "checkpoint.npz"
+
+
+class CheckpointError(RuntimeError):
+    """No readable checkpoint where one was asked for."""
+
+
+class Checkpointer:
+    def __init__(self, run_dir: Path) -> None:
+        self.path = run_dir / CHECKPOINT
+
+    def save(self, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> Path:
+        blob = np.frombuffer(json.dumps(meta, default=str).encode(), np.uint8)
+        return save_npz_atomic(self.path, {**arrays, "meta": blob})
+
+    def load(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        if not self.path.exists():
+            raise CheckpointError(f"--resume: no checkpoint at {self.path}")
+        try:
+            with np.load(self.path, allow_pickle=False) as data:
+                arrays = {name: data[name] for name in data.files}
+            meta: dict[str, Any] = json.loads(arrays.pop("meta").tobytes().decode())
+        except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
+            raise CheckpointError(f"--resume: unreadable checkpoint {self.path}: {exc}") from None
+        return arrays, meta

@@ -1,0 +1,84 @@
+"""The learner process's configuration: every default of ``ennc-ql learner`` is written here, once.
+
+The command's flags are generated from these fields (their docstrings are the ``--help`` text), ``--config FILE``
+reads the same fields from TOML, and ``ennc-ql up`` builds one of these instead of a command line.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from algorithm.phase1 import Phase1Config
+from protocol import FEATURIZER_DIMS, check_id
+from sim import SCENARIOS
+
+
+def _phase1_default() -> Phase1Config:
+    # One fitted iteration suffices in CMOMMT [paper]; 30 000 tuples per action keep a fit under a minute here.
+    return Phase1Config(max_iterations=1, max_patterns=30_000)
+
+
+@dataclass(frozen=True, slots=True)
+class LearnerConfig:
+    learner_id: str = "learner"
+    """Learner id (a key-expression chunk: letters, digits, '_', '.', '-')."""
+    scenario: str = "cmommt-v1"
+    """Scenario the policy is learned and evaluated on."""
+    featurizer: str = "collab6d"
+    """State definition of the experience: local2d or collab6d."""
+    store_capacity: int = 1_000_000
+    """Tuples kept; the oldest are overwritten beyond it (counted)."""
+    min_tuples: int = 150_000
+    """Tuples stored before the first phase 1."""
+    refit_growth: float = 0.0
+    """Refit (warm-started) whenever the tuples received have grown this many times since the last fit; 0 = never."""
+    phase1: Phase1Config = field(default_factory=_phase1_default)
+    """ENNC-QL phase 1."""
+    broadcast_interval: float = 3.0
+    """Seconds between merges + policy broadcasts."""
+    eval_interval: float = 20.0
+    """Seconds between evaluations of the current policy."""
+    eval_trials: int = 10
+    """Test trials of the periodic evaluations (the learning curve), as the paper scores one process [paper]."""
+    final_eval_trials: int = 50
+    """Test trials of the final policy's figure: as many as behind each figure of the paper (5 learning processes
+    x 10 trials), since one run of ten trials varies by a few points from one set of trials to another [choice]."""
+    eval_steps: int = 1000
+    """Steps of each test trial [paper]."""
+    checkpoint_interval: float = 5.0
+    """Seconds between checkpoints; acknowledgements follow each checkpoint."""
+    status_interval: float = 2.0
+    """Seconds between status messages."""
+    duration: float | None = None
+    """Stop after this many seconds (None: until stopped)."""
+    seed: int = 0
+    """Seed of phase 1's random draws."""
+    threads: int = 0
+    """Torch threads for phase 1 (0: torch's choice; 1 avoids stalls on cores shared with actors)."""
+
+    def __post_init__(self) -> None:
+        try:
+            check_id(self.learner_id, "learner_id")
+        except ValueError as exc:
+            raise ValueError(str(exc)) from None
+        if self.scenario not in SCENARIOS:
+            raise ValueError(f"scenario: unknown {self.scenario!r} (known: {', '.join(sorted(SCENARIOS))})")
+        if self.featurizer not in FEATURIZER_DIMS:
+            raise ValueError(f"featurizer: unknown {self.featurizer!r} (known: {', '.join(FEATURIZER_DIMS)})")
+        for name in ("store_capacity", "min_tuples", "eval_trials", "final_eval_trials", "eval_steps"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+        for name in ("broadcast_interval", "eval_interval", "checkpoint_interval", "status_interval"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if self.duration is not None and not self.duration > 0:
+            raise ValueError(f"duration must be positive, got {self.duration}")
+        if self.refit_growth != 0 and not self.refit_growth > 1:
+            raise ValueError(f"refit_growth must be 0 (never) or above 1, got {self.refit_growth}")
+        if self.threads < 0:
+            raise ValueError(f"threads must be 0 (torch's choice) or more, got {self.threads}")
+
+    @property
+    def method(self) -> str:
+        """The name the learned policy carries (as in ``reproduce``'s table)."""
+        return "ennc-ql-collab-option2" if self.featurizer == "collab6d" else "ennc-ql-local"

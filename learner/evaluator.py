@@ -1,0 +1,39 @@
+"""The learner's evaluator: the current policy on fixed seeded test trials (metric A), and the learning curve.
+
+Usage::
+
+    evaluator = Evaluator(scenario("cmommt-v1"), trials=10, steps=1000, final_trials=50)
+    evaluator.periodic(policy, at=61.0)      # a point of the learning curve (10 trials)
+    evaluator.final(policy)                  # the final figure, on its own (50 trials)
+    evaluator.curve                          # [(seconds, coverage %), ...]
+"""
+
+from __future__ import annotations
+
+from algorithm.policy import Policy, PolicyController
+from sim import ScenarioConfig, evaluate
+
+TEST_SEED = 0
+"""Every evaluation runs the same trials, as the hand-made controllers' figures do."""
+
+
+class Evaluator:
+    def __init__(self, cfg: ScenarioConfig, trials: int, steps: int, final_trials: int) -> None:
+        self.cfg = cfg
+        self.trials = trials
+        self.steps = steps
+        self.final_trials = final_trials
+        self.curve: list[tuple[float, float]] = []
+
+    def periodic(self, policy: Policy, at: float) -> float:
+        """Coverage (%) of ``policy``, kept on the curve at ``at`` seconds of training."""
+        coverage = self._coverage(policy, self.trials)
+        self.curve.append((round(at, 2), round(coverage, 3)))
+        return coverage
+
+    def final(self, policy: Policy) -> float:
+        """The final figure; the curve keeps one protocol, so this point stays off it."""
+        return self._coverage(policy, self.final_trials)
+
+    def _coverage(self, policy: Policy, trials: int) -> float:
+        return evaluate(self.cfg, PolicyController(policy), trials, self.steps, seed=TEST_SEED).coverage_mean

@@ -1,0 +1,166 @@
+"""The learner's policy state: discretization, per-robot tables and visits, pending increments, and the version.
+
+Usage (thread-safe: every method takes the state's own lock)::
+
+    state = PolicyState(n_robots=10, featurizer="collab6d", scenario="cmommt-v1", action_steps=5, method="...")
+    state.adopt(discretization)            # after phase 1: tables from the labels, or carried over on a refit
+    state.add_increment(msg)               # an actor's table change; False if it was over another discretization
+    update = state.publish()               # merge what is pending, bump the version: the PolicyUpdate to broadcast
+    state.current                          # the latest broadcast (late joiners get it)
+    policy = state.policy()                # a snapshot for evaluation and the policy file
+    arrays, meta = state.to_arrays()       # for a checkpoint; state.restore(arrays, meta) continues from it
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+import numpy as np
+
+from algorithm.discretization import Discretization
+from algorithm.policy import Policy
+from algorithm.qtable import merge_increments
+from algorithm.wire import increment_arrays, policy_update
+from protocol import PolicyUpdate, QTableIncrement
+
+
+class PolicyState:
+    def __init__(self, n_robots: int, featurizer: str, scenario: str, action_steps: int, method: str) -> None:
+        self.n_robots = n_robots
+        self.featurizer = featurizer
+        self.scenario = scenario
+        self.action_steps = action_steps
+        self.method = method
+        self._lock = threading.Lock()
+        self._disc: Discretization | None = None
+        self._disc_id = 0
+        """Counts discretizations: an increment is merged only over the one it was learned on."""
+        self._disc_of_version: dict[int, int] = {}
+        self._tables = np.zeros((n_robots, 0))
+        self._visits = np.zeros((n_robots, 0), np.uint64)
+        self._version = 0
+        self._pending: dict[tuple[str, int], tuple[np.ndarray, np.ndarray]] = {}
+        """(actor, robot) -> summed change and visits of the increments not merged yet."""
+        self._current: PolicyUpdate | None = None
+        self.increments = 0
+        self.stale_increments = 0
+
+    @property
+    def version(self) -> int:
+        with self._lock:
+            return self._version
+
+    @property
+    def current(self) -> PolicyUpdate | None:
+        with self._lock:
+            return self._current
+
+    @property
+    def discretization(self) -> Discretization | None:
+        with self._lock:
+            return self._disc
+
+    @property
+    def fitted(self) -> bool:
+        with self._lock:
+            return self._disc is not None
+
+    def adopt(self, disc: Discretization) -> None:
+        """Take a new discretization: the first one's tables start from its labels; a later one inherits the current
+        values (pending increments merged first), each new prototype from the nearest old one."""
+        with self._lock:
+            if self._disc is None:
+                tables = np.tile(disc.labels.astype(np.float64), (self.n_robots, 1))
+            else:
+                self._merge_pending()
+                tables = disc.carry_over(self._disc, self._tables)
+            self._disc = disc
+            self._disc_id += 1
+            self._tables = tables
+            self._visits = np.zeros(tables.shape, np.uint64)
+
+    def add_increment(self, msg: QTableIncrement) -> bool:
+        """Queue an actor's change for the next merge; successive increments of one actor and robot add up."""
+        with self._lock:
+            self.increments += 1
+            disc_id = self._disc_of_version.get(int(msg.policy_version))
+            if disc_id != self._disc_id or msg.robot >= self.n_robots or msg.q.size != self._tables.shape[1]:
+                self.stale_increments += 1  # over another discretization: its cells mean something else now
+                return False
+            robot, change, visits = increment_arrays(msg)
+            key = (msg.actor_id, robot)
+            previous = self._pending.get(key)
+            if previous is not None:
+                change, visits = change + previous[0], visits + previous[1]
+            self._pending[key] = (change, visits)
+            return True
+
+    def publish(self) -> PolicyUpdate:
+        """Merge what is pending and return the next version's broadcast (also kept as ``current``)."""
+        with self._lock:
+            if self._disc is None:
+                raise RuntimeError("no discretization yet: phase 1 has not run")
+            self._merge_pending()
+            self._version += 1
+            self._disc_of_version[self._version] = self._disc_id
+            self._current = policy_update(self._policy(), self.scenario)
+            return self._current
+
+    def policy(self) -> Policy | None:
+        with self._lock:
+            return None if self._disc is None else self._policy()
+
+    def lag(self, latest_version: dict[str, int]) -> dict[str, int]:
+        """Versions each actor's newest experience is behind the current policy."""
+        with self._lock:
+            return {actor: self._version - v for actor, v in latest_version.items()}
+
+    def to_arrays(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        with self._lock:
+            meta = {"version": self._version, "disc_id": self._disc_id}
+            if self._disc is None:
+                return {}, meta
+            arrays = {
+                "prototypes": self._disc.prototypes,
+                "labels": self._disc.labels,
+                "offsets": self._disc.offsets,
+                "tables": self._tables,
+                "visits": self._visits,
+            }
+            if self._disc.scale is not None:
+                arrays["scale"] = self._disc.scale
+            return arrays, meta
+
+    def restore(self, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
+        """Continue from a checkpoint; restored tables are broadcast as a new version over the same cells."""
+        with self._lock:
+            self._version = int(meta["version"])
+            self._disc_id = int(meta["disc_id"])
+            if "prototypes" not in arrays:
+                return
+            self._disc = Discretization(arrays["prototypes"], arrays["labels"], arrays["offsets"], arrays.get("scale"))
+            self._tables = arrays["tables"].astype(np.float64)
+            self._visits = arrays["visits"].astype(np.uint64)
+            self._version += 1
+            self._disc_of_version[self._version] = self._disc_id
+            self._current = policy_update(self._policy(), self.scenario)
+
+    def _merge_pending(self) -> None:
+        increments = [(robot, change, visits) for (_, robot), (change, visits) in self._pending.items()]
+        if increments:
+            self._tables, self._visits = merge_increments(self._tables, self._visits, increments)
+        self._pending.clear()
+
+    def _policy(self) -> Policy:
+        assert self._disc is not None
+        return Policy(
+            featurizer=self.featurizer,
+            discretization=self._disc,
+            tables=self._tables.astype(np.float32),
+            robot_table=np.arange(self.n_robots),
+            action_steps=self.action_steps,
+            visits=self._visits.copy(),
+            version=self._version,
+            method=self.method,
+        )

@@ -1,0 +1,32 @@
+"""Every subscription of the learner process, in one place (Sample Factory's ``connect_components``).
+
+Usage::
+
+    handles = connect(service, transport)
+    ...
+    for handle in reversed(handles):
+        handle.close()
+"""
+
+from __future__ import annotations
+
+from learner.service import LearnerService
+from protocol import Closeable, ExperienceBatch, QTableIncrement, Transport
+
+
+def connect(service: LearnerService, transport: Transport) -> list[Closeable]:
+    keys, me = transport.keys, service.config.learner_id
+    handles = [
+        # Experience of every actor into the de-duplicating store.
+        transport.subscribe(keys.experience(), ExperienceBatch, service.intake.on_experience),
+        # Q-table increments of every actor, queued for the next merge.
+        transport.subscribe(keys.qinc(), QTableIncrement, service.on_increment),
+        # A late-joining actor asks for the current policy instead of waiting for the next broadcast.
+        transport.declare_queryable(keys.policy_latest(), service.latest_policy),
+        # Membership: actors' liveliness tokens appear and vanish (killed at once, hung after the lease).
+        transport.liveliness_subscribe(keys.alive("actor"), service.on_actor_join, service.on_actor_leave),
+        # Our own token: actors re-send their unacknowledged outbox when a (re)started learner appears.
+        transport.liveliness_token(keys.alive("learner", me)),
+    ]
+    service.announce()
+    return handles

@@ -1,0 +1,114 @@
+"""Domain <-> wire conversions: both directions, through the real codec, and the protocol's constants."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from algorithm.qtable import merge_increments
+from algorithm.transitions import Transitions
+from algorithm.wire import (
+    experience_batches,
+    increment_arrays,
+    increment_message,
+    policy_from_update,
+    policy_update,
+    transitions_from_batch,
+)
+from protocol import FEATURIZER_DIMS, N_ACTIONS, InvalidValues, decode_as, encode
+from protocol.messages import ExperienceBatch, PolicyUpdate, QTableIncrement
+from sim import COMPASS, FEATURIZERS, scenario
+from tests.algorithm.test_policy_file import make_policy
+
+
+def transitions(n: int, dim: int = 6, seed: int = 0) -> Transitions:
+    rng = np.random.default_rng(seed)
+    return Transitions(
+        robot=rng.integers(0, 10, n).astype(np.int16),
+        state=rng.normal(size=(n, dim)).astype(np.float32),
+        action=rng.integers(0, N_ACTIONS, n).astype(np.uint8),
+        reward=rng.normal(size=n).astype(np.float32),
+        next_state=rng.normal(size=(n, dim)).astype(np.float32),
+        done=rng.random(n) < 0.2,
+    )
+
+
+def test_policy_round_trips_through_the_wire() -> None:
+    policy = make_policy(np.random.default_rng(1))  # one table per robot (option 2)
+    update = decode_as(encode(policy_update(policy, "cmommt-v1")), PolicyUpdate)
+    back = policy_from_update(update, n_robots=policy.n_robots, method=policy.method)
+    for name in ("prototypes", "labels", "offsets", "scale"):
+        np.testing.assert_array_equal(getattr(back.discretization, name), getattr(policy.discretization, name))
+    np.testing.assert_array_equal(back.tables, policy.tables)
+    assert policy.visits is not None and back.visits is not None
+    np.testing.assert_array_equal(back.visits, policy.visits)
+    assert (back.version, back.featurizer, back.action_steps) == (policy.version, policy.featurizer, 5)
+    assert update.scenario == "cmommt-v1" and update.robots.tolist() == list(range(10))
+
+
+def test_a_shared_table_goes_out_as_every_robots_row() -> None:
+    policy = make_policy(np.random.default_rng(2), robots=4, rows=1)  # option 1: one table for all
+    update = policy_update(policy, "cmommt-v1")
+    assert update.q_tables.shape == (4, policy.discretization.size)
+    np.testing.assert_array_equal(update.q_tables, np.repeat(policy.tables, 4, axis=0))
+    back = policy_from_update(update, n_robots=6)  # robots the update does not name take the mean row
+    np.testing.assert_allclose(back.tables[5], policy.tables[0], rtol=1e-6)
+    assert back.visits is not None and back.visits[5].sum() == 0
+
+
+def test_transitions_round_trip_in_batches_with_consecutive_seqs() -> None:
+    data = transitions(2500)
+    batches = experience_batches(data, actor_id="a0", incarnation=9, first_seq=4, policy_version=3, batch_size=1000)
+    assert [b.seq for b in batches] == [4, 5, 6] and [len(b.reward) for b in batches] == [1000, 1000, 500]
+    decoded = [transitions_from_batch(decode_as(encode(b), ExperienceBatch)) for b in batches]
+    joined = Transitions.concat(decoded)
+    for name in ("robot", "state", "action", "reward", "next_state", "done"):
+        np.testing.assert_array_equal(getattr(joined, name), getattr(data, name))
+    assert {b.policy_version for b in batches} == {3} and {b.incarnation for b in batches} == {9}
+
+
+def test_an_invalid_tuple_is_caught_in_the_actor_before_the_wire() -> None:
+    data = transitions(10)
+    data.reward[3] = np.nan
+    with pytest.raises(InvalidValues, match="reward"):
+        experience_batches(data, actor_id="a0", incarnation=1, first_seq=0, policy_version=0, batch_size=8)
+
+
+def test_increments_round_trip_and_saturate_visits() -> None:
+    change = np.array([0.5, -1.25, 0.0], np.float64)
+    visits = np.array([3, 2**40, 0], np.uint64)
+    offsets = np.array([0, 1, 2, 3, 3, 3, 3, 3, 3], np.int64)
+    msg = increment_message(
+        actor_id="a0", incarnation=1, seq=2, policy_version=5, robot=4, change=change, visits=visits, offsets=offsets
+    )
+    robot, back_change, back_visits = increment_arrays(decode_as(encode(msg), QTableIncrement))
+    assert robot == 4
+    np.testing.assert_array_equal(back_change, change)
+    assert back_visits.tolist() == [3.0, float(np.iinfo(np.uint32).max), 0.0]
+    tables, total = merge_increments(np.zeros((5, 3)), np.zeros((5, 3), np.uint64), [(robot, back_change, back_visits)])
+    np.testing.assert_array_equal(tables[4], [0.5, -1.25, 0.0])
+    assert total[4, 0] == 3
+
+
+def test_the_protocols_constants_are_the_simulators() -> None:
+    assert N_ACTIONS == len(COMPASS)
+    assert dict(FEATURIZER_DIMS) == FEATURIZERS
+    assert scenario().n_robots <= np.iinfo(np.int16).max  # robot ids travel as int16
+
+
+@pytest.mark.parametrize(
+    "modules",
+    [
+        "actors.actor, actors.wiring, ennc_ql.processes",  # everything an actor process loads
+        "algorithm.policy, algorithm.agent, algorithm.trials, algorithm.wire, algorithm.policy_file, algorithm",
+        "learner.config, algorithm.phase1, algorithm.experiments",  # configurations are read without fitting
+        "ennc_ql.router, ennc_ql.cli",
+    ],
+)
+def test_acting_never_imports_torch(modules: str) -> None:
+    code = f"import sys, {modules}; import ennc_ql.cli as c; c.build_parser(); print('torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
+    assert out.stdout.strip() == "False"
