@@ -1,12 +1,20 @@
-"""ENNC — Evolutionary design of Nearest prototype Classifiers (a.k.a. ENPC), a scikit-learn-style estimator.
+"""ENNC — Evolutionary design of Nearest prototype Classifiers (a.k.a. ENPC), a scikit-learn estimator.
 
 A 1-nearest-prototype classifier whose only essential parameter is the number of cycles [paper]. It starts from
 ONE prototype and runs ``n_cycles`` cycles of six operators, in this order [paper][KEEL]: information gathering
 → labeling → reproduction → fight → move → die (see :mod:`algorithm._ennc_ops` for each operator and its
 provenance tags). The number of prototypes is not given: it settles where the prototypes' quality does.
 
-Class values may be any numbers: in ENNC-QL they are Q values, and ``labels_`` holds the values themselves.
-The prototypes also serve as a discretization of the input space (:meth:`ENNC.predict_index`).
+Class values may be any labels scikit-learn accepts, and any finite numbers: in ENNC-QL they are Q values, and
+``labels_`` holds the values themselves. The prototypes also serve as a discretization of the input space
+(:meth:`ENNC.predict_index`).
+
+:class:`ENNC` is a real scikit-learn estimator (``ClassifierMixin, BaseEstimator``, passing
+``sklearn.utils.estimator_checks.check_estimator``) so that the tools built on that contract work on it
+unchanged: ``clone``, ``Pipeline`` (scaling the states before the fit), ``cross_val_score`` and
+``GridSearchCV`` over ``n_cycles`` or ``k_fight``. One check cannot pass, by design: a continuous target is
+not rejected, because Q values are exactly that; :data:`EXPECTED_FAILED_CHECKS` declares it with the reason,
+in the form ``check_estimator(ENNC(), expected_failed_checks=EXPECTED_FAILED_CHECKS)`` takes.
 
 Cost: a cycle is dominated by region assignment, O(N·P·d). The first one is a full chunked GEMM pass; later
 cycles only re-examine patterns that the last move, die or reproduction can have re-assigned (centre–centre
@@ -29,6 +37,16 @@ Usage::
 Warm start from an earlier classifier (for instance the previous ENNC-QL iteration)::
 
     >>> refit = ENNC(n_cycles=10, random_state=1).fit(X, y, clf.prototypes_, clf.labels_)
+
+In a scikit-learn pipeline, tuned by cross-validation::
+
+    >>> from sklearn.model_selection import GridSearchCV
+    >>> from sklearn.pipeline import make_pipeline
+    >>> from sklearn.preprocessing import StandardScaler
+    >>> pipe = make_pipeline(StandardScaler(), ENNC(n_cycles=20, random_state=0))
+    >>> search = GridSearchCV(pipe, {"ennc__k_fight": [1, 3]}, cv=3).fit(X, y)
+    >>> search.best_params_["ennc__k_fight"] in (1, 3)
+    True
 """
 
 from __future__ import annotations
@@ -43,6 +61,9 @@ from typing import Any, Literal
 import numpy as np
 import torch
 from numpy.typing import ArrayLike, NDArray
+from sklearn.base import BaseEstimator, ClassifierMixin
+from sklearn.utils import Tags
+from sklearn.utils.validation import check_array, check_consistent_length, check_is_fitted, column_or_1d, validate_data
 from torch import Tensor
 
 from algorithm import _ennc_ops as ops
@@ -51,11 +72,21 @@ logger = logging.getLogger(__name__)
 
 InitMode = Literal["random", "mean"]
 
-_PARAM_NAMES = ("n_cycles", "k_fight", "random_state", "device", "init", "newborn_grace", "chunk_rows", "n_threads")
+#: The scikit-learn estimator checks that ENNC fails by design, each with the reason, as the
+#: ``expected_failed_checks`` argument of ``sklearn.utils.estimator_checks.check_estimator`` takes them.
+EXPECTED_FAILED_CHECKS: dict[str, str] = {
+    "check_classifiers_regression_target": (
+        "fit does not reject a continuous target: class values may be any finite numbers, and in ENNC-QL they "
+        "are Q values, non-integer floats that scikit-learn's type_of_target calls 'continuous'"
+    ),
+}
 
 
-class ENNC:
+class ENNC(ClassifierMixin, BaseEstimator):
     """Evolutionary nearest-prototype classifier.
+
+    The constructor only stores its arguments (scikit-learn's convention: ``get_params``, ``set_params`` and
+    ``clone`` read them back); they are checked at :meth:`fit`, which raises ``ValueError`` on a bad one.
 
     Parameters
     ----------
@@ -64,9 +95,10 @@ class ENNC:
     k_fight:
         How many nearest prototypes each prototype considers in the fight operator; 3 [KEEL default].
     random_state:
-        Seed of the ``torch.Generator`` that drives every random decision; ``None`` draws a fresh seed.
-        With a seed, ``fit`` is deterministic on CPU; on CUDA the weighted ``bincount`` behind the centroids
-        adds in a varying order, so runs may drift apart by rounding.
+        Seeds the ``torch.Generator`` that drives every random decision: an int >= 0 is the seed itself, a
+        ``numpy.random.RandomState`` gives one draw as the seed, ``None`` draws a fresh seed. With a seed,
+        ``fit`` is deterministic on CPU; on CUDA the weighted ``bincount`` behind the centroids adds in a
+        varying order, so runs may drift apart by rounding (the estimator's ``non_deterministic`` tag says so).
     device:
         Torch device of the computation, ``"cpu"`` or ``"cuda"``/``"cuda:N"``. A CUDA device that is not
         available raises ``ValueError`` at ``fit``.
@@ -93,22 +125,29 @@ class ENNC:
         thread (a 150×20 row minimum: 7 µs on 1 thread, 2.5–7.7 ms on 2), a 100–1000× slowdown on small
         data. On idle cores the default uses them all, about 2× faster on 100 000 patterns.
 
-    Fitted attributes
-    -----------------
+    Attributes
+    ----------
     prototypes_ : ndarray (P, d) float64
-    labels_ : ndarray (P,), class values (dtype of ``y``)
-    n_prototypes_ : int
+    labels_ : ndarray (P,), the class value of each prototype (dtype of ``classes_``)
+    n_prototypes_ : int, P
     classes_ : ndarray (C,), sorted class values seen in ``y`` and in ``init_labels``
     n_cycles_run_ : int
     n_prototypes_history_ : list[int], number of prototypes after each cycle
     n_features_in_ : int
+    feature_names_in_ : ndarray (d,) of str, only when ``X`` had string column names (a DataFrame)
+
+    Examples
+    --------
+    >>> X = [[0.0], [0.2], [5.0], [5.3]]
+    >>> ENNC(n_cycles=5, random_state=0).fit(X, [0.5, 0.5, -2.0, -2.0]).predict([[0.1], [4.0]]).tolist()
+    [0.5, -2.0]
     """
 
     def __init__(
         self,
         n_cycles: int = 250,
         k_fight: int = 3,
-        random_state: int | None = None,
+        random_state: int | np.random.RandomState | None = None,
         device: str = "cpu",
         init: InitMode = "random",
         newborn_grace: bool = False,
@@ -124,22 +163,12 @@ class ENNC:
         self.chunk_rows = chunk_rows
         self.n_threads = n_threads
 
-    def get_params(self, deep: bool = True) -> dict[str, Any]:
-        """Constructor parameters by name (scikit-learn protocol; ``deep`` is accepted and has no effect)."""
-        return {name: getattr(self, name) for name in _PARAM_NAMES}
-
-    def set_params(self, **params: Any) -> ENNC:
-        """Set constructor parameters by name; an unknown name raises ``ValueError``."""
-        unknown = sorted(set(params) - set(_PARAM_NAMES))
-        if unknown:
-            raise ValueError(f"unknown ENNC parameter(s) {unknown}; valid: {list(_PARAM_NAMES)}")
-        for name, value in params.items():
-            setattr(self, name, value)
-        return self
-
-    def __repr__(self) -> str:
-        args = ", ".join(f"{name}={getattr(self, name)!r}" for name in _PARAM_NAMES)
-        return f"ENNC({args})"
+    def __sklearn_tags__(self) -> Tags:
+        tags = super().__sklearn_tags__()
+        # Seeded CUDA fits may differ by rounding (see random_state); the estimator checks then skip the
+        # bit-exact comparisons of two fits.
+        tags.non_deterministic = str(self.device).startswith("cuda")
+        return tags
 
     def fit(
         self,
@@ -148,31 +177,33 @@ class ENNC:
         init_prototypes: ArrayLike | None = None,
         init_labels: ArrayLike | None = None,
     ) -> ENNC:
-        """Evolve the prototypes on patterns ``X`` (N, d) with numeric classes ``y`` (N,).
+        """Evolve the prototypes on patterns ``X`` (N, d) with classes ``y`` (N,); returns ``self``.
+
+        ``y`` may hold any class labels, numbers included, however many distinct values: unlike most
+        scikit-learn classifiers, a float target is not rejected as "continuous", because in ENNC-QL the
+        classes are Q values.
 
         ``init_prototypes`` (P0, d) replace the single starting prototype: the evolution continues from
-        them. ``init_labels`` (P0,) are their class values, which need not occur in ``y``; a label is judged
-        as given in the first cycle's quality (a prototype whose label is absent from its region has
-        quality 0 and is likely to die), so stale labels are better left out: without ``init_labels`` each
-        prototype starts with the majority class of its region in ``X`` (the lowest class value on a tie or
-        for an empty region).
+        them. ``init_labels`` (P0,) are their class values, of the same kind as ``y`` (numbers or not), which
+        need not occur in ``y``; a label is judged as given in the first cycle's quality (a prototype whose
+        label is absent from its region has quality 0 and is likely to die), so stale labels are better
+        left out: without ``init_labels`` each prototype starts with the majority class of its region in
+        ``X`` (the lowest class value on a tie or for an empty region).
         """
         self._check_params()
-        x_np = _as_matrix(X, "X")
-        y_np = np.asarray(y)
-        if y_np.ndim != 1 or y_np.shape[0] != x_np.shape[0]:
-            raise ValueError(f"y must be 1-D with {x_np.shape[0]} values, got shape {y_np.shape}")
-        if not np.issubdtype(y_np.dtype, np.number) or not np.all(np.isfinite(y_np)):
-            raise ValueError("y must hold finite numeric class values")
-        warm = _check_warm_start(init_prototypes, init_labels, x_np.shape[1])
+        # check_classification_targets is not called: it rejects float targets, which are Q values here.
+        # force_writeable: torch cannot wrap a read-only array (a memmap) without a warning.
+        x_np, y_np = validate_data(self, X, y, dtype=np.float64, force_writeable=True)
+        warm = _check_warm_start(init_prototypes, init_labels, x_np.shape[1], y_np)
 
         classes = np.unique(y_np if warm is None or warm[1] is None else np.concatenate([y_np, warm[1]]))
         device = _resolve_device(self.device)
         gen = torch.Generator(device=device)
-        if self.random_state is None:
+        seed = _seed(self.random_state)
+        if seed is None:
             gen.seed()
         else:
-            gen.manual_seed(int(self.random_state))
+            gen.manual_seed(seed)
 
         started = time.perf_counter()
         history: list[int] = []
@@ -203,7 +234,6 @@ class ENNC:
         self.classes_ = classes
         self.n_cycles_run_ = int(self.n_cycles)
         self.n_prototypes_history_ = history
-        self.n_features_in_ = x_np.shape[1]
         return self
 
     def _initial_prototypes(
@@ -230,38 +260,42 @@ class ENNC:
         """Index (into ``prototypes_``) of the nearest prototype of every row of X, int64 (N,).
 
         Computed in blocks of ``chunk_rows`` rows on ``device``, so memory stays bounded for any N. Exact ties
-        go to the lowest index.
+        go to the lowest index. Raises ``NotFittedError`` before :meth:`fit`.
         """
-        x_t, protos = self._fitted_tensors(X)
+        # Named, because a fit that failed after validating X has already set n_features_in_.
+        check_is_fitted(self, "prototypes_")
+        x_np = validate_data(self, X, dtype=np.float64, force_writeable=True, reset=False)
+        device = _resolve_device(self.device)
         with _intra_op_threads(self.n_threads):
-            index, _ = ops.nearest_prototype(x_t, protos, self.chunk_rows)
+            index, _ = ops.nearest_prototype(
+                torch.as_tensor(x_np, dtype=torch.float64, device=device),
+                torch.as_tensor(self.prototypes_, dtype=torch.float64, device=device),
+                self.chunk_rows,
+            )
         return index.cpu().numpy()
 
     def predict(self, X: ArrayLike) -> NDArray[Any]:
         """Class value (label of the nearest prototype) of every row of X."""
-        index = self.predict_index(X)
+        index = self.predict_index(X)  # first, so that an unfitted ENNC raises NotFittedError
         return self.labels_[index]
 
-    def score(self, X: ArrayLike, y: ArrayLike) -> float:
-        """Accuracy: fraction of rows of X whose predicted class equals ``y``."""
-        return float(np.mean(self.predict(X) == np.asarray(y)))
+    def score(self, X: ArrayLike, y: ArrayLike, sample_weight: ArrayLike | None = None) -> float:
+        """Accuracy: the (``sample_weight``-weighted) fraction of rows of X whose predicted class equals ``y``.
 
-    def _fitted_tensors(self, X: ArrayLike) -> tuple[Tensor, Tensor]:
-        if not hasattr(self, "prototypes_"):
-            raise ValueError("this ENNC is not fitted yet; call fit first")
-        x_np = _as_matrix(X, "X")
-        if x_np.shape[1] != self.n_features_in_:
-            raise ValueError(f"X has {x_np.shape[1]} features, the classifier was fitted on {self.n_features_in_}")
-        device = _resolve_device(self.device)
-        return (
-            torch.as_tensor(x_np, dtype=torch.float64, device=device),
-            torch.as_tensor(self.prototypes_, dtype=torch.float64, device=device),
-        )
+        Compares the values directly instead of through ``sklearn.metrics.accuracy_score`` (what
+        ``ClassifierMixin.score`` does): that metric refuses non-integer float classes, Q values among them,
+        as a "continuous" target.
+        """
+        predicted = self.predict(X)
+        y_true = column_or_1d(y, warn=True)
+        weights = None if sample_weight is None else column_or_1d(sample_weight).astype(np.float64)
+        check_consistent_length(predicted, y_true, weights)
+        return float(np.average(predicted == y_true, weights=weights))
 
     def _check_params(self) -> None:
         _check_int("n_cycles", self.n_cycles, 0)
         _check_int("k_fight", self.k_fight, 1)
-        if self.random_state is not None:
+        if self.random_state is not None and not isinstance(self.random_state, np.random.RandomState):
             _check_int("random_state", self.random_state, 0)
         if self.chunk_rows is not None:
             _check_int("chunk_rows", self.chunk_rows, 1)
@@ -374,32 +408,30 @@ def _uniform(gen: torch.Generator, n: int, device: torch.device) -> Tensor:
     return torch.rand(n, generator=gen, dtype=torch.float64, device=device)
 
 
-def _as_matrix(X: ArrayLike, name: str) -> NDArray[np.float64]:
-    array = np.asarray(X, dtype=np.float64)
-    if array.ndim != 2 or array.shape[0] == 0 or array.shape[1] == 0:
-        raise ValueError(f"{name} must be a non-empty 2-D array, got shape {array.shape}")
-    if not np.all(np.isfinite(array)):
-        raise ValueError(f"{name} must hold finite values")
-    return array
+def _seed(random_state: int | np.random.RandomState | None) -> int | None:
+    if isinstance(random_state, np.random.RandomState):
+        return int(random_state.randint(2**31))
+    return None if random_state is None else int(random_state)
 
 
 def _check_warm_start(
-    init_prototypes: ArrayLike | None, init_labels: ArrayLike | None, n_features: int
+    init_prototypes: ArrayLike | None, init_labels: ArrayLike | None, n_features: int, y: NDArray[Any]
 ) -> tuple[NDArray[np.float64], NDArray[Any] | None] | None:
     if init_prototypes is None:
         if init_labels is not None:
             raise ValueError("init_labels given without init_prototypes")
         return None
-    prototypes = _as_matrix(init_prototypes, "init_prototypes")
+    prototypes = check_array(init_prototypes, dtype=np.float64, input_name="init_prototypes")
     if prototypes.shape[1] != n_features:
         raise ValueError(f"init_prototypes has {prototypes.shape[1]} features, X has {n_features}")
     if init_labels is None:
         return prototypes, None
-    labels = np.asarray(init_labels)
+    labels = check_array(init_labels, dtype=None, ensure_2d=False, input_name="init_labels")
     if labels.shape != (prototypes.shape[0],):
         raise ValueError(f"init_labels must have shape ({prototypes.shape[0]},), got {labels.shape}")
-    if not np.issubdtype(labels.dtype, np.number) or not np.all(np.isfinite(labels)):
-        raise ValueError("init_labels must hold finite numeric class values")
+    # Concatenating numbers with strings would silently turn every class into a string.
+    if np.issubdtype(labels.dtype, np.number) != np.issubdtype(y.dtype, np.number):
+        raise ValueError(f"init_labels ({labels.dtype}) and y ({y.dtype}) must both be numeric or both not")
     return prototypes, labels
 
 

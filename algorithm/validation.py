@@ -2,7 +2,7 @@
 
 1-NN keeps every training pattern; ENNC should come close to its accuracy with far fewer prototypes. Each data
 set is split by stratified k-fold with a fixed seed, features are standardised on the training fold, and the
-figures are means over the folds. scikit-learn is a development dependency, imported only when this runs.
+figures are means over the folds.
 
 Usage::
 
@@ -20,6 +20,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from sklearn import datasets as sk_datasets
+from sklearn.model_selection import StratifiedKFold
+from sklearn.neighbors import KNeighborsClassifier
+from sklearn.preprocessing import StandardScaler
 
 from algorithm.ennc import ENNC
 
@@ -56,11 +60,6 @@ def compare_with_1nn(
     ``random_state`` seeds the fold split; fold k fits ENNC with ``random_state + k`` unless
     ``ennc_params`` (extra :class:`ENNC` constructor arguments) gives one.
     """
-    from sklearn import datasets as sk_datasets
-    from sklearn.model_selection import StratifiedKFold
-    from sklearn.neighbors import KNeighborsClassifier
-    from sklearn.preprocessing import StandardScaler
-
     params = dict(ennc_params or {})
     records = []
     for name in datasets:

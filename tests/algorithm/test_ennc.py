@@ -7,6 +7,7 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 import torch
+from sklearn.exceptions import NotFittedError
 
 from algorithm import ENNC
 from algorithm import _ennc_ops as ops
@@ -328,7 +329,7 @@ def test_params_round_trip_and_reject_unknown_names() -> None:
     assert params["n_cycles"] == 10 and params["k_fight"] == 2 and params["newborn_grace"] is False
     assert ENNC(**params).get_params() == params
     assert clf.set_params(n_cycles=5) is clf and clf.n_cycles == 5
-    with pytest.raises(ValueError, match="unknown ENNC parameter"):
+    with pytest.raises(ValueError, match="Invalid parameter 'n_cycle' for estimator ENNC"):
         clf.set_params(n_cycle=5)
 
 
@@ -346,13 +347,6 @@ def test_n_threads_applies_during_fit_and_is_restored(monkeypatch: pytest.Monkey
     ENNC(n_cycles=2, random_state=0, n_threads=1).fit(X, y)
     assert seen == [1, 1]
     assert torch.get_num_threads() == 2
-
-
-def test_sklearn_clone_works() -> None:
-    from sklearn.base import clone
-
-    clf = ENNC(n_cycles=12, random_state=4)
-    assert clone(clf).get_params() == clf.get_params()
 
 
 @pytest.mark.parametrize(
@@ -375,17 +369,17 @@ def test_bad_parameters_are_rejected_at_fit(kwargs: dict[str, object], message: 
 
 def test_bad_inputs_are_rejected() -> None:
     X, y = two_blobs(n=5)
-    with pytest.raises(ValueError, match="y must be 1-D"):
+    with pytest.raises(ValueError, match="inconsistent numbers of samples"):
         ENNC().fit(X, y[:-1])
-    with pytest.raises(ValueError, match="finite"):
+    with pytest.raises(ValueError, match="Input X contains NaN"):
         ENNC().fit(np.where(X > 4, np.nan, X), y)
     with pytest.raises(ValueError, match="without init_prototypes"):
         ENNC().fit(X, y, init_labels=y[:2])
     with pytest.raises(ValueError, match="init_labels must have shape"):
         ENNC().fit(X, y, init_prototypes=X[:2], init_labels=y[:3])
-    with pytest.raises(ValueError, match="not fitted"):
+    with pytest.raises(NotFittedError, match="not fitted"):
         ENNC().predict(X)
-    with pytest.raises(ValueError, match="features"):
+    with pytest.raises(ValueError, match="X has 2 features, but ENNC is expecting 3 features"):
         ENNC(n_cycles=1, random_state=0).fit(X, y).predict(X[:, :2])
 
 

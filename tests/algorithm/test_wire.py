@@ -94,7 +94,7 @@ def test_increments_round_trip_and_saturate_visits() -> None:
 
 
 def test_the_protocols_constants_are_the_simulators() -> None:
-    assert N_ACTIONS == len(COMPASS)
+    assert len(COMPASS) == N_ACTIONS
     assert dict(FEATURIZER_DIMS) == FEATURIZERS
     assert scenario().n_robots <= np.iinfo(np.int16).max  # robot ids travel as int16
 

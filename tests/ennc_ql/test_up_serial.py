@@ -1,0 +1,47 @@
+"""``ennc-ql up --serial``: the learner and the actors as objects in one process, with the same report."""
+
+from __future__ import annotations
+
+import json
+import threading
+from pathlib import Path
+
+import pytest
+
+from ennc_ql.cli import main
+
+SMALL = [
+    "--actors=2",
+    "--duration=20",
+    "--actor-arenas=16",
+    "--actor-batch-size=512",
+    "--actor-flush-timeout=5",
+    "--learner-min-tuples=6000",
+    "--learner-phase1-max-patterns=300",
+    "--learner-phase1-n-cycles=10",
+    "--learner-broadcast-interval=1",
+    "--learner-checkpoint-interval=1",
+    "--learner-eval-interval=5",
+    "--learner-eval-trials=1",
+    "--learner-eval-steps=100",
+    "--learner-final-eval-trials=2",
+]
+
+
+def test_serial_run_learns_and_reports_like_the_process_topology(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    before = threading.active_count()
+    assert main(["up", "--serial", *SMALL, f"--runs={tmp_path}", "--run-id=serial", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    run_dir = tmp_path / "serial"
+    assert report["actors"] == ["actor-0", "actor-1"]
+    assert report["tuples_received"] == sum(report["tuples_by_actor"].values()) > 6000
+    assert report["policy_version"] >= 1 and report["phase1_fits"] == 1
+    assert report["duplicates"] == 0 and report["gaps"] == 0 and report["rejected"] == 0
+    assert 0.0 < report["final_coverage_mean"] <= 100.0 and report["final_eval_trials"] == 2
+    assert report["config"]["serial"] is True and report["command"] == f"ennc-ql up --config {run_dir / 'up.toml'}"
+    for name in ("up.toml", "learner.toml", "actor-0.toml", "actor-1.toml", "policy.npz", "report.md", "policy.png"):
+        assert (run_dir / name).exists(), name
+    assert json.loads((run_dir / "report.json").read_text())["tuples_received"] == report["tuples_received"]
+    assert threading.active_count() == before  # every actor thread and transport worker ended
