@@ -22,7 +22,7 @@ import secrets
 import threading
 import time
 import zlib
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -33,7 +33,7 @@ from actors.policy_client import PolicyClient
 from algorithm.agent import TabularAgent
 from algorithm.transitions import Transitions
 from algorithm.trials import ExperienceSlice, SliceConfig
-from algorithm.wire import experience_batches, increment_message
+from algorithm.wire import experience_batches, increment_message, status_counters
 from monitor import Monitor
 from monitor.trial import TrialWatch
 from protocol import Status, Transport
@@ -63,7 +63,7 @@ class ActorStatus:
     policy_version: int = 0
 
     def to_counters(self) -> dict[str, float]:
-        return {f.name: float(getattr(self, f.name)) for f in fields(self)}
+        return status_counters(self)
 
 
 class RobotActor:

@@ -12,7 +12,8 @@ import socket
 from dataclasses import dataclass, field
 
 from algorithm.agent import Phase2Config
-from protocol import FEATURIZER_DIMS, check_id
+from algorithm.checks import require_at_least, require_id, require_known, require_positive
+from protocol import FEATURIZER_DIMS
 from sim import SCENARIOS
 
 
@@ -81,24 +82,19 @@ class ActorConfig:
     """With monitoring on, every this many trials arena 0 is drawn at each step of the trial."""
 
     def __post_init__(self) -> None:
-        try:
-            check_id(self.actor_id, "actor_id")
-        except ValueError as exc:
-            raise ValueError(str(exc)) from None
-        if self.scenario not in SCENARIOS:
-            raise ValueError(f"scenario: unknown {self.scenario!r} (known: {', '.join(sorted(SCENARIOS))})")
-        if self.featurizer not in FEATURIZER_DIMS:
-            raise ValueError(f"featurizer: unknown {self.featurizer!r} (known: {', '.join(FEATURIZER_DIMS)})")
-        for name in ("arenas", "batch_size", "outbox_limit", "draw_every"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
-        for name in ("resend_after", "status_interval"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        require_id("actor_id", self.actor_id)
+        require_known("scenario", self.scenario, SCENARIOS)
+        require_known("featurizer", self.featurizer, FEATURIZER_DIMS)
+        require_at_least(
+            1,
+            arenas=self.arenas,
+            batch_size=self.batch_size,
+            outbox_limit=self.outbox_limit,
+            draw_every=self.draw_every,
+        )
+        require_positive(resend_after=self.resend_after, status_interval=self.status_interval, duration=self.duration)
         if self.flush_timeout < 0:
             raise ValueError(f"flush_timeout must be 0 or more, got {self.flush_timeout}")
-        if self.duration is not None and not self.duration > 0:
-            raise ValueError(f"duration must be positive, got {self.duration}")
         n_robots = SCENARIOS[self.scenario].n_robots
         if self.learn is not None and (not self.learn or max(self.learn) >= n_robots or min(self.learn) < 0):
             raise ValueError(

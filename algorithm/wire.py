@@ -10,11 +10,17 @@ The learner and the actors never build or unpack a message field by field themse
     msg = increment_message(actor_id="actor-0", incarnation=7, seq=5, policy_version=3, robot=2,
                             change=change, visits=visits, offsets=disc.offsets)
     robot, change, visits = increment_arrays(msg)                        # learner: QTableIncrement -> arrays
+    counters = status_counters(figures)                                  # a figures dataclass -> Status.counters
+    figures = figures_from_counters(LearnerStatus, counters)             # and back (readers such as `up`)
 
 Imports only the message definitions (no transport, no zenoh, no torch).
 """
 
 from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -24,6 +30,7 @@ from algorithm.transitions import Transitions
 from protocol.messages import ExperienceBatch, PolicyUpdate, QTableIncrement
 
 _U32_MAX = np.iinfo(np.uint32).max
+F = TypeVar("F")
 
 
 def _u32(counts: np.ndarray) -> np.ndarray:
@@ -151,3 +158,18 @@ def increment_message(
 def increment_arrays(msg: QTableIncrement) -> tuple[int, np.ndarray, np.ndarray]:
     """(robot, change (Σ P_a,) float64, visits (Σ P_a,) float64) of an increment, ready for ``merge_increments``."""
     return int(msg.robot), np.array(msg.q, np.float64), np.asarray(msg.visits, np.float64)
+
+
+def status_counters(figures: Any) -> dict[str, float]:
+    """A process's typed figures (a dataclass of numbers) as a ``Status`` message's counters, field by field."""
+    return {f.name: float(getattr(figures, f.name)) for f in dataclasses.fields(figures)}
+
+
+def figures_from_counters(cls: type[F], counters: Mapping[str, float]) -> F:
+    """The typed figures of a ``Status`` message; unknown names are ignored and missing ones keep their defaults
+    (the sender may be a newer or older version). Fields annotated ``int`` come back as ints."""
+    known = {f.name: f.type for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    values = {
+        name: int(v) if known[name] in ("int", int) else float(v) for name, v in counters.items() if name in known
+    }
+    return cls(**values)

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from actors.config import ActorConfig
+from algorithm.checks import require_at_least, require_positive
 from ennc_ql.config import dump_config
 from ennc_ql.progress import ProgressBar
 from ennc_ql.system import free_port
@@ -62,10 +63,8 @@ class UpConfig:
     """Every actor process (ids actor-0, actor-1, ...)."""
 
     def __post_init__(self) -> None:
-        if self.actors < 1:
-            raise ValueError(f"actors must be at least 1, got {self.actors}")
-        if not self.duration > 0:
-            raise ValueError(f"duration must be positive, got {self.duration}")
+        require_at_least(1, actors=self.actors)
+        require_positive(duration=self.duration)
 
 
 UP_PRESETS: dict[str, Any] = {

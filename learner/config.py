@@ -8,8 +8,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from algorithm.checks import require_at_least, require_id, require_known, require_positive
 from algorithm.phase1 import Phase1Config
-from protocol import FEATURIZER_DIMS, check_id
+from protocol import FEATURIZER_DIMS
 from sim import SCENARIOS
 
 
@@ -57,26 +58,27 @@ class LearnerConfig:
     """Torch threads for phase 1 (0: torch's choice; 1 avoids stalls on cores shared with actors)."""
 
     def __post_init__(self) -> None:
-        try:
-            check_id(self.learner_id, "learner_id")
-        except ValueError as exc:
-            raise ValueError(str(exc)) from None
-        if self.scenario not in SCENARIOS:
-            raise ValueError(f"scenario: unknown {self.scenario!r} (known: {', '.join(sorted(SCENARIOS))})")
-        if self.featurizer not in FEATURIZER_DIMS:
-            raise ValueError(f"featurizer: unknown {self.featurizer!r} (known: {', '.join(FEATURIZER_DIMS)})")
-        for name in ("store_capacity", "min_tuples", "eval_trials", "final_eval_trials", "eval_steps"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
-        for name in ("broadcast_interval", "eval_interval", "checkpoint_interval", "status_interval"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
-        if self.duration is not None and not self.duration > 0:
-            raise ValueError(f"duration must be positive, got {self.duration}")
+        require_id("learner_id", self.learner_id)
+        require_known("scenario", self.scenario, SCENARIOS)
+        require_known("featurizer", self.featurizer, FEATURIZER_DIMS)
+        require_at_least(
+            1,
+            store_capacity=self.store_capacity,
+            min_tuples=self.min_tuples,
+            eval_trials=self.eval_trials,
+            final_eval_trials=self.final_eval_trials,
+            eval_steps=self.eval_steps,
+        )
+        require_positive(
+            broadcast_interval=self.broadcast_interval,
+            eval_interval=self.eval_interval,
+            checkpoint_interval=self.checkpoint_interval,
+            status_interval=self.status_interval,
+            duration=self.duration,
+        )
+        require_at_least(0, threads=self.threads)
         if self.refit_growth != 0 and not self.refit_growth > 1:
             raise ValueError(f"refit_growth must be 0 (never) or above 1, got {self.refit_growth}")
-        if self.threads < 0:
-            raise ValueError(f"threads must be 0 (torch's choice) or more, got {self.threads}")
 
     @property
     def method(self) -> str:

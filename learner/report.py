@@ -14,6 +14,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from typing import Any
 
+from algorithm.wire import figures_from_counters, status_counters
+
 
 @dataclass(frozen=True, slots=True)
 class LearnerStatus:
@@ -45,18 +47,12 @@ class LearnerStatus:
     """Seconds of training."""
 
     def to_counters(self) -> dict[str, float]:
-        return {f.name: float(getattr(self, f.name)) for f in fields(self)}
+        return status_counters(self)
 
     @classmethod
     def from_counters(cls, counters: Mapping[str, float]) -> LearnerStatus:
         """Unknown names are ignored and missing ones keep their defaults (a newer or older learner)."""
-        known = {f.name: f.type for f in fields(cls)}
-        values: dict[str, Any] = {
-            name: (float(value) if known[name] == "float" else int(value))
-            for name, value in counters.items()
-            if name in known
-        }
-        return cls(**values)
+        return figures_from_counters(cls, counters)
 
 
 @dataclass(frozen=True, slots=True)
