@@ -78,7 +78,7 @@ class RobotActor:
         seed = np.random.SeedSequence([config.seed, zlib.crc32(config.actor_id.encode())])
         self.slice = ExperienceSlice(
             self.scenario,
-            SliceConfig(n_arenas=config.arenas, featurizer=config.featurizer, learners=self.learn),
+            SliceConfig(n_arenas=config.arenas, featurizer=config.featurizer, learning_robots=self.learn),
             seed,
         )
         self.outbox = Outbox(

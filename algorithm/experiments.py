@@ -21,7 +21,7 @@ import numpy as np
 from algorithm.agent import Phase2Config, TabularAgent
 from algorithm.discretization import Discretization
 from algorithm.phase1 import Phase1Config, phase1
-from algorithm.policy import Policy, PolicyController
+from algorithm.policy import ActionMode, Policy, PolicyController
 from algorithm.transitions import Transitions
 from algorithm.trials import ExperienceSlice, SliceConfig
 from algorithm.vqql import lbg
@@ -112,7 +112,7 @@ class Outcome:
 Progress = Callable[[str], None]
 
 
-def _discretize(spec: MethodSpec, data: Transitions, budget: Budget, seed: int) -> tuple[Discretization, str]:
+def _discretize(spec: MethodSpec, data: Transitions, budget: Budget, seed: int) -> tuple[Discretization, ActionMode]:
     rng = np.random.default_rng(seed)
     if spec.algorithm == "vqql":
         n = min(budget.codebook_patterns, len(data))
@@ -147,14 +147,16 @@ def train(
         tables=np.tile(disc.labels, (rows, 1)),
         robot_table=np.arange(spec.learning_robots) % rows,
         action_steps=base.action_steps,
-        action_mode=action_mode,  # type: ignore[arg-type]
+        action_mode=action_mode,
         method=spec.name,
     )
     agent = TabularAgent(template, budget.phase2)
     learners = None if spec.per_robot_tables else (0,)
     learner_slice = ExperienceSlice(
         learn_cfg,
-        SliceConfig(n_arenas=budget.arenas, featurizer=spec.featurizer, learners=learners, action_mode=action_mode),
+        SliceConfig(
+            n_arenas=budget.arenas, featurizer=spec.featurizer, learning_robots=learners, action_mode=action_mode
+        ),
         seeds[1],
     )
     tuples = len(data)

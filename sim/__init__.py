@@ -1,12 +1,13 @@
-"""The CMOMMT world: a pure, vectorized simulator over a batch of arenas, its featurizers, rewards, metric A and
-the hand-made controllers. Imports only numpy and numba; the Gymnasium / PettingZoo adapters live in
-:mod:`sim.envs` so that this package stays free of them.
+"""The CMOMMT world: a pure, vectorized simulator over a batch of arenas, its featurizers, rewards, metric A, the
+hand-made controllers and the learning-trial rules (:mod:`sim.trial`). Imports only numpy and numba; the
+Gymnasium / PettingZoo adapters live in :mod:`sim.envs` so that this package stays free of them.
 """
 
 from sim.config import SCENARIOS, ForceLawConfig, ScenarioConfig, scenario
 from sim.controllers import COMPASS, HAND_MADE, N_ACTIONS, Controller, ForceController, RandomController
 from sim.features import FEATURIZERS, coverage, featurize, lost, trial_reward
 from sim.rollout import EvalResult, evaluate
+from sim.trial import TrialState, TrialStep, random_actions, reset_trial, step_trial
 from sim.world import Observation, WorldState, reset, sense, step
 
 __all__ = [
@@ -22,14 +23,19 @@ __all__ = [
     "Observation",
     "RandomController",
     "ScenarioConfig",
+    "TrialState",
+    "TrialStep",
     "WorldState",
     "coverage",
     "evaluate",
     "featurize",
     "lost",
+    "random_actions",
     "reset",
+    "reset_trial",
     "scenario",
     "sense",
     "step",
+    "step_trial",
     "trial_reward",
 ]

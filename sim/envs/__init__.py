@@ -1,12 +1,28 @@
-"""Gymnasium and PettingZoo adapters (optional extra ``ennc-ql[envs]``), converting at the edge only.
+"""Gymnasium and PettingZoo adapters of the learning trial (optional extra ``ennc-ql[envs]``), converting at the edge.
 
-Usage::
+Both wrap :mod:`sim.trial`, so they follow the rules of the experience slice: learners start within sensing range
+of a target; one env step is one compass action held for ``action_steps`` simulation steps; the reward is delayed
+to the end of the learning trial (``learning_steps`` simulation steps), or is ``lost_reward`` when a robot loses
+every target, which ends its episode and leaves it motionless [paper; choice]. ``info["coverage"]`` is the
+percentage of targets observed at that moment (the summand of metric A).
 
-    from sim.envs.gym_env import CmommtSingleRobotEnv       # one learning robot; the others follow a controller
-    from sim.envs.pettingzoo_env import CmommtParallelEnv   # every robot an agent
+Importing this package registers the Gymnasium ids in :data:`GYM_IDS`, as Gymnasium environment packages do
+(the adapters' modules are imported only when an env is made)::
 
-Both are constructible with no arguments (scenario ``cmommt-v1``, collaborative 6-D state). One env step is one
-compass action held for ``action_steps`` simulation steps; the reward is delayed to the end of the learning trial
-(``learning_steps`` simulation steps) or comes as ``lost_reward`` when a robot loses every target, which ends its
-episode [paper; choice].
+    import gymnasium
+    import sim.envs
+
+    env = gymnasium.make("cmommt/SingleRobot-v1")               # robot 0 learns; the others explore
+    env = gymnasium.make("sim.envs:cmommt/SingleRobot-v1")      # the same, importing this package on the way
+
+    from sim.envs import pettingzoo_env
+    aec, par = pettingzoo_env.env(), pettingzoo_env.parallel_env()   # every robot an agent
 """
+
+from gymnasium.envs.registration import register
+
+GYM_IDS = ("cmommt/SingleRobot-v1",)
+"""Registered Gymnasium ids; keyword arguments of :class:`~sim.envs.gym_env.CmommtSingleRobotEnv` pass through
+``gymnasium.make``, e.g. ``featurizer="local2d"`` or ``others="a-cmommt"``."""
+
+register(id=GYM_IDS[0], entry_point="sim.envs.gym_env:CmommtSingleRobotEnv")

@@ -1,4 +1,15 @@
-"""A Gymnasium single-robot view of CMOMMT: robot 0 learns, the other robots follow a given controller."""
+"""A Gymnasium single-robot view of a learning trial (:mod:`sim.trial`): robot 0 learns, the others do not.
+
+Usage::
+
+    import gymnasium
+    import sim.envs  # registers the ids
+
+    env = gymnasium.make("cmommt/SingleRobot-v1")             # or CmommtSingleRobotEnv(featurizer="local2d")
+    obs, info = env.reset(seed=0)
+    obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+    info["coverage"]                                           # % of targets observed now (metric A's summand)
+"""
 
 from __future__ import annotations
 
@@ -9,17 +20,20 @@ import numpy as np
 from gymnasium import spaces
 
 from sim.config import scenario
-from sim.controllers import HAND_MADE, N_ACTIONS, Controller, compass_velocity
-from sim.features import FEATURIZERS, featurize, lost, trial_reward
-from sim.world import Observation, WorldState, place_near_targets, reset, sense, step
+from sim.controllers import HAND_MADE, N_ACTIONS, Controller
+from sim.features import FEATURIZERS, coverage
+from sim.trial import TrialState, random_actions, reset_trial, step_trial
 
 
 class CmommtSingleRobotEnv(gym.Env[np.ndarray, np.int64]):
     """Robot 0 of one arena acts through ``Discrete(8)`` compass actions; observations are its features.
 
-    ``others`` names a hand-made controller (or is a :class:`~sim.controllers.Controller`) for robots 1…m−1.
+    One env step is one action of robot 0: ``action_steps`` simulation steps, or fewer when it loses every target.
     The episode terminates at the end of the learning trial with the delayed reward, or earlier with
-    ``lost_reward`` when robot 0 sees no target.
+    ``lost_reward`` when robot 0 sees no target [paper; choice]. ``others`` moves robots 1…m−1: ``"random"``
+    (default) is the experience slice's exploration rule (a random compass action every ``action_steps`` steps,
+    searching when lost); any other name of :data:`~sim.controllers.HAND_MADE`, or a
+    :class:`~sim.controllers.Controller`, drives them instead.
     """
 
     metadata: dict[str, Any] = {"render_modes": []}  # noqa: RUF012 - gymnasium reads it as a class attribute
@@ -34,46 +48,52 @@ class CmommtSingleRobotEnv(gym.Env[np.ndarray, np.int64]):
             raise ValueError(f"unknown featurizer {featurizer!r}; known: {', '.join(FEATURIZERS)}")
         self.cfg = scenario(scenario_name)
         self.featurizer = featurizer
-        self.others: Controller = HAND_MADE[others] if isinstance(others, str) else others
+        self.others: Controller | None = None
+        if others != "random":
+            self.others = HAND_MADE[others] if isinstance(others, str) else others
         mask = self.cfg.mask_value
-        dim = FEATURIZERS[featurizer]
-        self.observation_space = spaces.Box(-mask, mask, shape=(dim,), dtype=np.float32)
+        self.observation_space = spaces.Box(-mask, mask, shape=(FEATURIZERS[featurizer],), dtype=np.float32)
         self.action_space = spaces.Discrete(N_ACTIONS)
-        self._world: WorldState | None = None
-        self._obs: Observation | None = None
+        self._learner = np.arange(self.cfg.n_robots) == 0
+        self._state: TrialState | None = None
+        self._decide = np.ones((1, self.cfg.n_robots), dtype=bool)
         self._memory: Any = None
 
-    def _observe(self) -> np.ndarray:
-        assert self._obs is not None
-        return featurize(self.cfg, self._obs, self.featurizer)[0, 0].copy()
+    def _info(self, state: TrialState) -> dict[str, Any]:
+        return {"n_seen": int(state.obs.n_seen[0, 0]), "coverage": float(coverage(self.cfg, state.obs)[0])}
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
         rng = self.np_random
-        world = reset(self.cfg, 1, rng)
-        first = np.zeros((1, self.cfg.n_robots), dtype=bool)
-        first[0, 0] = True
-        self._world = place_near_targets(self.cfg, world, first, rng)
-        self._memory = self.others.init(self.cfg, self._world, rng)
-        self._obs = sense(self.cfg, self._world, rng)
-        return self._observe(), {"n_seen": int(self._obs.n_seen[0, 0])}
+        self._state = reset_trial(self.cfg, 1, self._learner, self.featurizer, rng)
+        if self.others is not None:
+            self._memory = self.others.init(self.cfg, self._state.world, rng)
+        self._decide = np.ones(self._state.shape, dtype=bool)
+        return self._state.features[0, 0].copy(), self._info(self._state)
 
     def step(self, action: np.int64) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        if self._world is None or self._obs is None:
+        state = self._state
+        if state is None:
             raise RuntimeError("call reset() before step()")
+        if not state.active[0, 0]:
+            raise RuntimeError("the episode has terminated; call reset()")
         if not self.action_space.contains(action):
             raise ValueError(f"invalid action {action!r}; expected an integer in [0, {N_ACTIONS})")
         rng = self.np_random
-        mine = compass_velocity(self.cfg, np.asarray(action, dtype=np.int64))
-        for _ in range(self.cfg.action_steps):
-            velocity, self._memory = self.others.act(self.cfg, self._world, self._obs, self._memory, rng)
-            velocity[0, 0] = mine
-            self._world = step(self.cfg, self._world, velocity, rng)
-            self._obs = sense(self.cfg, self._world, rng)
-            if lost(self._obs)[0, 0] or self._world.t >= self.cfg.learning_steps:
+        decide = self._decide
+        while True:
+            # Drawn only when someone decides, as the slice does, so both follow one random stream.
+            actions = random_actions(state, rng) if self.others is None and decide.any() else state.action.copy()
+            actions[0, 0] = action
+            velocity = None
+            if self.others is not None:
+                velocity, self._memory = self.others.act(self.cfg, state.world, state.obs, self._memory, rng)
+            state, out = step_trial(self.cfg, state, actions, decide, rng, velocity=velocity)
+            decide = out.decide
+            if out.transition[0, 0]:
                 break
-        ended = bool(lost(self._obs)[0, 0]) or self._world.t >= self.cfg.learning_steps
-        reward = float(trial_reward(self.cfg, self._obs, self.featurizer)[0, 0]) if ended else 0.0
-        return self._observe(), reward, ended, False, {"n_seen": int(self._obs.n_seen[0, 0])}
+        self._state, self._decide = state, decide
+        obs = out.next_features[0, 0].copy()
+        return obs, float(out.reward[0, 0]), bool(out.done[0, 0]), False, self._info(state)

@@ -1,4 +1,16 @@
-"""A PettingZoo ``ParallelEnv`` view of CMOMMT: every robot is an agent named ``robot_<i>``."""
+"""A PettingZoo view of a learning trial (:mod:`sim.trial`) in which every robot learns, as agent ``robot_<i>``.
+
+Usage::
+
+    from sim.envs import pettingzoo_env
+
+    par = pettingzoo_env.parallel_env()                       # ParallelEnv: all agents act at once
+    observations, infos = par.reset(seed=0)
+    observations, rewards, terminations, truncations, infos = par.step(
+        {agent: par.action_space(agent).sample() for agent in par.agents}
+    )
+    aec = pettingzoo_env.env()                                # the same game as an AEC env (parallel_to_aec)
+"""
 
 from __future__ import annotations
 
@@ -7,19 +19,21 @@ from typing import Any
 
 import numpy as np
 from gymnasium import spaces
-from pettingzoo import ParallelEnv
+from pettingzoo import AECEnv, ParallelEnv
+from pettingzoo.utils.conversions import parallel_to_aec
 
 from sim.config import scenario
-from sim.controllers import N_ACTIONS, compass_velocity
-from sim.features import FEATURIZERS, featurize, lost, trial_reward
-from sim.world import Observation, WorldState, reset, sense, step
+from sim.controllers import N_ACTIONS
+from sim.features import FEATURIZERS, coverage
+from sim.trial import TrialState, reset_trial, step_trial
 
 
 class CmommtParallelEnv(ParallelEnv[str, np.ndarray, np.int64]):
-    """All m robots act at once with ``Discrete(8)`` compass actions.
+    """All m robots act at once with ``Discrete(8)`` compass actions, each held for ``action_steps`` steps.
 
-    A robot that loses every target gets ``lost_reward``, leaves the episode and stays motionless in the arena
-    [paper]; at the end of the learning trial every remaining robot gets its delayed reward and the episode ends.
+    Robots start within sensing range of a target. A robot that loses every target gets ``lost_reward`` at that
+    simulation step, leaves the episode and stays motionless in the arena [paper]; at the end of the learning trial
+    every remaining robot gets its delayed reward (paper Eq. 2) and the episode ends.
     """
 
     metadata: dict[str, Any] = {"name": "cmommt_v1", "render_modes": [], "is_parallelizable": True}  # noqa: RUF012
@@ -32,8 +46,8 @@ class CmommtParallelEnv(ParallelEnv[str, np.ndarray, np.int64]):
         self.possible_agents = [f"robot_{i}" for i in range(self.cfg.n_robots)]
         self.agents: list[str] = []
         self._index = {name: i for i, name in enumerate(self.possible_agents)}
-        self._world: WorldState | None = None
-        self._obs: Observation | None = None
+        self._state: TrialState | None = None
+        self._decide = np.ones((1, self.cfg.n_robots), dtype=bool)
         self._rng = np.random.default_rng()
         self.render_mode = None
 
@@ -46,20 +60,19 @@ class CmommtParallelEnv(ParallelEnv[str, np.ndarray, np.int64]):
     def action_space(self, agent: str) -> spaces.Discrete:
         return spaces.Discrete(N_ACTIONS)
 
-    def _observations(self) -> dict[str, np.ndarray]:
-        assert self._obs is not None
-        feats = featurize(self.cfg, self._obs, self.featurizer)[0]
-        return {a: feats[self._index[a]].copy() for a in self.agents}
-
     def reset(
         self, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, Any]]]:
         if seed is not None:
             self._rng = np.random.default_rng(seed)
-        self._world = reset(self.cfg, 1, self._rng)
-        self._obs = sense(self.cfg, self._world, self._rng)
+        learners = np.ones(self.cfg.n_robots, dtype=bool)
+        state = reset_trial(self.cfg, 1, learners, self.featurizer, self._rng)
+        self._state, self._decide = state, np.ones(state.shape, dtype=bool)
         self.agents = list(self.possible_agents)
-        return self._observations(), {a: {} for a in self.agents}
+        share = float(coverage(self.cfg, state.obs)[0])
+        observations = {a: state.features[0, i].copy() for i, a in enumerate(self.agents)}
+        infos = {a: {"n_seen": int(state.obs.n_seen[0, i]), "coverage": share} for i, a in enumerate(self.agents)}
+        return observations, infos
 
     def step(
         self, actions: dict[str, np.int64]
@@ -70,37 +83,53 @@ class CmommtParallelEnv(ParallelEnv[str, np.ndarray, np.int64]):
         dict[str, bool],
         dict[str, dict[str, Any]],
     ]:
-        if self._world is None or self._obs is None:
+        state = self._state
+        if state is None:
             raise RuntimeError("call reset() before step()")
-        active = np.zeros(self.cfg.n_robots, dtype=bool)
-        chosen = np.zeros(self.cfg.n_robots, dtype=np.int64)
+        missing = set(self.agents) - set(actions)
+        if missing:
+            raise ValueError(f"no action for {', '.join(sorted(missing))}")
+        chosen = np.zeros(state.shape, dtype=np.int64)
         for agent, action in actions.items():
             if agent not in self.agents:
                 raise ValueError(f"{agent!r} is not an active agent")
             if not 0 <= int(action) < N_ACTIONS:
                 raise ValueError(f"invalid action {action!r} for {agent}; expected an integer in [0, {N_ACTIONS})")
-            active[self._index[agent]] = True
-            chosen[self._index[agent]] = int(action)
-        velocity = np.where(active[:, None], compass_velocity(self.cfg, chosen), 0.0)[None]
-        for _ in range(self.cfg.action_steps):
-            self._world = step(self.cfg, self._world, velocity, self._rng)
-            self._obs = sense(self.cfg, self._world, self._rng)
-            if self._world.t >= self.cfg.learning_steps:
-                break
-        observations = self._observations()
-        trial_over = self._world.t >= self.cfg.learning_steps
-        gone = lost(self._obs)[0]
-        rewards_now = trial_reward(self.cfg, self._obs, self.featurizer)[0]
-        rewards: dict[str, float] = {}
-        terminations: dict[str, bool] = {}
-        for agent in self.agents:
-            i = self._index[agent]
-            done = trial_over or bool(gone[i])
-            terminations[agent] = done
-            rewards[agent] = float(rewards_now[i]) if done else 0.0
+            chosen[0, self._index[agent]] = int(action)
+        # Every live robot's tuple ends within this env step: when its action has lasted action_steps, when it
+        # loses every target (then its s′ and reward are those of that simulation step), or at the end of the trial.
+        pending = self._decide.copy()
+        decide = self._decide
+        next_obs, reward = state.features[0].copy(), np.zeros(self.cfg.n_robots, np.float32)
+        done, n_seen = np.zeros(self.cfg.n_robots, dtype=bool), state.obs.n_seen[0].copy()
+        while pending.any():
+            state, out = step_trial(self.cfg, state, chosen, decide, self._rng)
+            ends = (out.transition & pending)[0]
+            next_obs = np.where(ends[:, None], out.next_features[0], next_obs)
+            reward = np.where(ends, out.reward[0], reward)
+            done = np.where(ends, out.done[0], done)
+            n_seen = np.where(ends, state.obs.n_seen[0], n_seen)
+            pending &= ~out.transition
+            decide = out.decide
+        self._state, self._decide = state, decide
+        share = float(coverage(self.cfg, state.obs)[0])
+        ids = [self._index[a] for a in self.agents]
+        observations = {a: next_obs[i].copy() for a, i in zip(self.agents, ids, strict=True)}
+        rewards = {a: float(reward[i]) for a, i in zip(self.agents, ids, strict=True)}
+        terminations = {a: bool(done[i]) for a, i in zip(self.agents, ids, strict=True)}
         truncations = {a: False for a in self.agents}
         infos: dict[str, dict[str, Any]] = {
-            a: {"n_seen": int(self._obs.n_seen[0, self._index[a]])} for a in self.agents
+            a: {"n_seen": int(n_seen[i]), "coverage": share} for a, i in zip(self.agents, ids, strict=True)
         }
         self.agents = [a for a in self.agents if not terminations[a]]
         return observations, rewards, terminations, truncations, infos
+
+
+def parallel_env(scenario_name: str = "cmommt-v1", featurizer: str = "collab6d") -> CmommtParallelEnv:
+    """PettingZoo's ``parallel_env()`` constructor."""
+    return CmommtParallelEnv(scenario_name, featurizer)
+
+
+def env(scenario_name: str = "cmommt-v1", featurizer: str = "collab6d") -> AECEnv[str, np.ndarray, np.int64 | None]:
+    """PettingZoo's ``env()`` constructor: the parallel game as an AEC env, agents taking turns."""
+    return parallel_to_aec(parallel_env(scenario_name, featurizer))

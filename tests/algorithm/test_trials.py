@@ -32,7 +32,7 @@ def test_exploration_tuples_follow_the_trial_rules() -> None:
 
 def test_only_the_named_learners_emit_tuples() -> None:
     cfg = scenario()
-    sl = ExperienceSlice(cfg, SliceConfig(n_arenas=32, learners=(0, 3)), seed=1)
+    sl = ExperienceSlice(cfg, SliceConfig(n_arenas=32, learning_robots=(0, 3)), seed=1)
     batch = sl.run_trial()
     assert set(np.unique(batch.robot)) == {0, 3}
     assert batch.done.sum() == 64
@@ -66,3 +66,19 @@ def test_phase2_learns_that_moving_away_from_a_lone_target_loses_it() -> None:
     target_west = disc.offsets[:-1] + 2
     assert q[target_west[east]] < q[target_west[west]]
     assert agent.visits.sum() > 0
+
+
+def test_until_change_actions_last_until_the_cell_changes_or_the_cap() -> None:
+    cfg = scenario()
+    # One prototype per action: the cell never changes, so every VQQL action lasts its cap of 25 steps.
+    disc = Discretization.from_per_action([np.zeros((1, 6))] * 8)
+    policy = Policy("collab6d", disc, np.zeros((1, disc.size), np.float32), np.zeros(cfg.n_robots, np.int64))
+    agent = TabularAgent(policy, Phase2Config())
+    config = SliceConfig(n_arenas=32, action_mode="until_change", max_action_steps=25)
+    batch = ExperienceSlice(cfg, config, seed=3).run_trial(agent)
+    robots_total = 32 * cfg.n_robots
+    assert batch.done.sum() == robots_total
+    # Tuples that do not end a trial end an action: at steps 25, 50 and 75 only.
+    assert (~batch.done).sum() <= 3 * robots_total
+    fixed = ExperienceSlice(cfg, SliceConfig(n_arenas=32), seed=3).run_trial(agent)
+    assert (~fixed.done).sum() > (~batch.done).sum()

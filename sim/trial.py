@@ -1,0 +1,229 @@
+"""Learning trials as pure, batch-first functions: the trial rules written once, for E arenas × m robots.
+
+The rules [paper §4; choices as tagged]:
+
+* a trial lasts ``learning_steps`` steps; learning robots start within sensing range of a random target [choice];
+* a compass action is held for ``action_steps`` steps; a caller may end actions on its own boundary as well
+  (VQQL: "the discretized state changed", with a cap [paper]) through :meth:`TrialStep.with_boundary`;
+* the reward is delayed to the end of the trial: 0 before it, paper Eq. 2 at it (:func:`sim.features.trial_reward`);
+* a learning robot that loses every target gets ``lost_reward``, its trial ends [choice] and it stays motionless
+  [paper];
+* robots that do not learn follow the caller's actions, or a controller's velocity, and when lost search by keeping
+  a heading reflected off the wall [choice, as in test trials].
+
+Call sequence::
+
+    rng = np.random.default_rng(seed)
+    state = reset_trial(cfg, n_arenas=E, learners=np.arange(m) == 0, featurizer="collab6d", rng=rng)
+    decide = np.ones(state.shape, bool)              # every robot takes a first action
+    while True:
+        action = random_actions(state, rng)          # or a policy's (E, m) actions; read only where ``decide``
+        state, out = step_trial(cfg, state, action, decide, rng)
+        ends = out.transition                        # robots whose tuple ⟨s, a, r, s′, done⟩ ends here:
+        # out.start_features[ends], out.action[ends], out.reward[ends], out.next_features[ends], out.done[ends]
+        if out.trial_over:
+            break
+        decide = out.decide
+
+Nothing here modifies its inputs; all randomness comes from the ``rng`` passed in, in a fixed order, so the
+experience slice and the Gymnasium / PettingZoo adapters reproduce each other's trajectories from one seed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.config import ScenarioConfig
+from sim.controllers import N_ACTIONS, compass_velocity, wander
+from sim.features import FEATURIZERS, featurize, lost, trial_reward
+from sim.world import Observation, WorldState, place_near_targets, reset, sense, step
+
+
+@dataclass(frozen=True, slots=True)
+class TrialState:
+    """Everything a learning trial carries from one step to the next, for E arenas × m robots."""
+
+    world: WorldState
+    obs: Observation
+    """What every robot perceives in ``world``."""
+    featurizer: str
+    """State definition of ``features`` (a key of :data:`sim.features.FEATURIZERS`)."""
+    features: np.ndarray
+    """(E, m, d) float32: every robot's state now."""
+    action: np.ndarray
+    """(E, m) int64: the compass action each robot holds."""
+    held: np.ndarray
+    """(E, m) int64: steps the held action has lasted."""
+    start_features: np.ndarray
+    """(E, m, d) float32: each robot's state when it chose the held action (the s of its next tuple)."""
+    learner: np.ndarray
+    """(E, m) bool: robots that learn; their trial ends when they lose every target."""
+    active: np.ndarray
+    """(E, m) bool: learners whose trial goes on."""
+    heading: np.ndarray
+    """(E, m, 2) float64 unit vectors: the search heading of robots that do not learn, used while they are lost."""
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(E, m)."""
+        n_arenas, m = self.action.shape
+        return n_arenas, m
+
+
+@dataclass(frozen=True, slots=True)
+class TrialStep:
+    """What one step of a trial produced; a robot's tuple ends where :attr:`transition` is set."""
+
+    start_features: np.ndarray
+    """(E, m, d) float32: s, the state in which the action held during this step was chosen."""
+    action: np.ndarray
+    """(E, m) int64: a, the action held during this step."""
+    next_features: np.ndarray
+    """(E, m, d) float32: s′, the state after this step."""
+    reward: np.ndarray
+    """(E, m) float32: the delayed reward, paper Eq. 2 or ``lost_reward`` where ``done``, 0 elsewhere."""
+    done: np.ndarray
+    """(E, m) bool: learners whose trial ended on this step (they lost every target, or it was the last step)."""
+    boundary: np.ndarray
+    """(E, m) bool: the held action ended on this step (its length reached, or the caller's own boundary)."""
+    active: np.ndarray
+    """(E, m) bool: learners whose trial goes on after this step."""
+    learner: np.ndarray
+    """(E, m) bool: robots that learn."""
+    trial_over: bool
+    """This was the last step of the trial."""
+
+    @property
+    def transition(self) -> np.ndarray:
+        """(E, m) bool: learners whose tuple ⟨s, a, r, s′, done⟩ ends on this step."""
+        return self.done | (self.active & self.boundary)
+
+    @property
+    def decide(self) -> np.ndarray:
+        """(E, m) bool: robots that take a new action before the next step (a learner whose trial ended never does)."""
+        return self.boundary & (self.active | ~self.learner)
+
+    def with_boundary(self, extra: np.ndarray) -> TrialStep:
+        """The same step with the robots of ``extra`` (E, m) bool also ending their action, e.g. VQQL's cell change.
+
+        Usage::
+
+            state, out = step_trial(cfg, state, action, decide, rng, hold=max_action_steps)
+            out = out.with_boundary(cell_now != cell_at_decision)
+        """
+        return dataclasses.replace(self, boundary=self.boundary | np.asarray(extra, dtype=bool))
+
+
+def reset_trial(
+    cfg: ScenarioConfig, n_arenas: int, learners: np.ndarray, featurizer: str, rng: np.random.Generator
+) -> TrialState:
+    """E fresh arenas whose ``learners`` (bool, broadcastable to (E, m)) start within sensing range of a target.
+
+    No robot holds an action yet: the first :func:`step_trial` must let every robot decide.
+    """
+    if featurizer not in FEATURIZERS:
+        raise ValueError(f"unknown featurizer {featurizer!r}; known: {', '.join(FEATURIZERS)}")
+    learner = np.broadcast_to(np.asarray(learners, dtype=bool), (n_arenas, cfg.n_robots)).copy()
+    world = place_near_targets(cfg, reset(cfg, n_arenas, rng), learner, rng)
+    obs = sense(cfg, world, rng)
+    features = featurize(cfg, obs, featurizer)
+    angle = rng.uniform(0.0, 2.0 * np.pi, learner.shape)
+    return TrialState(
+        world=world,
+        obs=obs,
+        featurizer=featurizer,
+        features=features,
+        action=np.zeros(learner.shape, np.int64),
+        held=np.zeros(learner.shape, np.int64),
+        start_features=features,
+        learner=learner,
+        active=learner.copy(),
+        heading=np.stack([np.cos(angle), np.sin(angle)], axis=-1),
+    )
+
+
+def random_actions(state: TrialState, rng: np.random.Generator) -> np.ndarray:
+    """(E, m) uniform compass actions, the exploration rule [choice].
+
+    Drawn for every robot, whoever decides, so that the random stream does not depend on who is deciding.
+    """
+    return rng.integers(0, N_ACTIONS, state.shape)
+
+
+def step_trial(
+    cfg: ScenarioConfig,
+    state: TrialState,
+    action: np.ndarray,
+    decide: np.ndarray,
+    rng: np.random.Generator,
+    *,
+    velocity: np.ndarray | None = None,
+    hold: int | None = None,
+) -> tuple[TrialState, TrialStep]:
+    """Advance every arena one step under the trial rules.
+
+    ``action`` (E, m) compass indices is read only where ``decide`` (E, m) bool: those robots start a new action
+    now (every robot on the first step, then ``out.decide`` of the previous step). ``velocity`` (E, m, 2), if
+    given, moves the robots that do not learn instead of their actions and search, e.g. a hand-made controller's.
+    ``hold`` is the length after which an action ends (default ``cfg.action_steps``; VQQL passes its cap).
+    """
+    if state.world.t >= cfg.learning_steps:
+        raise ValueError(f"the trial is over: it lasts {cfg.learning_steps} steps")
+    decide = np.asarray(decide, dtype=bool)
+    if decide.shape != state.shape:
+        raise ValueError(f"decide must have shape {state.shape}, got {decide.shape}")
+    held_action, start, held = state.action, state.start_features, state.held
+    if decide.any():
+        held_action = np.where(decide, action, held_action)
+        if held_action.min() < 0 or held_action.max() >= N_ACTIONS:
+            raise ValueError(f"actions must be integers in [0, {N_ACTIONS})")
+        start = np.where(decide[..., None], state.features, start)
+        held = np.where(decide, 0, held)
+    # Only robots that do not learn search; with none in the batch the headings are never read.
+    heading = state.heading if state.learner.all() else wander(cfg, state.world, state.heading)
+    move = compass_velocity(cfg, held_action)
+    if velocity is None:
+        searching = ~state.learner & lost(state.obs)
+        move = np.where(searching[..., None], cfg.robot_speed * heading, move)
+    else:
+        move = np.where(state.learner[..., None], move, velocity)
+    # A learner whose trial ended stays where it lost its targets [paper].
+    move = np.where((state.learner & ~state.active)[..., None], 0.0, move)
+    world = step(cfg, state.world, move, rng)
+    obs = sense(cfg, world, rng)
+    features = featurize(cfg, obs, state.featurizer)
+    held = held + 1
+    trial_over = world.t >= cfg.learning_steps
+    done = state.active & (lost(obs) | trial_over)
+    if done.any():
+        reward = np.where(done, trial_reward(cfg, obs, state.featurizer), 0.0).astype(np.float32)
+    else:
+        reward = np.zeros(state.shape, np.float32)
+    active = state.active & ~done
+    out = TrialStep(
+        start_features=start,
+        action=held_action,
+        next_features=features,
+        reward=reward,
+        done=done,
+        boundary=held >= (cfg.action_steps if hold is None else hold),
+        active=active,
+        learner=state.learner,
+        trial_over=trial_over,
+    )
+    new_state = TrialState(
+        world=world,
+        obs=obs,
+        featurizer=state.featurizer,
+        features=features,
+        action=held_action,
+        held=held,
+        start_features=start,
+        learner=state.learner,
+        active=active,
+        heading=heading,
+    )
+    return new_state, out

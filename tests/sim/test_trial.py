@@ -1,0 +1,188 @@
+"""The learning-trial rules of :mod:`sim.trial` on hand-built arenas whose outcome is known by hand."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sim import ScenarioConfig, TrialState, WorldState, featurize, reset_trial, scenario, sense, step_trial
+from sim.features import trial_reward
+
+N, E, W = 0, 2, 6  # compass action indices
+MASK = 1000.0
+SPEED = 7.5
+
+
+def situation(
+    cfg: ScenarioConfig,
+    robots: list[tuple[float, float]],
+    targets: list[tuple[float, float]],
+    learner: list[bool],
+    target_vel: list[tuple[float, float]] | None = None,
+    heading: list[tuple[float, float]] | None = None,
+    featurizer: str = "collab6d",
+) -> TrialState:
+    """One arena at the start of a trial, robots and targets where given (targets still unless ``target_vel``)."""
+    vel = np.zeros((1, len(targets), 2)) if target_vel is None else np.array([target_vel], dtype=np.float64)
+    world = WorldState(
+        robot_pos=np.array([robots], dtype=np.float64),
+        target_pos=np.array([targets], dtype=np.float64),
+        target_vel=vel,
+        target_speed=np.linalg.norm(vel, axis=-1),
+    )
+    obs = sense(cfg, world)
+    features = featurize(cfg, obs, featurizer)
+    mask = np.array([learner])
+    m = len(robots)
+    return TrialState(
+        world=world,
+        obs=obs,
+        featurizer=featurizer,
+        features=features,
+        action=np.zeros((1, m), np.int64),
+        held=np.zeros((1, m), np.int64),
+        start_features=features,
+        learner=mask,
+        active=mask.copy(),
+        heading=np.array([heading or [(1.0, 0.0)] * m], dtype=np.float64),
+    )
+
+
+def small(m: int, n: int) -> ScenarioConfig:
+    return scenario(n_robots=m, n_targets=n, action_steps=3, learning_steps=9, target_turn_prob=0.0)
+
+
+def test_an_action_is_held_for_exactly_action_steps() -> None:
+    cfg = small(1, 1)
+    state = situation(cfg, [(0.0, 0.0)], [(0.0, 0.0)], [True])
+    rng = np.random.default_rng(0)
+    decide = np.ones((1, 1), bool)
+    action = np.full((1, 1), E)
+    outs = []
+    for _ in range(6):
+        state, out = step_trial(cfg, state, action, decide, rng)
+        outs.append(out)
+        action = np.full((1, 1), N)  # offered on every step, taken only at a boundary
+        decide = out.decide
+    assert [bool(o.boundary[0, 0]) for o in outs] == [False, False, True, False, False, True]
+    assert [bool(o.transition[0, 0]) for o in outs] == [False, False, True, False, False, True]
+    assert [int(o.action[0, 0]) for o in outs] == [E, E, E, N, N, N]
+    np.testing.assert_allclose(state.world.robot_pos[0, 0], (3 * SPEED, 3 * SPEED), atol=1e-9)
+    # The tuple of the second action starts where the first ended: target 22.5 to the west.
+    np.testing.assert_allclose(outs[5].start_features[0, 0], (-3 * SPEED, 0, -3 * SPEED, 0, MASK, MASK), atol=1e-5)
+    np.testing.assert_allclose(outs[2].start_features[0, 0], (0, 0, 0, 0, MASK, MASK), atol=1e-5)
+
+
+def test_a_learner_that_loses_every_target_is_done_with_the_lost_reward_then_stays_motionless() -> None:
+    cfg = small(1, 1)
+    # The target drifts east at 1 per step: robot 0 leaves its view at step 2 (155 − 2 > 150), and it is back
+    # in view by step 9 (155 − 9 ≤ 150), which must not wake the robot.
+    state = situation(cfg, [(140.0, 0.0)], [(0.0, 0.0)], [True], target_vel=[(1.0, 0.0)])
+    rng = np.random.default_rng(0)
+    decide = np.ones((1, 1), bool)
+    state, first = step_trial(cfg, state, np.full((1, 1), E), decide, rng)
+    assert not first.done[0, 0] and first.reward[0, 0] == 0.0
+    state, out = step_trial(cfg, state, np.full((1, 1), E), first.decide, rng)
+    assert out.done[0, 0] and out.transition[0, 0] and not out.boundary[0, 0]
+    assert out.reward[0, 0] == cfg.lost_reward == -1.0
+    np.testing.assert_array_equal(out.next_features[0, 0], MASK)
+    assert not out.decide[0, 0] and not state.active[0, 0]
+    lost_at = state.world.robot_pos.copy()
+    np.testing.assert_allclose(lost_at[0, 0], (155.0, 0.0))
+    while not out.trial_over:
+        # Even a caller that insists on new actions cannot move it or give it a second end.
+        state, out = step_trial(cfg, state, np.full((1, 1), W), np.ones((1, 1), bool), rng)
+        assert not out.done.any() and not out.transition.any() and out.reward[0, 0] == 0.0
+        np.testing.assert_array_equal(state.world.robot_pos, lost_at)
+    assert state.obs.n_seen[0, 0] == 1
+
+
+@pytest.mark.parametrize(("featurizer", "expected"), [("collab6d", [1.0, 1.0, 2.0]), ("local2d", [3.0, 3.0, 2.0])])
+def test_the_reward_is_zero_before_the_end_and_eq2_at_the_end(featurizer: str, expected: list[float]) -> None:
+    cfg = small(3, 5)
+    # Robots 0 and 1 keep three targets and each other in view (Eq. 2: 3 − k = 3 − 2); robot 2, alone, two.
+    targets = [(0.0, 0.0), (10.0, 0.0), (0.0, -10.0), (-600.0, 0.0), (-600.0, 20.0)]
+    state = situation(cfg, [(0.0, 5.0), (0.0, -5.0), (-600.0, 10.0)], targets, [True] * 3, featurizer=featurizer)
+    rng = np.random.default_rng(0)
+    action = np.array([[N, E, W]])
+    decide = np.ones((1, 3), bool)
+    for t in range(1, cfg.learning_steps + 1):
+        state, out = step_trial(cfg, state, action, decide, rng)
+        decide = out.decide
+        if t < cfg.learning_steps:
+            assert not out.trial_over and not out.done.any()
+            np.testing.assert_array_equal(out.reward, 0.0)
+    assert out.trial_over and out.done.all() and out.transition.all()
+    np.testing.assert_array_equal(out.reward[0], expected)
+    np.testing.assert_array_equal(out.reward, trial_reward(cfg, state.obs, featurizer))
+    np.testing.assert_array_equal(state.obs.n_seen[0], [3, 3, 2])
+    with pytest.raises(ValueError, match="trial is over"):
+        step_trial(cfg, state, action, decide, rng)
+
+
+def test_learners_start_within_sensing_range_of_a_target() -> None:
+    cfg = scenario()
+    learners = np.arange(cfg.n_robots) % 3 == 0
+    state = reset_trial(cfg, 200, learners, "collab6d", np.random.default_rng(3))
+    gap = np.linalg.norm(state.world.robot_pos[:, :, None] - state.world.target_pos[:, None], axis=-1).min(axis=2)
+    assert (gap[:, learners] <= cfg.sensing_range).all()
+    assert (state.obs.n_seen[:, learners] >= 1).all()
+    assert (state.obs.n_seen[:, ~learners] == 0).any()  # the others start anywhere in the disk
+    np.testing.assert_array_equal(state.active, np.broadcast_to(learners, (200, cfg.n_robots)))
+    np.testing.assert_allclose(np.linalg.norm(state.heading, axis=-1), 1.0)
+    again = reset_trial(cfg, 200, learners, "collab6d", np.random.default_rng(3))
+    np.testing.assert_array_equal(again.world.robot_pos, state.world.robot_pos)
+
+
+def test_lost_robots_that_do_not_learn_wander_with_a_heading_reflected_off_the_wall() -> None:
+    cfg = small(3, 1)
+    # Robot 0 sees the target and follows its action; robot 1 is lost and keeps its heading north; robot 2 is
+    # lost on the wall heading out, so its heading is mirrored back west.
+    robots = [(0.0, 0.0), (500.0, 0.0), (1000.0, 0.0)]
+    state = situation(cfg, robots, [(0.0, 20.0)], [False] * 3, heading=[(0.0, 1.0), (0.0, 1.0), (1.0, 0.0)])
+    state, out = step_trial(cfg, state, np.array([[E, E, E]]), np.ones((1, 3), bool), np.random.default_rng(0))
+    np.testing.assert_allclose(state.world.robot_pos[0], [(SPEED, 0.0), (500.0, SPEED), (1000.0 - SPEED, 0.0)])
+    np.testing.assert_allclose(state.heading[0, 2], (-1.0, 0.0))
+    assert not out.done.any() and not out.transition.any()  # robots that do not learn never end a trial
+
+
+def test_a_controller_velocity_moves_only_the_robots_that_do_not_learn() -> None:
+    cfg = small(2, 1)
+    state = situation(cfg, [(0.0, 0.0), (500.0, 0.0)], [(0.0, 0.0)], [True, False])
+    velocity = np.array([[(0.0, -SPEED), (0.0, -SPEED)]])
+    state, _ = step_trial(
+        cfg, state, np.full((1, 2), E), np.ones((1, 2), bool), np.random.default_rng(0), velocity=velocity
+    )
+    np.testing.assert_allclose(state.world.robot_pos[0], [(SPEED, 0.0), (500.0, -SPEED)], atol=1e-9)
+
+
+def test_a_caller_boundary_ends_an_action_early_and_hold_sets_the_length() -> None:
+    cfg = small(2, 1)
+    state = situation(cfg, [(0.0, 0.0), (10.0, 0.0)], [(0.0, 0.0)], [True, True])
+    rng = np.random.default_rng(0)
+    state, out = step_trial(cfg, state, np.full((1, 2), E), np.ones((1, 2), bool), rng, hold=2)
+    assert not out.transition.any()
+    early = out.with_boundary(np.array([[True, False]]))
+    np.testing.assert_array_equal(early.transition, [[True, False]])
+    np.testing.assert_array_equal(early.decide, [[True, False]])
+    assert not out.boundary.any()  # the original step is unchanged
+    state, out = step_trial(cfg, state, np.full((1, 2), N), early.decide, rng, hold=2)
+    np.testing.assert_array_equal(out.boundary, [[False, True]])  # robot 1 held E for 2 steps; robot 0 restarted
+    np.testing.assert_array_equal(out.action, [[N, E]])
+
+
+def test_step_trial_leaves_its_inputs_as_they_were_and_checks_actions() -> None:
+    cfg = small(2, 1)
+    state = situation(cfg, [(0.0, 0.0), (500.0, 0.0)], [(0.0, 0.0)], [True, False])
+    fields = {name: np.copy(getattr(state, name)) for name in ("features", "action", "held", "active", "heading")}
+    pos = state.world.robot_pos.copy()
+    action, decide = np.full((1, 2), E), np.ones((1, 2), bool)
+    step_trial(cfg, state, action, decide, np.random.default_rng(0))
+    for name, before in fields.items():
+        np.testing.assert_array_equal(getattr(state, name), before)
+    np.testing.assert_array_equal(state.world.robot_pos, pos)
+    np.testing.assert_array_equal(action, E)
+    with pytest.raises(ValueError, match="actions"):
+        step_trial(cfg, state, np.full((1, 2), 8), decide, np.random.default_rng(0))
+    with pytest.raises(ValueError, match="decide"):
+        step_trial(cfg, state, action, np.ones((2, 2), bool), np.random.default_rng(0))
