@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -13,6 +12,7 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
+from ennc_ql.system import free_port
 from monitor import RecordingError, Sink, merge_recordings, open_monitor, paths, summarize_recording
 from monitor.geometry import observed_targets
 from monitor.recordings import rerun_cli
@@ -175,13 +175,6 @@ def test_merge_reports_bad_input(tmp_path: Path, merged: Path) -> None:
     junk.write_bytes(np.random.default_rng(0).bytes(1000))
     with pytest.raises(RecordingError, match="rrd merge"):
         merge_recordings([junk], tmp_path / "out.rrd")
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port: int = sock.getsockname()[1]
-        return port
 
 
 def test_connect_streams_processes_into_one_live_recording(tmp_path: Path) -> None:

@@ -7,8 +7,6 @@ listens on a free port, the others connect), as the deployment does across machi
 from __future__ import annotations
 
 import argparse
-import random
-import socket
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -19,6 +17,7 @@ import numpy as np
 import pytest
 import zenoh
 
+from ennc_ql.system import free_port
 from protocol import (
     DEFAULT_KEYS,
     QOS,
@@ -261,23 +260,9 @@ def test_memory_handlers_may_publish() -> None:
 # --- zenoh transport ---------------------------------------------------------------------------------------
 
 
-def _free_port() -> int:
-    # Below Linux's ephemeral range (32768+): zenoh sessions elsewhere that listen on port 0 (the peer
-    # default) cannot grab it between this check and our bind, which would connect us to a stranger.
-    rng = random.Random()
-    while True:
-        port = rng.randrange(20000, 32000)
-        with socket.socket() as s:
-            try:
-                s.bind(("127.0.0.1", port))
-            except OSError:
-                continue
-            return port
-
-
 @pytest.fixture
 def endpoint() -> str:
-    return f"tcp/127.0.0.1:{_free_port()}"
+    return f"tcp/127.0.0.1:{free_port()}"
 
 
 def _connected(t: ZenohTransport, to: ZenohTransport) -> ZenohTransport:
