@@ -36,7 +36,7 @@ from algorithm.trials import ExperienceSlice, SliceConfig
 from algorithm.wire import experience_batches, increment_message, status_counters
 from monitor import Monitor
 from monitor.trial import TrialWatch
-from protocol import Status, Transport
+from protocol import ExperienceBatch, Message, QTableIncrement, Status, Transport
 from sim import scenario
 
 log = logging.getLogger(__name__)
@@ -58,6 +58,10 @@ class ActorStatus:
     """Times the actor waited for acks because its outbox was full."""
     outbox: int = 0
     """Unacknowledged messages now."""
+    tuples_acked: int = 0
+    """Tuples the learner acknowledged (stored and checkpointed)."""
+    visits_acked: int = 0
+    """Q-learning visits in the acknowledged table increments: the learner's tables hold every one of them."""
     acked_seq: int = -1
     """Cumulative acknowledgement (-1: none yet)."""
     policy_version: int = 0
@@ -87,11 +91,19 @@ class RobotActor:
             config.outbox_limit,
             config.resend_after,
             probe_key=self.keys.experience(config.actor_id),
+            on_acked=self._count_acked,
         )
         self.tracker = IncrementTracker(self.learn)
         self.policy = PolicyClient(self.scenario.n_robots, config.phase2, self.tracker)
         self.agent: TabularAgent | None = None
         self._tuples = self._batches = self._increments = self._trials = 0
+        self._tuples_acked = self._visits_acked = 0
+
+    def _count_acked(self, msg: Message) -> None:
+        if isinstance(msg, ExperienceBatch):
+            self._tuples_acked += len(msg.reward)
+        elif isinstance(msg, QTableIncrement):
+            self._visits_acked += int(np.asarray(msg.visits, np.int64).sum())
 
     def status(self) -> ActorStatus:
         return ActorStatus(
@@ -103,6 +115,8 @@ class RobotActor:
             policies_applied=self.policy.adopted,
             outbox_waits=self.outbox.waits,
             outbox=len(self.outbox),
+            tuples_acked=self._tuples_acked,
+            visits_acked=self._visits_acked,
             acked_seq=self.outbox.acked,
             policy_version=self.policy.version,
         )

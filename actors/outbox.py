@@ -17,6 +17,7 @@ import logging
 import threading
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from protocol import Ack, Message, Transport
@@ -32,13 +33,23 @@ class _Pending:
 
 
 class Outbox:
-    def __init__(self, transport: Transport, incarnation: int, limit: int, resend_after: float, probe_key: str) -> None:
+    def __init__(
+        self,
+        transport: Transport,
+        incarnation: int,
+        limit: int,
+        resend_after: float,
+        probe_key: str,
+        on_acked: Callable[[Message], None] | None = None,
+    ) -> None:
         self.transport = transport
         self.incarnation = incarnation
         self.limit = limit
         self.resend_after = resend_after
         self.probe_key = probe_key
         """A key of ours the learner subscribes to: a re-send after a learner (re)joined waits until it is matched."""
+        self.on_acked = on_acked
+        """Called with each message as its acknowledgement arrives (on the transport's thread)."""
         self._cond = threading.Condition()
         self._pending: OrderedDict[int, _Pending] = OrderedDict()
         self._seq = 0
@@ -64,7 +75,9 @@ class Outbox:
         with self._cond:
             self._acked = max(self._acked, ack.seq)
             while self._pending and next(iter(self._pending)) <= ack.seq:
-                self._pending.popitem(last=False)
+                _, pending = self._pending.popitem(last=False)
+                if self.on_acked is not None:
+                    self.on_acked(pending.msg)
             self._cond.notify_all()
 
     def on_learner_join(self, key: str) -> None:

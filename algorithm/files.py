@@ -3,26 +3,37 @@
 Usage::
 
     save_npz_atomic(Path("runs/x/checkpoint.npz"), {"tables": tables, "visits": visits})
+    write_atomic(Path("runs/x/policy-version.json"), b'{"published": 7}')
 """
 
 from __future__ import annotations
 
 import os
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
 
 def save_npz_atomic(path: Path, arrays: Mapping[str, np.ndarray]) -> Path:
-    """Write ``arrays`` as an uncompressed ``.npz`` at ``path``: a temporary file in the same folder, fsynced, then
-    renamed over the target, so a reader (or a process killed mid-write) only ever sees the old or the new file."""
+    """Write ``arrays`` as an uncompressed ``.npz`` at ``path``, atomically (see :func:`write_atomic`)."""
+    return _write(path, lambda f: np.savez(f, **arrays))  # type: ignore[arg-type]
+
+
+def write_atomic(path: Path, data: bytes) -> Path:
+    """Write ``data`` at ``path``: a temporary file in the same folder, fsynced, then renamed over the target, so a
+    reader (or a process killed mid-write) only ever sees the old or the new file."""
+    return _write(path, lambda f: f.write(data))
+
+
+def _write(path: Path, fill: Callable[[BinaryIO], object]) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as f:
-            np.savez(f, **arrays)  # type: ignore[arg-type]
+            fill(f)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)

@@ -1,10 +1,16 @@
 """The learner's checkpoint: one ``.npz`` in the run folder, written atomically (temporary file, fsync, rename).
 
+Beside it, the version mark: the highest policy version ever broadcast, written (fsynced) before each broadcast,
+so a learner resumed from an older checkpoint never reuses a version the killed one sent.
+
 Usage::
 
     checkpointer = Checkpointer(run_dir)
     checkpointer.save(arrays, meta)          # arrays of the intake and policy state, JSON-able meta
     arrays, meta = checkpointer.load()       # raises CheckpointError if there is none or it is unreadable
+    mark = VersionMark(run_dir)
+    mark.record(7)                           # before version 7 goes out
+    mark.load()                              # 7 (0 when no version was ever broadcast)
 """
 
 from __future__ import annotations
@@ -16,9 +22,10 @@ from typing import Any
 
 import numpy as np
 
-from algorithm.files import save_npz_atomic
+from algorithm.files import save_npz_atomic, write_atomic
 
 CHECKPOINT = "checkpoint.npz"
+VERSION_MARK = "policy-version.json"
 
 
 class CheckpointError(RuntimeError):
@@ -43,3 +50,19 @@ class Checkpointer:
         except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
             raise CheckpointError(f"--resume: unreadable checkpoint {self.path}: {exc}") from None
         return arrays, meta
+
+
+class VersionMark:
+    def __init__(self, run_dir: Path) -> None:
+        self.path = run_dir / VERSION_MARK
+
+    def record(self, version: int) -> None:
+        write_atomic(self.path, json.dumps({"published": version}).encode())
+
+    def load(self) -> int:
+        if not self.path.exists():
+            return 0
+        try:
+            return int(json.loads(self.path.read_text())["published"])
+        except (OSError, ValueError, KeyError) as exc:
+            raise CheckpointError(f"--resume: unreadable version mark {self.path}: {exc}") from None

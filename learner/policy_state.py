@@ -8,12 +8,14 @@ Usage (thread-safe: every method takes the state's own lock)::
     update = state.publish()               # merge what is pending, bump the version: the PolicyUpdate to broadcast
     state.current                          # the latest broadcast (late joiners get it)
     policy = state.policy()                # a snapshot for evaluation and the policy file
-    arrays, meta = state.to_arrays()       # for a checkpoint; state.restore(arrays, meta) continues from it
+    arrays, meta = state.to_arrays()       # for a checkpoint (tables and the increments not merged yet)
+    state.restore(arrays, meta, published) # continue from it, above every version ever broadcast
 """
 
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -26,7 +28,17 @@ from protocol import PolicyUpdate, QTableIncrement
 
 
 class PolicyState:
-    def __init__(self, n_robots: int, featurizer: str, scenario: str, action_steps: int, method: str) -> None:
+    def __init__(
+        self,
+        n_robots: int,
+        featurizer: str,
+        scenario: str,
+        action_steps: int,
+        method: str,
+        on_version: Callable[[int], None] | None = None,
+    ) -> None:
+        self.on_version = on_version
+        """Called with each new version before anyone can see it (the learner persists its version mark there)."""
         self.n_robots = n_robots
         self.featurizer = featurizer
         self.scenario = scenario
@@ -102,6 +114,8 @@ class PolicyState:
             if self._disc is None:
                 raise RuntimeError("no discretization yet: phase 1 has not run")
             self._merge_pending()
+            if self.on_version is not None:
+                self.on_version(self._version + 1)
             self._version += 1
             self._disc_of_version[self._version] = self._disc_id
             self._current = policy_update(self._policy(), self.scenario)
@@ -117,8 +131,18 @@ class PolicyState:
             return {actor: self._version - v for actor, v in latest_version.items()}
 
     def to_arrays(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Everything a checkpoint must hold for its acknowledgements to be kept: the tables, and the increments
+        acknowledged but not merged yet."""
         with self._lock:
-            meta = {"version": self._version, "disc_id": self._disc_id}
+            keys = sorted(self._pending)
+            meta = {
+                "version": self._version,
+                "disc_id": self._disc_id,
+                "disc_of_version": _ranges(self._disc_of_version),
+                "pending": [[actor, robot] for actor, robot in keys],
+                "increments": self.increments,
+                "stale_increments": self.stale_increments,
+            }
             if self._disc is None:
                 return {}, meta
             arrays = {
@@ -127,21 +151,39 @@ class PolicyState:
                 "offsets": self._disc.offsets,
                 "tables": self._tables,
                 "visits": self._visits,
+                "pending_change": np.array([self._pending[k][0] for k in keys]).reshape(len(keys), self._disc.size),
+                "pending_visits": np.array([self._pending[k][1] for k in keys]).reshape(len(keys), self._disc.size),
             }
             if self._disc.scale is not None:
                 arrays["scale"] = self._disc.scale
             return arrays, meta
 
-    def restore(self, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
-        """Continue from a checkpoint; restored tables are broadcast as a new version over the same cells."""
+    def restore(self, arrays: dict[str, np.ndarray], meta: dict[str, Any], published: int = 0) -> None:
+        """Continue from a checkpoint. ``published`` is the highest version ever broadcast (the version mark, which
+        may be past the checkpoint's): the restored tables go out as a version above both. Versions broadcast
+        after the checkpoint were over its discretization, since a new one is checkpointed before its first
+        broadcast, so increments stamped with them still merge."""
         with self._lock:
-            self._version = int(meta["version"])
+            saved = int(meta["version"])
+            self._version = max(saved, published)
             self._disc_id = int(meta["disc_id"])
+            self._disc_of_version = _unranges(meta["disc_of_version"])
+            self.increments = int(meta["increments"])
+            self.stale_increments = int(meta["stale_increments"])
             if "prototypes" not in arrays:
                 return
             self._disc = Discretization(arrays["prototypes"], arrays["labels"], arrays["offsets"], arrays.get("scale"))
             self._tables = arrays["tables"].astype(np.float64)
             self._visits = arrays["visits"].astype(np.uint64)
+            for row, (actor, robot) in enumerate(meta["pending"]):
+                self._pending[(str(actor), int(robot))] = (
+                    arrays["pending_change"][row].astype(np.float64),
+                    arrays["pending_visits"][row].astype(np.float64),
+                )
+            for version in range(saved + 1, self._version + 1):
+                self._disc_of_version[version] = self._disc_id
+            if self.on_version is not None:
+                self.on_version(self._version + 1)
             self._version += 1
             self._disc_of_version[self._version] = self._disc_id
             self._current = policy_update(self._policy(), self.scenario)
@@ -164,3 +206,19 @@ class PolicyState:
             version=self._version,
             method=self.method,
         )
+
+
+def _ranges(disc_of_version: dict[int, int]) -> list[list[int]]:
+    """{version: discretization} as [[first version, last version, discretization], ...] (runs of equal values)."""
+    out: list[list[int]] = []
+    for version in sorted(disc_of_version):
+        disc = disc_of_version[version]
+        if out and out[-1][1] == version - 1 and out[-1][2] == disc:
+            out[-1][1] = version
+        else:
+            out.append([version, version, disc])
+    return out
+
+
+def _unranges(ranges: list[list[int]]) -> dict[int, int]:
+    return {v: int(disc) for first, last, disc in ranges for v in range(int(first), int(last) + 1)}

@@ -66,6 +66,7 @@ class LearnerReport:
     tuples_received: int
     tuples_by_actor: dict[str, int]
     tuples_per_s: float
+    """Tuples stored per second of training, over the whole run (resumes included)."""
     policy_version: int
     phase1_fits: int
     prototypes_per_action: list[int]

@@ -30,7 +30,7 @@ from algorithm.discretization import Discretization
 from algorithm.phase1 import estimator, phase1
 from algorithm.policy import Policy
 from algorithm.policy_file import save_policy
-from learner.checkpoint import Checkpointer
+from learner.checkpoint import Checkpointer, VersionMark
 from learner.config import LearnerConfig
 from learner.evaluator import Evaluator
 from learner.intake import ExperienceIntake
@@ -59,13 +59,24 @@ class LearnerService:
         self.monitor = monitor or Monitor()
         self.scenario = scenario(config.scenario)
         self.intake = ExperienceIntake(config.store_capacity, FEATURIZER_DIMS[config.featurizer])
+        self.version_mark = VersionMark(run_dir)
         self.state = PolicyState(
-            self.scenario.n_robots, config.featurizer, self.scenario.name, self.scenario.action_steps, config.method
+            self.scenario.n_robots,
+            config.featurizer,
+            self.scenario.name,
+            self.scenario.action_steps,
+            config.method,
+            on_version=self.version_mark.record,
         )
         self.evaluator = Evaluator(self.scenario, config.eval_trials, config.eval_steps, config.final_eval_trials)
         self.checkpointer = Checkpointer(run_dir)
         self.fits = 0
         self._fitted_at = 0  # tuples received when the last fit took its data
+        # An increment enters the ledger and the pending merge together, and a checkpoint snapshots both together:
+        # otherwise a checkpoint could acknowledge an increment it does not hold, or hold one it does not acknowledge.
+        self._sequence_lock = threading.Lock()
+        self._checkpoint_lock = threading.Lock()  # the loop and a finished fit both checkpoint
+        self._rejected_before: dict[str, int] = {}  # rejections counted before a resume, by type
         self._fitter: threading.Thread | None = None
         self._members_lock = threading.Lock()
         self._live: set[str] = set()
@@ -85,8 +96,9 @@ class LearnerService:
         return self.state.current
 
     def on_increment(self, msg: QTableIncrement) -> None:
-        if self.intake.accept_sequence(msg.actor_id, msg.incarnation, msg.seq):
-            self.state.add_increment(msg)
+        with self._sequence_lock:
+            if self.intake.accept_sequence(msg.actor_id, msg.incarnation, msg.seq):
+                self.state.add_increment(msg)
 
     def on_actor_join(self, key: str) -> None:
         actor = key.rsplit("/", 1)[-1]
@@ -165,6 +177,8 @@ class LearnerService:
         ).discretization
         self.state.adopt(disc)
         self.fits += 1
+        # On disk before its first broadcast: a resumed learner then knows every discretization it ever published.
+        self.checkpoint()
         log.info(
             "phase 1 done in %.1f s: %.1f prototypes per action (%d cells)",
             time.monotonic() - began,
@@ -194,7 +208,6 @@ class LearnerService:
     def status(self) -> LearnerStatus:
         figures = self.intake.figures()
         lag = self.state.lag(figures.latest_version)
-        stats = self.transport.stats
         with self._members_lock:
             live = len(self._live)
         curve = self.evaluator.curve
@@ -208,11 +221,18 @@ class LearnerService:
             live_actors=live,
             tuples_per_s=figures.tuples_per_s,
             policy_lag_max=max(lag.values(), default=0),
-            rejected=sum(stats.rejected.values()) + figures.rejected,
+            rejected=sum(self.rejected_by_type().values()) + figures.rejected,
             coverage=curve[-1][1] if curve else -1.0,
             fits=self.fits,
             elapsed=self.elapsed(),
         )
+
+    def rejected_by_type(self) -> dict[str, int]:
+        """Messages refused by the transport over the whole run, by class (see docs/protocol.md)."""
+        out = dict(self._rejected_before)
+        for name, n in self.transport.stats.rejected.items():
+            out[name] = out.get(name, 0) + n
+        return out
 
     def _publish_status(self) -> None:
         status = self.status()
@@ -249,20 +269,23 @@ class LearnerService:
 
     def checkpoint(self) -> Path:
         """Write everything needed to resume, atomically, then acknowledge what it holds."""
-        arrays, acks = self.intake.checkpoint_arrays()
-        policy_arrays, policy_meta = self.state.to_arrays()
-        with self._members_lock:
-            seen = sorted(self._seen)
-        meta = {
-            **policy_meta,
-            "fits": self.fits,
-            "fitted_at": self._fitted_at,
-            "coverage_curve": self.evaluator.curve,
-            "elapsed": self._elapsed_before,
-            "seen_actors": seen,
-            "config": dataclasses.asdict(self.config),
-        }
-        path = self.checkpointer.save({**arrays, **policy_arrays}, meta)
+        with self._checkpoint_lock:
+            with self._sequence_lock:
+                arrays, acks = self.intake.checkpoint_arrays()
+                policy_arrays, policy_meta = self.state.to_arrays()
+            with self._members_lock:
+                seen = sorted(self._seen)
+            meta = {
+                **policy_meta,
+                "fits": self.fits,
+                "fitted_at": self._fitted_at,
+                "coverage_curve": self.evaluator.curve,
+                "elapsed": self.elapsed(),
+                "rejected_by_type": self.rejected_by_type(),
+                "seen_actors": seen,
+                "config": dataclasses.asdict(self.config),
+            }
+            path = self.checkpointer.save({**arrays, **policy_arrays}, meta)
         for actor, incarnation, seq in acks:
             self.transport.publish(self.keys.ack(actor), Ack(actor_id=actor, incarnation=incarnation, seq=seq))
         return path
@@ -270,12 +293,13 @@ class LearnerService:
     def _restore(self) -> None:
         arrays, meta = self.checkpointer.load()
         self.intake.restore(arrays)
-        self.state.restore(arrays, meta)
+        self.state.restore(arrays, meta, published=self.version_mark.load())
         self.fits = int(meta["fits"])
         self._fitted_at = int(meta["fitted_at"])
         self._elapsed_before = float(meta["elapsed"])
         self.evaluator.curve = [(float(t), float(c)) for t, c in meta["coverage_curve"]]
         self._seen = set(meta["seen_actors"])
+        self._rejected_before = {str(k): int(v) for k, v in meta["rejected_by_type"].items()}
         log.info(
             "resumed from %s: %d tuples stored, policy version %d",
             self.checkpointer.path,
@@ -310,14 +334,14 @@ class LearnerService:
             live_actors=live,
             tuples_received=status.tuples_received,
             tuples_by_actor=figures.tuples_by_actor,
-            tuples_per_s=round(status.tuples_per_s, 1),
+            tuples_per_s=round(status.tuples_received / max(status.elapsed, 1e-9), 1),
             policy_version=status.policy_version,
             phase1_fits=self.fits,
             prototypes_per_action=[] if disc is None else [int(s) for s in disc.sizes()],
             duplicates=status.duplicates,
             gaps=status.gaps,
             rejected=status.rejected,
-            rejected_by_type=dict(self.transport.stats.rejected),
+            rejected_by_type=self.rejected_by_type(),
             increments=self.state.increments,
             stale_increments=self.state.stale_increments,
             store_size=status.store_size,

@@ -35,11 +35,13 @@ from protocol.messages import (
     SCHEMA_VERSION,
     Ack,
     ExperienceBatch,
+    IdentityMismatch,
     InvalidValues,
     Message,
     PolicyUpdate,
     QTableIncrement,
     Status,
+    UnexpectedMessageType,
     check_id,
 )
 
@@ -176,6 +178,25 @@ class KeySpace:
         if channel is Channel.ALIVE:
             raise InvalidValues(f"{key!r} is a liveliness key and carries no messages")
         return channel
+
+    def owner(self, key: str) -> str | None:
+        """The id a per-sender key names (``experience/<actor>``, ``qinc/<actor>``, ``ack/<actor>``,
+        ``status/<sender>``); None for the policy keys."""
+        channel = self._data_channel(key)
+        return None if channel is Channel.POLICY else key.rsplit("/", 1)[-1]
+
+    def check_message(self, key: str, msg: Message) -> None:
+        """``msg`` may travel on ``key``: its type is the key's, and the sender it names is the key's own.
+
+        Raises :class:`UnexpectedMessageType` or :class:`IdentityMismatch` (and :class:`InvalidValues` for a key
+        that is not the protocol's).
+        """
+        if not isinstance(msg, self.message_type(key)):
+            raise UnexpectedMessageType(f"a {msg.TAG} message cannot travel on {key!r}")
+        owner = self.owner(key)
+        claimed = getattr(msg, "actor_id", None) or getattr(msg, "sender", None)
+        if owner is not None and claimed != owner:
+            raise IdentityMismatch(f"a {msg.TAG} message of {claimed!r} on {owner!r}'s key {key!r}")
 
     def qos(self, key: str) -> QoS:
         """Publication QoS of ``key``."""

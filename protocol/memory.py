@@ -25,7 +25,7 @@ import zenoh
 
 from protocol.codec import encode
 from protocol.keys import DEFAULT_KEYS, KeySpace
-from protocol.messages import Message, UnexpectedMessageType
+from protocol.messages import Message
 from protocol.transport import Closeable, M, TransportClosed, TransportStats, accept, deliver, run_handler
 
 _Kind = Literal["sub", "queryable", "token", "liveliness_sub"]
@@ -113,8 +113,7 @@ class InMemoryTransport:
 
     def publish(self, key: str, msg: Message) -> None:
         self._check_open()
-        if not isinstance(msg, self.keys.message_type(key)):
-            raise UnexpectedMessageType(f"a {msg.TAG} message cannot be published on {key!r}")
+        self.keys.check_message(key, msg)  # our own bug is caught here, before the wire
         data = encode(msg)
         self.stats.count_published()
         self._route(key, data)

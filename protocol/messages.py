@@ -75,6 +75,11 @@ class InvalidValues(ProtocolError):
     identifiers, unsorted offsets, unknown featurizer or role, too many counters."""
 
 
+class IdentityMismatch(ProtocolError):
+    """A message claims another sender than the key it travels on: a stream's identity is its key's (an actor's
+    experience on ``experience/<actor>`` must say ``actor_id=<actor>``), so no peer can write into another's."""
+
+
 Kind = Literal["array", "int", "id", "name", "choice", "float", "counters"]
 
 

@@ -97,13 +97,13 @@ def _should_log(n: int) -> bool:
 
 
 def accept(keys: KeySpace, stats: TransportStats, key: str, payload: bytes | memoryview, msg_type: type[M]) -> M | None:
-    """Decode ``payload`` received on ``key``; return it if it is a valid ``msg_type`` allowed on ``key``,
-    else count and log the rejection and return None."""
+    """Decode ``payload`` received on ``key``; return it if it is a valid ``msg_type`` allowed on ``key`` and names
+    the key's own sender, else count and log the rejection and return None."""
     try:
         msg = decode(payload)
-        allowed = keys.message_type(key)
-        if not (isinstance(msg, allowed) and isinstance(msg, msg_type)):
+        if not isinstance(msg, msg_type):
             raise UnexpectedMessageType(f"{msg.TAG} message on {key!r}, expected {msg_type.TAG}")
+        keys.check_message(key, msg)  # its type and sender are the key's
     except ProtocolError as exc:
         n = stats.count_rejected(exc)
         if _should_log(n):

@@ -38,7 +38,7 @@ import zenoh
 
 from protocol.codec import encode
 from protocol.keys import DEFAULT_KEYS, ENCODING, KeySpace
-from protocol.messages import Message, UnexpectedMessageType
+from protocol.messages import Message
 from protocol.transport import Closeable, M, TransportClosed, TransportStats, accept, deliver, run_handler
 
 log = logging.getLogger(__name__)
@@ -210,8 +210,7 @@ class ZenohTransport:
         return handle
 
     def publish(self, key: str, msg: Message) -> None:
-        if not isinstance(msg, self.keys.message_type(key)):
-            raise UnexpectedMessageType(f"a {msg.TAG} message cannot be published on {key!r}")
+        self.keys.check_message(key, msg)  # our own bug is caught here, before the wire
         data = encode(msg)
         self._publisher(key).put(data)
         self.stats.count_published()

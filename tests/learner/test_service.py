@@ -209,3 +209,34 @@ def test_refits_warm_start_and_carry_q_values_over(tmp_path: Path) -> None:
     assert policy is not None
     # Carried-over tables are not the new labels: learned values survived the change of cells.
     assert not np.allclose(policy.tables, policy.discretization.labels[None, :])
+
+
+def test_a_checkpoint_holds_the_pending_increments_and_the_resume_goes_above_every_version(tmp_path: Path) -> None:
+    recorded: list[int] = []
+    state = PolicyState(10, "collab6d", "cmommt-v1", 5, "m", on_version=recorded.append)
+    state.adopt(one_cell_per_action())
+    state.publish()
+    assert state.add_increment(increment("a", 0, [2.0] + [0.0] * 7, [4] + [0] * 7))  # acked, not merged yet
+    arrays, meta = state.to_arrays()
+    state.publish()
+    state.publish()  # versions 2 and 3 go out after the checkpoint; the mark knows them
+    assert recorded == [1, 2, 3]
+    resumed = PolicyState(10, "collab6d", "cmommt-v1", 5, "m", on_version=recorded.append)
+    resumed.restore(arrays, meta, published=max(recorded))
+    current = resumed.current
+    assert current is not None and current.version == 4 and recorded[-1] == 4
+    assert resumed.add_increment(increment("b", 0, [1.0] * 8, [1] * 8, version=3))  # stamped after the checkpoint
+    update = resumed.publish()
+    # The pending increment of the checkpoint (2 over 4 visits) and the new one (1 over 1 visit) in cell 0.
+    assert update.q_tables[2, 0] == pytest.approx((2.0 * 4 + 1.0 * 1) / 5)
+    assert update.visits[2, 0] == 5 and resumed.increments == 2
+
+
+def test_an_empty_state_checkpoints_and_restores(tmp_path: Path) -> None:
+    state = PolicyState(10, "collab6d", "cmommt-v1", 5, "m")
+    state.adopt(one_cell_per_action())
+    arrays, meta = state.to_arrays()
+    assert arrays["pending_change"].shape == (0, 8)
+    resumed = PolicyState(10, "collab6d", "cmommt-v1", 5, "m")
+    resumed.restore(arrays, meta)
+    assert resumed.version == 1 and resumed.policy() is not None

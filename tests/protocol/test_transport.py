@@ -24,6 +24,7 @@ from protocol import (
     Ack,
     Channel,
     ExperienceBatch,
+    IdentityMismatch,
     InMemoryBus,
     InMemoryTransport,
     InvalidValues,
@@ -392,7 +393,7 @@ def test_zenoh_close_joins_workers_and_rejects_use(endpoint: str) -> None:
         assert _worker_threads() == []
         assert t.session.is_closed()
         with pytest.raises(TransportClosed):
-            t.publish(K.experience("a"), batch(0))
+            t.publish(K.experience("actor-0"), batch(0))
         with pytest.raises(TransportClosed):
             t.subscribe(K.experience(), ExperienceBatch, lambda m: None)
 
@@ -400,3 +401,16 @@ def test_zenoh_close_joins_workers_and_rejects_use(endpoint: str) -> None:
 def test_both_transports_satisfy_the_interface(pair: tuple[ZenohTransport, ZenohTransport]) -> None:
     transports: list[Transport] = [pair[0], InMemoryTransport()]
     assert all(t.keys == K for t in transports)
+
+
+def test_a_stream_is_bound_to_its_keys_identity() -> None:
+    bus = InMemoryBus()
+    got: list[ExperienceBatch] = []
+    with InMemoryTransport(bus) as liar, InMemoryTransport(bus) as learner:
+        learner.subscribe(learner.keys.experience(), ExperienceBatch, got.append)
+        with pytest.raises(IdentityMismatch):
+            liar.publish(liar.keys.experience("mallory"), batch(0))  # refused before the wire
+        liar.inject_raw(liar.keys.experience("mallory"), encode(batch(0)))  # a peer that skips the check
+        liar.publish(liar.keys.experience("actor-0"), batch(1))
+    assert [m.seq for m in got] == [1]
+    assert learner.stats.rejected == {"IdentityMismatch": 1}
