@@ -22,6 +22,7 @@ import secrets
 import threading
 import time
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,7 +37,7 @@ from algorithm.trials import ExperienceSlice, SliceConfig
 from algorithm.wire import experience_batches, increment_message, status_counters
 from monitor import Monitor
 from monitor.trial import TrialWatch
-from protocol import ExperienceBatch, Message, QTableIncrement, Status, Transport
+from protocol import ExperienceBatch, Message, ProtocolError, QTableIncrement, Status, Transport
 from sim import scenario
 
 log = logging.getLogger(__name__)
@@ -62,6 +63,10 @@ class ActorStatus:
     """Tuples the learner acknowledged (stored and checkpointed)."""
     visits_acked: int = 0
     """Q-learning visits in the acknowledged table increments: the learner's tables hold every one of them."""
+    rejected: int = 0
+    """Messages the learner rejected for good (dropped from the outbox)."""
+    invalid: int = 0
+    """Messages that failed their own validation and were dropped before the wire (a bug of this actor)."""
     acked_seq: int = -1
     """Cumulative acknowledgement (-1: none yet)."""
     policy_version: int = 0
@@ -98,6 +103,8 @@ class RobotActor:
         self.agent: TabularAgent | None = None
         self._tuples = self._batches = self._increments = self._trials = 0
         self._tuples_acked = self._visits_acked = 0
+        self._invalid = 0
+        self._stop = threading.Event()  # run's stop event: a full outbox stops waiting when it is set
 
     def _count_acked(self, msg: Message) -> None:
         if isinstance(msg, ExperienceBatch):
@@ -117,11 +124,14 @@ class RobotActor:
             outbox=len(self.outbox),
             tuples_acked=self._tuples_acked,
             visits_acked=self._visits_acked,
+            rejected=self.outbox.rejected,
+            invalid=self._invalid,
             acked_seq=self.outbox.acked,
             policy_version=self.policy.version,
         )
 
     def run(self, stop: threading.Event) -> ActorStatus:
+        self._stop = stop
         start = time.monotonic()
         next_status = start
         log.info(
@@ -143,7 +153,6 @@ class RobotActor:
             self._send_experience(batch)
             if self.agent is not None:
                 self._send_increments(self.agent)
-            self.outbox.wait_for_room(stop)
             if time.monotonic() >= next_status:
                 self._publish_status()
                 next_status = time.monotonic() + self.config.status_interval
@@ -171,39 +180,66 @@ class RobotActor:
             self._send_increments(self.agent)  # hand in what was learned on the old tables, stamped with their version
         self.agent = self.policy.adopt(update, self.agent)
 
+    def _send(self, key: str, build: Callable[[int], Message]) -> bool:
+        """Wait for room in the outbox, then send ``build(seq)``; False if nothing was sent (no seq used): stopping
+        with a full outbox, or an invalid message. Room is made before each message, so the outbox never holds more
+        than its limit. A message that fails its own validation (our bug: NaN in a tuple) is dropped, counted and
+        logged here, before the wire, without using a sequence number (so it leaves no gap)."""
+        self.outbox.wait_for_room(self._stop)
+        if len(self.outbox) >= self.config.outbox_limit:
+            return False
+        try:
+            msg = build(self.outbox.next_seq)
+        except ProtocolError as exc:
+            self._invalid += 1
+            if self._invalid <= 10 or self._invalid % 1000 == 0:
+                log.error("actor %s dropped an invalid message (#%d): %s", self.config.actor_id, self._invalid, exc)
+            return False
+        self.outbox.send(key, msg, self.outbox.reserve())
+        return True
+
     def _send_experience(self, batch: Transitions) -> None:
         key = self.keys.experience(self.config.actor_id)
         size = self.config.batch_size
-        messages = experience_batches(
-            batch,
-            actor_id=self.config.actor_id,
-            incarnation=self.incarnation,
-            first_seq=self.outbox.reserve(-(-len(batch) // size)),
-            policy_version=self.policy.version,
-            batch_size=size,
-        )
-        for msg in messages:
-            self.outbox.send(key, msg, msg.seq)
-            self._tuples += len(msg.reward)
-            self._batches += 1
+        for start in range(0, len(batch), size):
+            part = batch.take(np.arange(start, min(start + size, len(batch))))
+
+            def build(seq: int, part: Transitions = part) -> Message:
+                (msg,) = experience_batches(
+                    part,
+                    actor_id=self.config.actor_id,
+                    incarnation=self.incarnation,
+                    first_seq=seq,
+                    policy_version=self.policy.version,
+                    batch_size=size,
+                )
+                return msg
+
+            if self._send(key, build):
+                self._tuples += len(part)
+                self._batches += 1
 
     def _send_increments(self, agent: TabularAgent) -> None:
         key = self.keys.qinc(self.config.actor_id)
         offsets = agent.discretization.offsets
         for robot, change, visits in self.tracker.take(agent):
-            seq = self.outbox.reserve()
-            msg = increment_message(
-                actor_id=self.config.actor_id,
-                incarnation=self.incarnation,
-                seq=seq,
-                policy_version=self.policy.version,
-                robot=robot,
-                change=change,
-                visits=visits,
-                offsets=offsets,
-            )
-            self.outbox.send(key, msg, seq)
-            self._increments += 1
+
+            def build(
+                seq: int, robot: int = robot, change: np.ndarray = change, visits: np.ndarray = visits
+            ) -> Message:
+                return increment_message(
+                    actor_id=self.config.actor_id,
+                    incarnation=self.incarnation,
+                    seq=seq,
+                    policy_version=self.policy.version,
+                    robot=robot,
+                    change=change,
+                    visits=visits,
+                    offsets=offsets,
+                )
+
+            if self._send(key, build):
+                self._increments += 1
 
     def _publish_status(self) -> None:
         status = Status(

@@ -8,6 +8,7 @@ threads)::
     seq = outbox.reserve()
     outbox.send(key, message_with(seq), seq)  # published now, kept until acknowledged
     outbox.wait_for_room(stop)              # re-sends what is overdue; blocks while `limit` messages are unacked
+    outbox.on_reject(reject)                # the learner refused a message for good: it is dropped, counted, logged
     outbox.flush(timeout=10.0)              # on stopping: re-send and wait for the last acks
 """
 
@@ -20,7 +21,7 @@ from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from protocol import Ack, Message, Transport
+from protocol import Ack, Message, Reject, Transport
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +58,13 @@ class Outbox:
         self._resend_all = False
         self.resent = 0
         self.waits = 0
+        self.rejected = 0
+        """Messages the learner rejected (and this outbox dropped)."""
+
+    @property
+    def next_seq(self) -> int:
+        """The sequence number the next ``reserve`` hands out."""
+        return self._seq
 
     def reserve(self, count: int = 1) -> int:
         """The first of ``count`` consecutive sequence numbers for messages about to be sent."""
@@ -79,6 +87,19 @@ class Outbox:
                 if self.on_acked is not None:
                     self.on_acked(pending.msg)
             self._cond.notify_all()
+
+    def on_reject(self, reject: Reject) -> None:
+        """The learner refused ``reject.seq`` for good: drop it (re-sending would be refused again) and go on."""
+        if reject.incarnation != self.incarnation:
+            return
+        with self._cond:
+            dropped = self._pending.pop(reject.seq, None) is not None
+            if dropped:
+                self.rejected += 1
+            n = self.rejected
+            self._cond.notify_all()
+        if dropped and (n <= 10 or n % 1000 == 0):
+            log.error("the learner rejected seq %d (#%d): %s; dropped from the outbox", reject.seq, n, reject.reason)
 
     def on_learner_join(self, key: str) -> None:
         # A (re)started learner has not seen what it did not acknowledge: send the whole outbox again.

@@ -11,7 +11,7 @@ Usage::
 from __future__ import annotations
 
 from actors.actor import RobotActor
-from protocol import Ack, Closeable, PolicyUpdate, Transport
+from protocol import Ack, Closeable, PolicyUpdate, Reject, Transport
 
 
 def _ignore(_key: str) -> None:
@@ -27,6 +27,8 @@ def connect(actor: RobotActor, transport: Transport) -> list[Closeable]:
         transport.subscribe(keys.policy(), PolicyUpdate, actor.policy.offer),
         # Cumulative acks of our stream: acknowledged messages leave the outbox.
         transport.subscribe(keys.ack(me), Ack, actor.outbox.on_ack),
+        # Messages of ours the learner refused for good: dropped from the outbox instead of re-sent forever.
+        transport.subscribe(keys.reject(me), Reject, actor.outbox.on_reject),
         # A learner (re)joining has not seen our unacknowledged messages: the outbox re-sends them.
         transport.liveliness_subscribe(keys.alive("learner"), actor.outbox.on_learner_join, _ignore),
     ]

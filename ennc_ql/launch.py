@@ -6,7 +6,7 @@ Usage::
     config = load_config(UpConfig, defaults=UP_PRESETS)
     learner, actors = child_configs(config)
     report = run_serial(learner, actors, run_dir)                        # one process
-    report = run_processes(learner, actors, run_dir, Sink("off"), run_id)  # learner + actors as processes
+    endpoint, restarts = run_processes(learner, actors, run_dir, monitoring, namespace)  # as OS processes
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -208,61 +209,125 @@ class Monitoring:
         return {k: summary[k] for k in ("path", "size_bytes", "recording_ids", "entity_paths", "rows")}
 
 
+class LaunchError(RuntimeError):
+    """A child of ``up`` failed in a way that ends the run (the message holds the tail of its log)."""
+
+
+def log_tail(path: Path, lines: int = 15) -> str:
+    try:
+        return "\n".join(path.read_text(errors="replace").splitlines()[-lines:])
+    except OSError:
+        return "(no log)"
+
+
+class Supervisor:
+    """``up``'s actor processes: one that exits while the run goes on is reported at once with the tail of its log
+    and started again after a back-off (1, 2, 4 s, ...), at most ``max_restarts`` times; past that the run goes on
+    without it, saying so. Usage (from the progress loop, once a second)::
+
+        supervisor = Supervisor(run_dir, argv_of, max_restarts=3)
+        supervisor.start(config)                # for each actor
+        for message in supervisor.check(): ...  # what happened since the last check
+        supervisor.stop_all()
+    """
+
+    def __init__(self, run_dir: Path, argv_of: Callable[[ActorConfig], list[str]], max_restarts: int = 3) -> None:
+        self.run_dir = run_dir
+        self.argv_of = argv_of
+        self.max_restarts = max_restarts
+        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+        self.configs: dict[str, ActorConfig] = {}
+        self.restarts: dict[str, int] = {}
+        self._due: dict[str, float] = {}  # actor id -> when to start it again
+
+    def start(self, config: ActorConfig) -> None:
+        self.configs[config.actor_id] = config
+        with open(self.run_dir / f"{config.actor_id}.log", "a") as log_file:
+            self.procs[config.actor_id] = _spawn(self.argv_of(config), log_file, nice=ACTOR_NICENESS)
+
+    def check(self) -> list[str]:
+        messages = []
+        now = time.monotonic()
+        for actor_id, proc in list(self.procs.items()):
+            if proc.poll() is None or actor_id in self._due:
+                continue
+            n = self.restarts.get(actor_id, 0)
+            tail = log_tail(self.run_dir / f"{actor_id}.log")
+            if n >= self.max_restarts:
+                messages.append(f"{actor_id} exited with status {proc.returncode} again; not restarted ({n} restarts)")
+                log.error("%s exited with status %s; its log ends:\n%s", actor_id, proc.returncode, tail)
+                del self.procs[actor_id]
+                continue
+            self._due[actor_id] = now + 2.0**n
+            messages.append(f"{actor_id} exited with status {proc.returncode}; restarting in {2**n} s")
+            log.error("%s exited with status %s; its log ends:\n%s", actor_id, proc.returncode, tail)
+        for actor_id, due in list(self._due.items()):
+            if now >= due:
+                del self._due[actor_id]
+                self.restarts[actor_id] = self.restarts.get(actor_id, 0) + 1
+                self.start(self.configs[actor_id])
+        return messages
+
+    def stop_all(self) -> None:
+        for proc in self.procs.values():
+            _stop(proc, grace=10.0)
+
+
 def run_processes(
     learner: LearnerConfig, actors: list[ActorConfig], run_dir: Path, monitoring: Monitoring, namespace: str
-) -> str:
-    """Spawn the learner and the actors with their configuration files, show progress until the learner exits, stop
-    the actors; the endpoint they used is returned (the learner's report is in the run folder)."""
+) -> tuple[str, dict[str, int]]:
+    """Spawn the learner and the actors with their configuration files, show progress until the learner exits
+    (restarting actors that die), stop the actors; the endpoint they used is returned (the learner's report is in
+    the run folder) with the restarts of each actor. Raises :class:`LaunchError` if the learner fails."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     common = ["--namespace", namespace, "--no-multicast-scouting"]
     log.info("learner + %d actors on %s, %.0f s", len(actors), endpoint, learner.duration or 0.0)
-    with ExitStack() as stack:
-        learner_log = stack.enter_context(open(run_dir / "learner.log", "w"))
-        learner_argv = [
-            "learner",
-            "--config",
-            str(run_dir / "learner.toml"),
-            "--run-dir",
-            str(run_dir),
-            "--listen",
-            endpoint,
-            *common,
-            *monitoring.child_args("learner"),
-        ]
+
+    def actor_argv(config: ActorConfig) -> list[str]:
+        toml = str(run_dir / f"{config.actor_id}.toml")
+        return ["actor", "--config", toml, "--connect", endpoint, *common, *monitoring.child_args(config.actor_id)]
+
+    supervisor = Supervisor(run_dir, actor_argv)
+    learner_argv = [
+        "learner",
+        "--config",
+        str(run_dir / "learner.toml"),
+        "--run-dir",
+        str(run_dir),
+        "--listen",
+        endpoint,
+        *common,
+        *monitoring.child_args("learner"),
+    ]
+    with open(run_dir / "learner.log", "w") as learner_log:
         learner_proc = _spawn(learner_argv, learner_log)
-        procs: list[subprocess.Popen[bytes]] = []
-        try:
-            for config in actors:
-                actor_log = stack.enter_context(open(run_dir / f"{config.actor_id}.log", "w"))
-                argv = [
-                    "actor",
-                    "--config",
-                    str(run_dir / f"{config.actor_id}.toml"),
-                    "--connect",
-                    endpoint,
-                    *common,
-                    *monitoring.child_args(config.actor_id),
-                ]
-                procs.append(_spawn(argv, actor_log, nice=ACTOR_NICENESS))
-            # After the children are spawned: their preexec_fn must not run while this process has threads.
-            monitoring.start()
-            _watch(endpoint, namespace, learner.learner_id, learner_proc, len(actors), learner.duration or 0.0)
-        finally:
-            for proc in procs:
-                _stop(proc, grace=10.0)
-            _stop(learner_proc, grace=60.0)
-    return endpoint
+    try:
+        for config in actors:
+            supervisor.start(config)
+        monitoring.start()
+        _watch(endpoint, namespace, learner, learner_proc, supervisor)
+    finally:
+        supervisor.stop_all()
+        _stop(learner_proc, grace=60.0)
+    if learner_proc.returncode != 0:
+        raise LaunchError(
+            f"the learner exited with status {learner_proc.returncode}; the end of {run_dir / 'learner.log'}:\n"
+            + log_tail(run_dir / "learner.log")
+        )
+    return endpoint, dict(supervisor.restarts)
 
 
 def _spawn(argv: list[str], log_file: IO[str], nice: int = 0) -> subprocess.Popen[bytes]:
-    return subprocess.Popen(
+    proc = subprocess.Popen(
         [sys.executable, "-m", "ennc_ql.cli", *argv],
         stdout=subprocess.DEVNULL,
         stderr=log_file,
         stdin=subprocess.DEVNULL,
-        # preexec_fn is unsafe with threads; every child is spawned before the launcher opens its Zenoh session.
-        preexec_fn=(lambda: os.nice(nice)) if nice else None,
     )
+    if nice:
+        # From here rather than a preexec_fn, which is unsafe once this process has threads (restarts happen then).
+        os.setpriority(os.PRIO_PROCESS, proc.pid, nice)
+    return proc
 
 
 def _stop(proc: subprocess.Popen[bytes], grace: float) -> None:
@@ -286,9 +351,9 @@ def cluster_status(status: LearnerStatus) -> str:
 
 
 def _watch(
-    endpoint: str, namespace: str, learner_id: str, learner: subprocess.Popen[bytes], actors: int, duration: float
+    endpoint: str, namespace: str, learner: LearnerConfig, proc: subprocess.Popen[bytes], supervisor: Supervisor
 ) -> None:
-    """Show the learner's progress from its status messages until it exits.
+    """Show the learner's progress from its status messages until it exits, and supervise the actors meanwhile.
 
     The bar runs on the learner's own training clock, carried forward between status messages (every 2 s) so it
     moves each second; past the duration the learner evaluates and writes its report and sends no more status.
@@ -296,6 +361,7 @@ def _watch(
     from protocol import KeySpace, ZenohTransport, zenoh_config
 
     keys = KeySpace(namespace)
+    duration = learner.duration or 0.0
     latest: LearnerStatus | None = None
     received = 0.0
     lock = threading.Lock()
@@ -308,11 +374,13 @@ def _watch(
 
     conf = zenoh_config(connect=[endpoint], mode="peer", multicast_scouting=False)
     with ProgressBar("up", total=duration, unit="s") as bar, ZenohTransport.open(conf, keys) as transport:
-        transport.subscribe(keys.status(learner_id), Status, on_status)
-        bar.show(status=f"starting the learner and {actors} actor(s)")
+        transport.subscribe(keys.status(learner.learner_id), Status, on_status)
+        bar.show(status=f"starting the learner and {len(supervisor.configs)} actor(s)")
         version, coverage = 0, -1.0
-        while learner.poll() is None:
+        while proc.poll() is None:
             time.sleep(1.0)
+            for message in supervisor.check():
+                bar.mark(message)
             with lock:
                 status, age = latest, time.monotonic() - received
             if status is None:

@@ -1,6 +1,6 @@
 """Human-readable reports of a training run: the terminal table, ``report.md`` and ``learning_curve.png``.
 
-Input is the learner's report (``runs/<id>/report.json``, written by :meth:`learner.service.LearnerService._finish`),
+Input is the learner's report (``runs/<id>/report.json``, a :class:`learner.report.LearnerReport` as a dict),
 optionally completed by the launcher with ``run_id``, ``run_dir``, ``command``, ``config`` and ``wall_seconds``.
 Usage::
 

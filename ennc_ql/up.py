@@ -22,6 +22,7 @@ from ennc_ql.config import add_config_flags
 from ennc_ql.launch import (
     SET_BY_UP,
     UP_PRESETS,
+    LaunchError,
     Monitoring,
     UpConfig,
     child_configs,
@@ -66,12 +67,15 @@ def cmd_up(args: argparse.Namespace) -> int:
     write_configs(config, learner, actors, run_dir)
     started = time.monotonic()
     recording = endpoint = None
+    restarts: dict[str, int] = {}
     if args.serial:
         report = run_serial(learner, actors, run_dir)
     else:
         monitoring = Monitoring(args.rerun or Sink("save", str(run_dir / paths.RECORDING_FILE)), run_id, run_dir)
         try:
-            endpoint = run_processes(learner, actors, run_dir, monitoring, namespace=f"run-{run_id}")
+            endpoint, restarts = run_processes(learner, actors, run_dir, monitoring, namespace=f"run-{run_id}")
+        except LaunchError as exc:
+            fail("up", str(exc))
         finally:
             recording = monitoring.finish()
         report_path = run_dir / "report.json"
@@ -84,6 +88,7 @@ def cmd_up(args: argparse.Namespace) -> int:
         "command": f"ennc-ql up --config {run_dir / 'up.toml'}",
         "config": {"actors": config.actors, "duration": config.duration, "seed": config.seed, "serial": args.serial},
         "endpoint": endpoint,
+        "actor_restarts": restarts,
         "wall_seconds": round(time.monotonic() - started, 1),
         "recording": recording,
     }

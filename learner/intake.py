@@ -16,6 +16,7 @@ import json
 import logging
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -26,6 +27,8 @@ from learner.store import ExperienceStore, SequenceLedger
 from protocol import ExperienceBatch
 
 log = logging.getLogger(__name__)
+
+Refused = Callable[[str, int, int, str], None]
 
 
 @dataclass(frozen=True, slots=True)
@@ -39,6 +42,8 @@ class IntakeFigures:
     gaps: int
     rejected: int
     """Batches refused here (wrong state dimension); transport-level rejections are counted by the transport."""
+    refused: int
+    """Messages rejected explicitly by sequence number (a Reject sent), here or at the transport."""
     tuples_per_s: float
     tuples_by_actor: dict[str, int] = field(default_factory=dict)
     latest_version: dict[str, int] = field(default_factory=dict)
@@ -48,11 +53,14 @@ class IntakeFigures:
 class ExperienceIntake:
     """Store + ledger behind one lock, with the figures the learner reports."""
 
-    def __init__(self, capacity: int, dim: int) -> None:
+    def __init__(self, capacity: int, dim: int, on_refused: Refused | None = None) -> None:
+        self.on_refused = on_refused
+        """Told (actor, incarnation, seq, reason) of a message refused for good, once (the learner rejects it)."""
         self._lock = threading.Lock()
         self._store = ExperienceStore(capacity, dim)
         self._ledger = SequenceLedger()
         self._rejected = 0
+        self._refused = 0
         self._received = 0
         self._by_actor: dict[str, int] = {}
         self._latest_version: dict[str, int] = {}
@@ -61,17 +69,13 @@ class ExperienceIntake:
 
     def on_experience(self, msg: ExperienceBatch) -> None:
         if msg.state.shape[1] != self._store.dim:
+            reason = f"state dimension {msg.state.shape[1]}, expected {self._store.dim}"
             with self._lock:
                 self._rejected += 1
                 count = self._rejected
             if count <= 10 or count % 1000 == 0:
-                log.warning(
-                    "rejected experience from %s: state dimension %d, expected %d (%d rejected so far)",
-                    msg.actor_id,
-                    msg.state.shape[1],
-                    self._store.dim,
-                    count,
-                )
+                log.warning("rejected experience from %s: %s (%d rejected so far)", msg.actor_id, reason, count)
+            self.refuse(msg.actor_id, msg.incarnation, msg.seq, reason)
             return
         batch = transitions_from_batch(msg)
         with self._lock:
@@ -81,6 +85,16 @@ class ExperienceIntake:
             self._received += len(batch)
             self._by_actor[msg.actor_id] = self._by_actor.get(msg.actor_id, 0) + len(batch)
             self._latest_version[msg.actor_id] = max(self._latest_version.get(msg.actor_id, 0), msg.policy_version)
+
+    def refuse(self, sender: str, incarnation: int, seq: int, reason: str) -> None:
+        """A message refused for good: its seq counts as arrived (the cumulative ack steps over it) and, the first
+        time, ``on_refused`` is told so the sender can drop it instead of re-sending it forever."""
+        with self._lock:
+            first = self._ledger.accept(sender, incarnation, seq)
+            if first:
+                self._refused += 1
+        if first and self.on_refused is not None:
+            self.on_refused(sender, incarnation, seq, reason)
 
     def accept_sequence(self, sender: str, incarnation: int, seq: int) -> bool:
         """Ledger entry for a non-experience message that shares the sender's sequence (Q-table increments)."""
@@ -138,6 +152,7 @@ class ExperienceIntake:
                 duplicates=self._ledger.duplicates,
                 gaps=self._ledger.gaps,
                 rejected=self._rejected,
+                refused=self._refused,
                 tuples_per_s=(self._received - self._received_before) / max(time.monotonic() - self._started, 1e-9),
                 tuples_by_actor=dict(self._by_actor),
                 latest_version=dict(self._latest_version),

@@ -37,7 +37,20 @@ from learner.intake import ExperienceIntake
 from learner.policy_state import PolicyState
 from learner.report import LearnerReport, LearnerStatus
 from monitor import Monitor
-from protocol import FEATURIZER_DIMS, N_ACTIONS, Ack, PolicyUpdate, QTableIncrement, Status, Transport
+from protocol import (
+    FEATURIZER_DIMS,
+    N_ACTIONS,
+    Ack,
+    IdentityMismatch,
+    PolicyUpdate,
+    ProtocolError,
+    QTableIncrement,
+    Reject,
+    Status,
+    Transport,
+    peek_sequence,
+)
+from protocol.messages import MAX_NAME_LEN
 from sim import scenario
 
 log = logging.getLogger(__name__)
@@ -58,7 +71,9 @@ class LearnerService:
         self.run_dir = run_dir
         self.monitor = monitor or Monitor()
         self.scenario = scenario(config.scenario)
-        self.intake = ExperienceIntake(config.store_capacity, FEATURIZER_DIMS[config.featurizer])
+        self.intake = ExperienceIntake(
+            config.store_capacity, FEATURIZER_DIMS[config.featurizer], on_refused=self._send_reject
+        )
         self.version_mark = VersionMark(run_dir)
         self.state = PolicyState(
             self.scenario.n_robots,
@@ -99,6 +114,25 @@ class LearnerService:
         with self._sequence_lock:
             if self.intake.accept_sequence(msg.actor_id, msg.incarnation, msg.seq):
                 self.state.add_increment(msg)
+
+    def on_rejected(self, key: str, payload: bytes, error: ProtocolError) -> None:
+        """A payload the transport refused on an actor's key: if it names its sender's stream and seq, it is
+        rejected explicitly, so the stream flows on past it. Never for a payload that claims another sender's
+        stream (a lie must not make the genuine sender drop its message)."""
+        if isinstance(error, IdentityMismatch):
+            return
+        peeked = peek_sequence(payload)
+        if peeked is None or peeked[0] != self.keys.owner(key):
+            return
+        actor, incarnation, seq = peeked
+        with self._sequence_lock:
+            self.intake.refuse(actor, incarnation, seq, f"{type(error).__name__}: {error}")
+
+    def _send_reject(self, actor: str, incarnation: int, seq: int, reason: str) -> None:
+        log.warning("rejected seq %d of %s (incarnation %x): %s", seq, actor, incarnation, reason)
+        printable = "".join(c if c.isprintable() else "?" for c in reason)[:MAX_NAME_LEN]
+        msg = Reject(actor_id=actor, incarnation=incarnation, seq=seq, reason=printable)
+        self.transport.publish(self.keys.reject(actor), msg)
 
     def on_actor_join(self, key: str) -> None:
         actor = key.rsplit("/", 1)[-1]

@@ -15,11 +15,14 @@ Usage::
 from __future__ import annotations
 
 import json
+import logging
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from algorithm.transitions import Transitions
+
+log = logging.getLogger(__name__)
 
 
 class ExperienceStore:
@@ -138,6 +141,8 @@ class SequenceLedger:
         self.streams: dict[tuple[str, int], _Stream] = {}
         self.duplicates = 0
         self.accepted = 0
+        self.gap_events = 0
+        """Times a seq arrived past the next expected one (logged: the first 10, then every 1000th)."""
 
     def accept(self, sender: str, incarnation: int, seq: int) -> bool:
         """True the first time a batch is seen; False (and counted) for a duplicate."""
@@ -145,6 +150,19 @@ class SequenceLedger:
         if seq <= stream.contiguous or seq in stream.ahead:
             self.duplicates += 1
             return False
+        highest = max(stream.ahead, default=stream.contiguous)
+        if seq > highest + 1:
+            self.gap_events += 1
+        if seq > highest + 1 and (self.gap_events <= 10 or self.gap_events % 1000 == 0):
+            # Not lost yet: a re-send may still fill it (the outbox re-sends what is not acknowledged).
+            log.warning(
+                "gap in the stream of %s (incarnation %x): seq %d arrived after %d; %d sequence numbers missing",
+                sender,
+                incarnation,
+                seq,
+                highest,
+                seq - highest - 1,
+            )
         stream.ahead.add(seq)
         while stream.contiguous + 1 in stream.ahead:
             stream.contiguous += 1

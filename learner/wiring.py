@@ -17,10 +17,10 @@ from protocol import Closeable, ExperienceBatch, QTableIncrement, Transport
 def connect(service: LearnerService, transport: Transport) -> list[Closeable]:
     keys, me = transport.keys, service.config.learner_id
     handles = [
-        # Experience of every actor into the de-duplicating store.
-        transport.subscribe(keys.experience(), ExperienceBatch, service.intake.on_experience),
-        # Q-table increments of every actor, queued for the next merge.
-        transport.subscribe(keys.qinc(), QTableIncrement, service.on_increment),
+        # Experience of every actor into the de-duplicating store; a refused one is rejected by its seq.
+        transport.subscribe(keys.experience(), ExperienceBatch, service.intake.on_experience, service.on_rejected),
+        # Q-table increments of every actor, queued for the next merge; a refused one is rejected by its seq.
+        transport.subscribe(keys.qinc(), QTableIncrement, service.on_increment, service.on_rejected),
         # A late-joining actor asks for the current policy instead of waiting for the next broadcast.
         transport.declare_queryable(keys.policy_latest(), service.latest_policy),
         # Membership: actors' liveliness tokens appear and vanish (killed at once, hung after the lease).

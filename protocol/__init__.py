@@ -12,7 +12,7 @@ languages in docs/protocol.md. Typical use::
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from protocol.codec import MAX_PAYLOAD_BYTES, decode, decode_as, encode
+from protocol.codec import MAX_PAYLOAD_BYTES, decode, decode_as, encode, peek_sequence
 from protocol.messages import (
     FEATURIZER_DIMS,
     N_ACTIONS,
@@ -28,6 +28,7 @@ from protocol.messages import (
     PolicyUpdate,
     ProtocolError,
     QTableIncrement,
+    Reject,
     SchemaVersionMismatch,
     Status,
     UnexpectedMessageType,
@@ -99,6 +100,7 @@ __all__ = [
     "ProtocolError",
     "QTableIncrement",
     "QoS",
+    "Reject",
     "SchemaVersionMismatch",
     "Status",
     "Transport",
@@ -114,5 +116,6 @@ __all__ = [
     "encode",
     "keys_from_args",
     "message_equal",
+    "peek_sequence",
     "zenoh_config",
 ]

@@ -33,6 +33,7 @@ from protocol.messages import (
     ProtocolError,
     SchemaVersionMismatch,
     UnexpectedMessageType,
+    check_id,
     field_specs,
 )
 
@@ -155,6 +156,35 @@ def decode(data: bytes | bytearray | memoryview, *, max_bytes: int = MAX_PAYLOAD
         # Defence in depth: the contract is ProtocolError only, so a validation bug must not leak out.
         log.exception("unexpected error decoding %s", tag)
         raise MalformedMessage(f"{tag}: {type(exc).__name__}: {exc}") from exc
+
+
+def peek_sequence(
+    data: bytes | bytearray | memoryview, *, max_bytes: int = MAX_PAYLOAD_BYTES
+) -> tuple[str, int, int] | None:
+    """(actor_id, incarnation, seq) of an ``experience`` or ``qinc`` payload that :func:`decode` refused, if its
+    envelope and those three fields are readable; else None. Lets a receiver reject the message explicitly by its
+    sequence number instead of leaving a hole the cumulative ack can never pass."""
+    size = data.nbytes if isinstance(data, memoryview) else len(data)
+    if size > max_bytes:
+        return None
+    try:
+        envelope = msgpack.unpackb(data, raw=False, strict_map_key=True, max_bin_len=max_bytes, **_UNPACK_LIMITS)
+    except Exception:  # not msgpack at all: nothing can be told about it
+        return None
+    if not (isinstance(envelope, list) and len(envelope) == 3 and envelope[1] in ("experience", "qinc")):
+        return None
+    body = envelope[2]
+    if not isinstance(body, dict):
+        return None
+    actor_id, incarnation, seq = body.get("actor_id"), body.get("incarnation"), body.get("seq")
+    try:
+        check_id(actor_id, "actor_id")
+    except ProtocolError:
+        return None
+    for value in (incarnation, seq):
+        if not isinstance(value, int) or isinstance(value, bool) or not 0 <= value < 2**64:
+            return None
+    return str(actor_id), int(incarnation), int(seq)  # type: ignore[arg-type]
 
 
 def decode_as(data: bytes | bytearray | memoryview, cls: type[M], *, max_bytes: int = MAX_PAYLOAD_BYTES) -> M:

@@ -40,6 +40,7 @@ from protocol.messages import (
     Message,
     PolicyUpdate,
     QTableIncrement,
+    Reject,
     Status,
     UnexpectedMessageType,
     check_id,
@@ -61,6 +62,7 @@ class Channel(enum.Enum):
     EXPERIENCE = "experience"
     QINC = "qinc"
     ACK = "ack"
+    REJECT = "reject"
     POLICY = "policy"
     STATUS = "status"
     ALIVE = "alive"
@@ -90,6 +92,7 @@ QOS: Mapping[Channel, QoS] = MappingProxyType(
         Channel.QINC: QoS(True, _BLOCK, zenoh.Priority.DATA),
         # Express (no batching): acks are tiny and gate the actor's outbox, so latency matters more than batching.
         Channel.ACK: QoS(True, _BLOCK, zenoh.Priority.DATA_HIGH, express=True),
+        Channel.REJECT: QoS(True, _BLOCK, zenoh.Priority.DATA_HIGH, express=True),
         Channel.POLICY: QoS(True, _BLOCK, zenoh.Priority.DATA_HIGH),
         Channel.STATUS: QoS(False, _DROP, zenoh.Priority.DATA_LOW),
     }
@@ -100,6 +103,7 @@ MESSAGE_OF: Mapping[Channel, type[Message]] = MappingProxyType(
         Channel.EXPERIENCE: ExperienceBatch,
         Channel.QINC: QTableIncrement,
         Channel.ACK: Ack,
+        Channel.REJECT: Reject,
         Channel.POLICY: PolicyUpdate,
         Channel.STATUS: Status,
     }
@@ -107,7 +111,14 @@ MESSAGE_OF: Mapping[Channel, type[Message]] = MappingProxyType(
 
 
 # Number of id chunks after the channel name (the policy keys are handled on their own).
-_ID_CHUNKS = {Channel.EXPERIENCE: 1, Channel.QINC: 1, Channel.ACK: 1, Channel.STATUS: 1, Channel.ALIVE: 2}
+_ID_CHUNKS = {
+    Channel.EXPERIENCE: 1,
+    Channel.QINC: 1,
+    Channel.ACK: 1,
+    Channel.REJECT: 1,
+    Channel.STATUS: 1,
+    Channel.ALIVE: 2,
+}
 _BY_NAME = {c.value: c for c in _ID_CHUNKS}
 
 
@@ -142,6 +153,10 @@ class KeySpace:
     def ack(self, actor_id: str = WILD) -> str:
         """Where the learner publishes the Acks for ``actor_id``."""
         return f"{self.root}/ack/{_id_or_wild(actor_id, 'actor_id')}"
+
+    def reject(self, actor_id: str = WILD) -> str:
+        """Where the learner publishes the Rejects of ``actor_id``'s messages it refused for good."""
+        return f"{self.root}/reject/{_id_or_wild(actor_id, 'actor_id')}"
 
     def policy(self) -> str:
         """Where the learner broadcasts each new PolicyUpdate."""

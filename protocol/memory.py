@@ -26,7 +26,16 @@ import zenoh
 from protocol.codec import encode
 from protocol.keys import DEFAULT_KEYS, KeySpace
 from protocol.messages import Message
-from protocol.transport import Closeable, M, TransportClosed, TransportStats, accept, deliver, run_handler
+from protocol.transport import (
+    Closeable,
+    M,
+    Rejected,
+    TransportClosed,
+    TransportStats,
+    accept,
+    deliver,
+    run_handler,
+)
 
 _Kind = Literal["sub", "queryable", "token", "liveliness_sub"]
 
@@ -49,6 +58,7 @@ class _Entity:
     msg_type: type[Any] = object
     handler: Callable[..., Any] = _ignore
     on_leave: Callable[[str], object] = _ignore
+    on_reject: Rejected | None = None
 
     def __post_init__(self) -> None:
         self.key_expr = zenoh.KeyExpr(self.key)  # raises zenoh.ZError on an invalid key expression
@@ -125,10 +135,12 @@ class InMemoryTransport:
 
     def _route(self, key: str, data: bytes) -> None:
         for sub in self.bus.matching("sub", key):
-            deliver(sub.owner.keys, sub.owner.stats, key, data, sub.msg_type, sub.handler)
+            deliver(sub.owner.keys, sub.owner.stats, key, data, sub.msg_type, sub.handler, sub.on_reject)
 
-    def subscribe(self, key_expr: str, msg_type: type[M], handler: Callable[[M], object]) -> Closeable:
-        return self._declare(_Entity(self, "sub", key_expr, msg_type, handler))
+    def subscribe(
+        self, key_expr: str, msg_type: type[M], handler: Callable[[M], object], on_reject: Rejected | None = None
+    ) -> Closeable:
+        return self._declare(_Entity(self, "sub", key_expr, msg_type, handler, on_reject=on_reject))
 
     def has_subscribers(self, key: str) -> bool:
         return bool(self.bus.matching("sub", key))

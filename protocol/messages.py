@@ -377,6 +377,19 @@ class Ack(_Validated):
 
 
 @dataclass(frozen=True, slots=True, eq=False)
+class Reject(_Validated):
+    """Negative acknowledgement, learner → actor: the message ``seq`` of this incarnation was refused for good (it
+    will be refused again if re-sent); the sender drops it from its outbox, and the cumulative ack steps over it."""
+
+    TAG: ClassVar[str] = "reject"
+    actor_id: str = field(metadata=_spec("id"))
+    incarnation: int = field(metadata=_u64())
+    seq: int = field(metadata=_u64())
+    # Why, e.g. "InvalidValues: reward: NaN or inf" (1-64 printable characters).
+    reason: str = field(metadata=_spec("name"))
+
+
+@dataclass(frozen=True, slots=True, eq=False)
 class Status(_Validated):
     """Periodic health and metrics of any process; best effort (DROP QoS), never needed for correctness.
 
@@ -397,10 +410,10 @@ class Status(_Validated):
         validate(self)
 
 
-Message: TypeAlias = ExperienceBatch | QTableIncrement | PolicyUpdate | Ack | Status
+Message: TypeAlias = ExperienceBatch | QTableIncrement | PolicyUpdate | Ack | Reject | Status
 
 MESSAGE_TYPES: Mapping[str, type[Message]] = MappingProxyType(
-    {cls.TAG: cls for cls in (ExperienceBatch, QTableIncrement, PolicyUpdate, Ack, Status)}
+    {cls.TAG: cls for cls in (ExperienceBatch, QTableIncrement, PolicyUpdate, Ack, Reject, Status)}
 )
 """Type tag on the wire -> message class."""
 

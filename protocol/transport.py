@@ -96,9 +96,20 @@ def _should_log(n: int) -> bool:
     return n <= _LOG_FIRST or n % _LOG_EVERY == 0
 
 
-def accept(keys: KeySpace, stats: TransportStats, key: str, payload: bytes | memoryview, msg_type: type[M]) -> M | None:
+Rejected = Callable[[str, bytes, ProtocolError], object]
+"""``on_reject(key, payload, error)``: told of every payload a subscription refused (e.g. to reject it explicitly)."""
+
+
+def accept(
+    keys: KeySpace,
+    stats: TransportStats,
+    key: str,
+    payload: bytes | memoryview,
+    msg_type: type[M],
+    on_reject: Rejected | None = None,
+) -> M | None:
     """Decode ``payload`` received on ``key``; return it if it is a valid ``msg_type`` allowed on ``key`` and names
-    the key's own sender, else count and log the rejection and return None."""
+    the key's own sender, else count and log the rejection, tell ``on_reject``, and return None."""
     try:
         msg = decode(payload)
         if not isinstance(msg, msg_type):
@@ -108,6 +119,8 @@ def accept(keys: KeySpace, stats: TransportStats, key: str, payload: bytes | mem
         n = stats.count_rejected(exc)
         if _should_log(n):
             log.warning("rejected payload on %s (%s #%d): %s", key, type(exc).__name__, n, exc)
+        if on_reject is not None:
+            run_handler(stats, f"on_reject for {key}", on_reject, key, bytes(payload), exc)
         return None
     return msg
 
@@ -129,9 +142,10 @@ def deliver(
     payload: bytes | memoryview,
     msg_type: type[M],
     handler: Callable[[M], object],
+    on_reject: Rejected | None = None,
 ) -> None:
     """:func:`accept` the payload and pass it to ``handler``, counting what happens."""
-    msg = accept(keys, stats, key, payload, msg_type)
+    msg = accept(keys, stats, key, payload, msg_type, on_reject)
     if msg is not None:
         stats.count_delivered()
         run_handler(stats, f"handler for {key}", handler, msg)
@@ -150,8 +164,11 @@ class Transport(Protocol):
         """
         ...
 
-    def subscribe(self, key_expr: str, msg_type: type[M], handler: Callable[[M], object]) -> Closeable:
-        """Call ``handler(msg)`` for every valid ``msg_type`` published on keys matching ``key_expr``."""
+    def subscribe(
+        self, key_expr: str, msg_type: type[M], handler: Callable[[M], object], on_reject: Rejected | None = None
+    ) -> Closeable:
+        """Call ``handler(msg)`` for every valid ``msg_type`` published on keys matching ``key_expr``, and
+        ``on_reject(key, payload, error)`` for every payload refused there."""
         ...
 
     def has_subscribers(self, key: str) -> bool:

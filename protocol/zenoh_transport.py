@@ -39,7 +39,16 @@ import zenoh
 from protocol.codec import encode
 from protocol.keys import DEFAULT_KEYS, ENCODING, KeySpace
 from protocol.messages import Message
-from protocol.transport import Closeable, M, TransportClosed, TransportStats, accept, deliver, run_handler
+from protocol.transport import (
+    Closeable,
+    M,
+    Rejected,
+    TransportClosed,
+    TransportStats,
+    accept,
+    deliver,
+    run_handler,
+)
 
 log = logging.getLogger(__name__)
 
@@ -215,12 +224,14 @@ class ZenohTransport:
         self._publisher(key).put(data)
         self.stats.count_published()
 
-    def subscribe(self, key_expr: str, msg_type: type[M], handler: Callable[[M], object]) -> Closeable:
+    def subscribe(
+        self, key_expr: str, msg_type: type[M], handler: Callable[[M], object], on_reject: Rejected | None = None
+    ) -> Closeable:
         self._check_open()
 
         def on_sample(sample: zenoh.Sample) -> None:
             key = str(sample.key_expr)
-            deliver(self.keys, self.stats, key, sample.payload.to_bytes(), msg_type, handler)
+            deliver(self.keys, self.stats, key, sample.payload.to_bytes(), msg_type, handler, on_reject)
 
         sub = self.session.declare_subscriber(key_expr, zenoh.handlers.FifoChannel(self._capacity))
         return self._add(_Pump(f"zenoh-sub {key_expr}", sub, on_sample, self.stats))

@@ -93,3 +93,19 @@ def test_policy_client_keeps_the_newest_and_the_learning_not_handed_in() -> None
     adopted: TabularAgent = client.adopt(newer, agent)
     assert adopted.tables[0, 0] == 1.5 and adopted.tables[2, 0] == 1.0  # robot 2 is not learned here
     assert [(r, c[0], v[0]) for r, c, v in tracker.take(adopted)] == [(0, 0.5, 1)]
+
+
+def test_a_rejected_message_leaves_the_outbox_and_the_rest_flows_on() -> None:
+    from protocol import Reject
+
+    with InMemoryTransport(InMemoryBus()) as actor:
+        outbox = Outbox(actor, incarnation=3, limit=2, resend_after=60.0, probe_key=actor.keys.status("a0"))
+        for seq in range(outbox.reserve(2), 2):
+            outbox.send(actor.keys.status("a0"), status(seq), seq)
+        outbox.on_reject(Reject(actor_id="a0", incarnation=2, seq=0, reason="another incarnation"))
+        assert len(outbox) == 2
+        outbox.on_reject(Reject(actor_id="a0", incarnation=3, seq=0, reason="InvalidValues: reward"))
+        assert len(outbox) == 1 and outbox.rejected == 1
+        outbox.wait_for_room(threading.Event())  # room again: the rejected message no longer holds a place
+        outbox.on_ack(Ack(actor_id="a0", incarnation=3, seq=1))
+        assert len(outbox) == 0

@@ -137,3 +137,50 @@ def _encoded(msg: ExperienceBatch) -> bytes:
     from protocol import encode
 
     return encode(msg)
+
+
+def test_a_poisoned_message_is_rejected_and_its_stream_flows_on(cluster: Cluster, tmp_path: Path) -> None:
+    """A client written against docs/protocol.md sends seq 0, a NaN batch at seq 1, then seq 2."""
+    import msgpack
+
+    from protocol import Ack, Reject, encode
+
+    learner = cluster.learner(tmp_path / "run")
+    keys = KeySpace(cluster.namespace)
+    n = 5
+
+    def batch(seq: int) -> bytes:
+        data = encode(
+            ExperienceBatch(
+                actor_id="client-7",
+                incarnation=99,
+                seq=seq,
+                policy_version=0,
+                robot=np.zeros(n, np.int16),
+                state=np.ones((n, 6), np.float32),
+                action=np.zeros(n, np.uint8),
+                reward=np.zeros(n, np.float32),
+                next_state=np.ones((n, 6), np.float32),
+                done=np.zeros(n, bool),
+            )
+        )
+        if seq != 1:
+            return data
+        envelope = msgpack.unpackb(data, raw=False)
+        envelope[2]["reward"] = ["float32", [n], np.full(n, np.nan, np.float32).tobytes()]
+        return msgpack.packb(envelope, use_bin_type=True)
+
+    rejects: list[int] = []
+    acks: list[int] = []
+    conf = zenoh_config(connect=[cluster.endpoint], mode="peer", multicast_scouting=False)
+    with ZenohTransport.open(conf, keys) as client:
+        client.subscribe(keys.reject("client-7"), Reject, lambda r: rejects.append(r.seq))
+        client.subscribe(keys.ack("client-7"), Ack, lambda a: acks.append(a.seq))
+        wait_for(lambda: client.has_subscribers(keys.experience("client-7")), 60, "the learner's subscription")
+        for seq in (0, 1, 2):
+            client.session.put(keys.experience("client-7"), batch(seq))
+        wait_for(lambda: 1 in rejects and max(acks, default=-1) >= 2, 60, "the Reject of seq 1 and the ack of seq 2")
+    report = finish(learner, sig=signal.SIGTERM)
+    assert rejects == [1]
+    assert report["tuples_by_actor"]["client-7"] == 2 * n and report["gaps"] == 0
+    assert report["rejected_by_type"] == {"InvalidValues": 1}

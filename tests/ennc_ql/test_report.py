@@ -20,7 +20,7 @@ CURVE_BLUE = (0x3B / 255, 0x7D / 255, 0xD8 / 255)
 
 
 def run_report(run_dir: Path) -> dict[str, Any]:
-    """A report as ``ennc-ql up`` leaves it: the learner's ``_finish`` keys plus the launcher's."""
+    """A report as ``ennc-ql up`` leaves it: a LearnerReport as a dict plus the launcher's keys."""
     return {
         "learner_id": "learner",
         "actors": ["actor-0", "actor-1"],

@@ -240,3 +240,40 @@ def test_an_empty_state_checkpoints_and_restores(tmp_path: Path) -> None:
     resumed = PolicyState(10, "collab6d", "cmommt-v1", 5, "m")
     resumed.restore(arrays, meta)
     assert resumed.version == 1 and resumed.policy() is not None
+
+
+def test_a_poisoned_message_is_rejected_by_its_seq_and_the_stream_flows_on(tmp_path: Path) -> None:
+    import msgpack
+
+    from protocol import Ack, Reject, encode
+
+    good = [experience(seq=0, dim=6), experience(seq=2, dim=6)]
+    envelope = msgpack.unpackb(encode(experience(seq=1, dim=6)), raw=False)
+    reward = np.array([0.0, np.nan, 0.0], np.float32)
+    envelope[2]["reward"] = ["float32", [3], reward.tobytes()]  # valid msgpack, NaN reward: InvalidValues
+    poison = msgpack.packb(envelope, use_bin_type=True)
+    lie = msgpack.unpackb(poison, raw=False)
+    lie[2]["actor_id"] = "b"  # on a's key, claiming b's stream: refused, and no Reject is sent to b
+    rejects: list[Reject] = []
+    acks: list[Ack] = []
+    with InMemoryTransport(InMemoryBus()) as t:
+        t.subscribe(t.keys.reject(), Reject, rejects.append)
+        t.subscribe(t.keys.ack(), Ack, acks.append)
+        service = LearnerService(t, FAST, tmp_path)
+        handles = connect_learner(service, t)
+        t.publish(t.keys.experience("a"), good[0])
+        t.inject_raw(t.keys.experience("a"), poison)
+        t.inject_raw(t.keys.experience("a"), poison)  # re-sent before the Reject arrived: refused, rejected once
+        t.inject_raw(t.keys.experience("a"), msgpack.packb(lie, use_bin_type=True))
+        t.publish(t.keys.experience("a"), good[1])
+        t.publish(t.keys.experience("a"), experience(seq=3, dim=2))  # wrong state dimension: rejected by seq too
+        service.checkpoint()
+        for handle in reversed(handles):
+            handle.close()
+    assert [(r.actor_id, r.seq) for r in rejects] == [("a", 1), ("a", 3)]
+    assert rejects[0].reason.startswith("InvalidValues: reward")
+    assert rejects[1].reason == "state dimension 2, expected 6"
+    assert [(a.actor_id, a.seq) for a in acks] == [("a", 3)]  # the cumulative ack steps over both
+    figures = service.intake.figures()
+    assert figures.tuples_received == 6 and figures.refused == 2 and figures.gaps == 0
+    assert service.rejected_by_type() == {"InvalidValues": 3}  # the lie too, but no Reject went to b for it

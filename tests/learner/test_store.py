@@ -68,3 +68,13 @@ def test_ledger_deduplicates_and_counts_gaps() -> None:
     restored = SequenceLedger.from_arrays(ledger.to_arrays())
     assert not restored.accept("a", 1, 3)
     assert restored.acked("a", 1) == 3 and restored.duplicates == 2
+
+
+def test_a_gap_is_logged_when_it_opens(caplog: pytest.LogCaptureFixture) -> None:
+    ledger = SequenceLedger()
+    with caplog.at_level("WARNING", logger="learner.store"):
+        assert ledger.accept("a", 7, 0) and ledger.accept("a", 7, 3)
+        assert ledger.accept("a", 7, 1)  # fills part of it: no new gap
+    gaps = [r.getMessage() for r in caplog.records]
+    assert gaps == ["gap in the stream of a (incarnation 7): seq 3 arrived after 0; 2 sequence numbers missing"]
+    assert ledger.gaps == 1 and ledger.gap_events == 1

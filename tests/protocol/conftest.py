@@ -14,6 +14,7 @@ from protocol import (
     Message,
     PolicyUpdate,
     QTableIncrement,
+    Reject,
     Status,
 )
 
@@ -67,6 +68,7 @@ def golden_samples() -> dict[str, Message]:
         ),
         "policy": sample_policy(),
         "ack": Ack(actor_id="actor-0", incarnation=0x0123456789ABCDEF, seq=8),
+        "reject": Reject(actor_id="actor-0", incarnation=0x0123456789ABCDEF, seq=9, reason="InvalidValues: reward"),
         "status": Status(
             sender="learner-0", role="learner", wall_time=1700000000.25, counters={"tuples": 1024.0, "lag": 0.5}
         ),
@@ -139,6 +141,13 @@ def policy_updates(draw: st.DrawFn) -> PolicyUpdate:
 
 
 acks = st.builds(Ack, actor_id=ids, incarnation=u64, seq=u64)
+rejects = st.builds(
+    Reject,
+    actor_id=ids,
+    incarnation=u64,
+    seq=u64,
+    reason=st.text(st.characters(codec="ascii", categories=["L", "N", "P", "Zs"]), min_size=1, max_size=64),
+)
 statuses = st.builds(
     Status,
     sender=ids,
@@ -148,4 +157,4 @@ statuses = st.builds(
         st.text(min_size=1, max_size=64), st.floats(allow_nan=False, allow_infinity=False), max_size=64
     ),
 )
-messages = st.one_of(experience_batches(), q_increments(), policy_updates(), acks, statuses)
+messages = st.one_of(experience_batches(), q_increments(), policy_updates(), acks, rejects, statuses)
