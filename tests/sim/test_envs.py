@@ -97,6 +97,8 @@ def test_pettingzoo_robots_start_near_a_target_and_lost_robots_leave_motionless(
     env = CmommtParallelEnv()
     cfg = env.cfg
     _, infos = env.reset(seed=1)
+    for k, agent in enumerate(env.agents):
+        env.action_space(agent).seed(k)  # the same random actions every run
     assert all(info["n_seen"] >= 1 for info in infos.values())
     total_steps = 0
     left: dict[str, np.ndarray] = {}
@@ -111,7 +113,8 @@ def test_pettingzoo_robots_start_near_a_target_and_lost_robots_leave_motionless(
             elif not done:
                 assert rewards[agent] == 0.0
         for agent, pos in left.items():
-            np.testing.assert_array_equal(env._state.world.robot_pos[0, env._index[agent]], pos)
+            # Motionless up to the rounding of the projection onto the disk, for a robot that stopped at the wall.
+            np.testing.assert_allclose(env._state.world.robot_pos[0, env._index[agent]], pos, rtol=0, atol=1e-9)
     assert left  # with random actions some robot loses its targets within the trial
     assert total_steps <= cfg.learning_steps // cfg.action_steps
 
