@@ -24,6 +24,7 @@ import time
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -34,7 +35,7 @@ from actors.policy_client import PolicyClient
 from algorithm.agent import TabularAgent
 from algorithm.transitions import Transitions
 from algorithm.trials import ExperienceSlice, SliceConfig
-from algorithm.wire import experience_batches, increment_message, status_counters
+from algorithm.wire import experience_message, increment_message, status_counters
 from monitor import Monitor
 from monitor.trial import TrialWatch
 from protocol import ExperienceBatch, Message, ProtocolError, QTableIncrement, Status, Transport
@@ -180,16 +181,25 @@ class RobotActor:
             self._send_increments(self.agent)  # hand in what was learned on the old tables, stamped with their version
         self.agent = self.policy.adopt(update, self.agent)
 
-    def _send(self, key: str, build: Callable[[int], Message]) -> bool:
-        """Wait for room in the outbox, then send ``build(seq)``; False if nothing was sent (no seq used): stopping
-        with a full outbox, or an invalid message. Room is made before each message, so the outbox never holds more
-        than its limit. A message that fails its own validation (our bug: NaN in a tuple) is dropped, counted and
-        logged here, before the wire, without using a sequence number (so it leaves no gap)."""
+    def _send(self, key: str, make: Callable[..., Message], **fields: Any) -> bool:
+        """Wait for room in the outbox, then send ``make(seq=…, actor_id=…, incarnation=…, policy_version=…,
+        **fields)``; False if nothing was sent (no seq used): stopping with a full outbox, or an invalid message.
+
+        Room is made before each message, so the outbox never holds more than its limit. A message that fails its
+        own validation (our bug: NaN in a tuple) is dropped, counted and logged here, before the wire, without using
+        a sequence number (so it leaves no gap).
+        """
         self.outbox.wait_for_room(self._stop)
         if len(self.outbox) >= self.config.outbox_limit:
             return False
         try:
-            msg = build(self.outbox.next_seq)
+            msg = make(
+                seq=self.outbox.next_seq,
+                actor_id=self.config.actor_id,
+                incarnation=self.incarnation,
+                policy_version=self.policy.version,
+                **fields,
+            )
         except ProtocolError as exc:
             self._invalid += 1
             if self._invalid <= 10 or self._invalid % 1000 == 0:
@@ -203,19 +213,7 @@ class RobotActor:
         size = self.config.batch_size
         for start in range(0, len(batch), size):
             part = batch.take(np.arange(start, min(start + size, len(batch))))
-
-            def build(seq: int, part: Transitions = part) -> Message:
-                (msg,) = experience_batches(
-                    part,
-                    actor_id=self.config.actor_id,
-                    incarnation=self.incarnation,
-                    first_seq=seq,
-                    policy_version=self.policy.version,
-                    batch_size=size,
-                )
-                return msg
-
-            if self._send(key, build):
+            if self._send(key, experience_message, transitions=part):
                 self._tuples += len(part)
                 self._batches += 1
 
@@ -223,22 +221,7 @@ class RobotActor:
         key = self.keys.qinc(self.config.actor_id)
         offsets = agent.discretization.offsets
         for robot, change, visits in self.tracker.take(agent):
-
-            def build(
-                seq: int, robot: int = robot, change: np.ndarray = change, visits: np.ndarray = visits
-            ) -> Message:
-                return increment_message(
-                    actor_id=self.config.actor_id,
-                    incarnation=self.incarnation,
-                    seq=seq,
-                    policy_version=self.policy.version,
-                    robot=robot,
-                    change=change,
-                    visits=visits,
-                    offsets=offsets,
-                )
-
-            if self._send(key, build):
+            if self._send(key, increment_message, robot=robot, change=change, visits=visits, offsets=offsets):
                 self._increments += 1
 
     def _publish_status(self) -> None:

@@ -5,7 +5,7 @@ The learner and the actors never build or unpack a message field by field themse
     update = policy_update(policy, scenario="cmommt-v1")                  # learner: Policy -> PolicyUpdate
     policy = policy_from_update(update, n_robots=10)                      # actor: PolicyUpdate -> Policy
     batches = experience_batches(transitions, actor_id="actor-0", incarnation=7, first_seq=0,
-                                 policy_version=3, batch_size=16384)      # actor: Transitions -> ExperienceBatch
+                                 policy_version=3, batch_size=16384)      # Transitions -> ExperienceBatch(es)
     transitions = transitions_from_batch(batches[0])                      # learner: ExperienceBatch -> Transitions
     msg = increment_message(actor_id="actor-0", incarnation=7, seq=5, policy_version=3, robot=2,
                             change=change, visits=visits, offsets=disc.offsets)
@@ -85,6 +85,25 @@ def policy_from_update(update: PolicyUpdate, n_robots: int, method: str = "") ->
     )
 
 
+def experience_message(
+    transitions: Transitions, *, actor_id: str, incarnation: int, seq: int, policy_version: int
+) -> ExperienceBatch:
+    """One experience message of ``transitions``. Building it validates it, so a tuple the learner would refuse
+    (NaN, a wrong dtype) fails here, in the actor that made it, not on the wire."""
+    return ExperienceBatch(
+        actor_id=actor_id,
+        incarnation=incarnation,
+        seq=seq,
+        policy_version=policy_version,
+        robot=transitions.robot,
+        state=transitions.state,
+        action=transitions.action,
+        reward=transitions.reward,
+        next_state=transitions.next_state,
+        done=transitions.done,
+    )
+
+
 def experience_batches(
     transitions: Transitions,
     *,
@@ -94,29 +113,17 @@ def experience_batches(
     policy_version: int,
     batch_size: int,
 ) -> list[ExperienceBatch]:
-    """``transitions`` split into messages of at most ``batch_size`` tuples with seqs ``first_seq, first_seq+1, …``.
-
-    Building the message validates it, so a tuple the learner would refuse (NaN, a wrong dtype) fails here, in the
-    actor that made it, not on the wire.
-    """
-    out = []
-    for k, start in enumerate(range(0, len(transitions), batch_size)):
-        part = transitions.take(np.arange(start, min(start + batch_size, len(transitions))))
-        out.append(
-            ExperienceBatch(
-                actor_id=actor_id,
-                incarnation=incarnation,
-                seq=first_seq + k,
-                policy_version=policy_version,
-                robot=part.robot,
-                state=part.state,
-                action=part.action,
-                reward=part.reward,
-                next_state=part.next_state,
-                done=part.done,
-            )
+    """``transitions`` split into messages of at most ``batch_size`` tuples with seqs ``first_seq, first_seq+1, …``."""
+    return [
+        experience_message(
+            transitions.take(np.arange(start, min(start + batch_size, len(transitions)))),
+            actor_id=actor_id,
+            incarnation=incarnation,
+            seq=first_seq + k,
+            policy_version=policy_version,
         )
-    return out
+        for k, start in enumerate(range(0, len(transitions), batch_size))
+    ]
 
 
 def transitions_from_batch(msg: ExperienceBatch) -> Transitions:

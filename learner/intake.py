@@ -55,7 +55,7 @@ class ExperienceIntake:
 
     def __init__(self, capacity: int, dim: int, on_refused: Refused | None = None) -> None:
         self.on_refused = on_refused
-        """Told (actor, incarnation, seq, reason) of a message refused for good, once (the learner rejects it)."""
+        """Told (actor, incarnation, seq, reason) of a batch refused here, once (the learner sends the Reject)."""
         self._lock = threading.Lock()
         self._store = ExperienceStore(capacity, dim)
         self._ledger = SequenceLedger()
@@ -75,7 +75,8 @@ class ExperienceIntake:
                 count = self._rejected
             if count <= 10 or count % 1000 == 0:
                 log.warning("rejected experience from %s: %s (%d rejected so far)", msg.actor_id, reason, count)
-            self.refuse(msg.actor_id, msg.incarnation, msg.seq, reason)
+            if self.refuse(msg.actor_id, msg.incarnation, msg.seq) and self.on_refused is not None:
+                self.on_refused(msg.actor_id, msg.incarnation, msg.seq, reason)
             return
         batch = transitions_from_batch(msg)
         with self._lock:
@@ -86,15 +87,14 @@ class ExperienceIntake:
             self._by_actor[msg.actor_id] = self._by_actor.get(msg.actor_id, 0) + len(batch)
             self._latest_version[msg.actor_id] = max(self._latest_version.get(msg.actor_id, 0), msg.policy_version)
 
-    def refuse(self, sender: str, incarnation: int, seq: int, reason: str) -> None:
-        """A message refused for good: its seq counts as arrived (the cumulative ack steps over it) and, the first
-        time, ``on_refused`` is told so the sender can drop it instead of re-sending it forever."""
+    def refuse(self, sender: str, incarnation: int, seq: int) -> bool:
+        """A message refused for good: its seq counts as arrived (the cumulative ack steps over it). True the first
+        time, when the sender must be told (a Reject) so that it drops the message instead of re-sending it."""
         with self._lock:
             first = self._ledger.accept(sender, incarnation, seq)
             if first:
                 self._refused += 1
-        if first and self.on_refused is not None:
-            self.on_refused(sender, incarnation, seq, reason)
+        return first
 
     def accept_sequence(self, sender: str, incarnation: int, seq: int) -> bool:
         """Ledger entry for a non-experience message that shares the sender's sequence (Q-table increments)."""

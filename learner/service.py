@@ -41,7 +41,6 @@ from protocol import (
     FEATURIZER_DIMS,
     N_ACTIONS,
     Ack,
-    IdentityMismatch,
     PolicyUpdate,
     ProtocolError,
     QTableIncrement,
@@ -119,14 +118,14 @@ class LearnerService:
         """A payload the transport refused on an actor's key: if it names its sender's stream and seq, it is
         rejected explicitly, so the stream flows on past it. Never for a payload that claims another sender's
         stream (a lie must not make the genuine sender drop its message)."""
-        if isinstance(error, IdentityMismatch):
-            return
         peeked = peek_sequence(payload)
         if peeked is None or peeked[0] != self.keys.owner(key):
             return
         actor, incarnation, seq = peeked
         with self._sequence_lock:
-            self.intake.refuse(actor, incarnation, seq, f"{type(error).__name__}: {error}")
+            first = self.intake.refuse(actor, incarnation, seq)
+        if first:  # published outside the lock: a blocked publish must not hold up checkpoints
+            self._send_reject(actor, incarnation, seq, f"{type(error).__name__}: {error}")
 
     def _send_reject(self, actor: str, incarnation: int, seq: int, reason: str) -> None:
         log.warning("rejected seq %d of %s (incarnation %x): %s", seq, actor, incarnation, reason)

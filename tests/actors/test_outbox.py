@@ -109,3 +109,31 @@ def test_a_rejected_message_leaves_the_outbox_and_the_rest_flows_on() -> None:
         outbox.wait_for_room(threading.Event())  # room again: the rejected message no longer holds a place
         outbox.on_ack(Ack(actor_id="a0", incarnation=3, seq=1))
         assert len(outbox) == 0
+
+
+def test_an_actor_drops_its_own_invalid_message_before_the_wire_without_using_a_seq() -> None:
+    from actors.actor import RobotActor
+    from actors.config import ActorConfig
+    from algorithm.transitions import Transitions
+    from protocol import ExperienceBatch
+
+    def tuples(reward: float) -> Transitions:
+        return Transitions(
+            robot=np.zeros(2, np.int16),
+            state=np.zeros((2, 6), np.float32),
+            action=np.zeros(2, np.uint8),
+            reward=np.full(2, reward, np.float32),
+            next_state=np.zeros((2, 6), np.float32),
+            done=np.zeros(2, bool),
+        )
+
+    bus = InMemoryBus()
+    seen: list[int] = []
+    with InMemoryTransport(bus) as transport, InMemoryTransport(bus) as learner:
+        learner.subscribe(learner.keys.experience(), ExperienceBatch, lambda m: seen.append(m.seq))
+        actor = RobotActor(transport, ActorConfig(actor_id="a0", arenas=1))
+        actor._send_experience(tuples(np.nan))
+        actor._send_experience(tuples(0.0))
+    status = actor.status()
+    assert seen == [0]  # the valid batch took seq 0: no gap for the learner
+    assert status.invalid == 1 and status.tuples_sent == 2 and status.batches_sent == 1

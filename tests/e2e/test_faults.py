@@ -19,7 +19,7 @@ import pytest
 
 from algorithm.policy_file import load_policy
 from learner.checkpoint import VersionMark
-from protocol import ExperienceBatch, PolicyUpdate, ZenohTransport, zenoh_config
+from protocol import ExperienceBatch, PolicyUpdate, ZenohTransport, encode, zenoh_config
 from protocol.keys import KeySpace
 from tests.e2e.test_cluster import Cluster, checkpoint_version, cluster, finish, wait_for
 
@@ -123,7 +123,7 @@ def test_a_peer_sending_under_another_actors_identity_stores_nothing(cluster: Cl
     with ZenohTransport.open(conf, keys) as liar:
         wait_for(lambda: liar.has_subscribers(keys.experience("mallory")), 30, "the learner's subscription")
         for _ in range(5):
-            liar.session.put(keys.experience("mallory"), _encoded(lie))  # past our own publish-side check
+            liar.session.put(keys.experience("mallory"), encode(lie))  # past our own publish-side check
         time.sleep(1.0)
     status = finish(actor, sig=signal.SIGTERM)
     report = finish(learner, sig=signal.SIGTERM)
@@ -140,47 +140,59 @@ def _encoded(msg: ExperienceBatch) -> bytes:
 
 
 def test_a_poisoned_message_is_rejected_and_its_stream_flows_on(cluster: Cluster, tmp_path: Path) -> None:
-    """A client written against docs/protocol.md sends seq 0, a NaN batch at seq 1, then seq 2."""
+    """A client written from docs/protocol.md alone (plain msgpack and zenoh, none of the project's protocol code)
+    sends seq 0, a batch with NaN rewards at seq 1, then seq 2, and reads the learner's Reject and Ack."""
     import msgpack
-
-    from protocol import Ack, Reject, encode
+    import zenoh
 
     learner = cluster.learner(tmp_path / "run")
-    keys = KeySpace(cluster.namespace)
+    prefix = f"{cluster.namespace}/enncql/v1"
     n = 5
 
-    def batch(seq: int) -> bytes:
-        data = encode(
-            ExperienceBatch(
-                actor_id="client-7",
-                incarnation=99,
-                seq=seq,
-                policy_version=0,
-                robot=np.zeros(n, np.int16),
-                state=np.ones((n, 6), np.float32),
-                action=np.zeros(n, np.uint8),
-                reward=np.zeros(n, np.float32),
-                next_state=np.ones((n, 6), np.float32),
-                done=np.zeros(n, bool),
-            )
-        )
-        if seq != 1:
-            return data
-        envelope = msgpack.unpackb(data, raw=False)
-        envelope[2]["reward"] = ["float32", [n], np.full(n, np.nan, np.float32).tobytes()]
-        return msgpack.packb(envelope, use_bin_type=True)
+    def array(dtype: str, values: np.ndarray) -> list[object]:
+        return [dtype, list(values.shape), values.astype(f"<{np.dtype(dtype).str[1:]}").tobytes()]  # §2
 
-    rejects: list[int] = []
-    acks: list[int] = []
-    conf = zenoh_config(connect=[cluster.endpoint], mode="peer", multicast_scouting=False)
-    with ZenohTransport.open(conf, keys) as client:
-        client.subscribe(keys.reject("client-7"), Reject, lambda r: rejects.append(r.seq))
-        client.subscribe(keys.ack("client-7"), Ack, lambda a: acks.append(a.seq))
-        wait_for(lambda: client.has_subscribers(keys.experience("client-7")), 60, "the learner's subscription")
+    def batch(seq: int) -> bytes:
+        reward = np.full(n, np.nan if seq == 1 else 0.0)
+        fields = {  # §4, in the listed order
+            "actor_id": "client-7",
+            "incarnation": 99,
+            "seq": seq,
+            "policy_version": 0,
+            "robot": array("int16", np.zeros(n)),
+            "state": array("float32", np.ones((n, 6))),
+            "action": array("uint8", np.zeros(n)),
+            "reward": array("float32", reward),
+            "next_state": array("float32", np.ones((n, 6))),
+            "done": array("bool", np.zeros(n, bool)),
+        }
+        return msgpack.packb([1, "experience", fields], use_bin_type=True)
+
+    replies: list[tuple[str, int]] = []
+
+    def on_reply(sample: zenoh.Sample) -> None:
+        _, tag, fields = msgpack.unpackb(sample.payload.to_bytes(), raw=False)
+        replies.append((tag, fields["seq"]))
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("connect/endpoints", f'["{cluster.endpoint}"]')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    with zenoh.open(conf) as session:
+        subscribers = [
+            session.declare_subscriber(f"{prefix}/{channel}/client-7", on_reply) for channel in ("ack", "reject")
+        ]
+        publisher = session.declare_publisher(
+            f"{prefix}/experience/client-7", congestion_control=zenoh.CongestionControl.BLOCK
+        )
+        wait_for(lambda: publisher.matching_status.matching, 60, "the learner's subscription")
         for seq in (0, 1, 2):
-            client.session.put(keys.experience("client-7"), batch(seq))
-        wait_for(lambda: 1 in rejects and max(acks, default=-1) >= 2, 60, "the Reject of seq 1 and the ack of seq 2")
+            publisher.put(batch(seq))
+        wait_for(lambda: ("ack", 2) in replies and ("reject", 1) in replies, 60, "the Reject of 1 and the ack of 2")
+        publisher.undeclare()
+        for subscriber in subscribers:
+            subscriber.undeclare()
     report = finish(learner, sig=signal.SIGTERM)
-    assert rejects == [1]
+    assert [seq for tag, seq in replies if tag == "reject"] == [1]
     assert report["tuples_by_actor"]["client-7"] == 2 * n and report["gaps"] == 0
     assert report["rejected_by_type"] == {"InvalidValues": 1}
