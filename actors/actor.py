@@ -106,6 +106,7 @@ class RobotActor:
         self._tuples_acked = self._visits_acked = 0
         self._invalid = 0
         self._stop = threading.Event()  # run's stop event: a full outbox stops waiting when it is set
+        self._deadline: float | None = None  # ... or when the run's duration is over
 
     def _count_acked(self, msg: Message) -> None:
         if isinstance(msg, ExperienceBatch):
@@ -134,6 +135,7 @@ class RobotActor:
     def run(self, stop: threading.Event) -> ActorStatus:
         self._stop = stop
         start = time.monotonic()
+        self._deadline = None if self.config.duration is None else start + self.config.duration
         next_status = start
         log.info(
             "actor %s (incarnation %x): %d arenas, learning robots %s",
@@ -189,7 +191,7 @@ class RobotActor:
         own validation (our bug: NaN in a tuple) is dropped, counted and logged here, before the wire, without using
         a sequence number (so it leaves no gap).
         """
-        self.outbox.wait_for_room(self._stop)
+        self.outbox.wait_for_room(self._stop, self._deadline)
         if len(self.outbox) >= self.config.outbox_limit:
             return False
         try:

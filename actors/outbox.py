@@ -108,12 +108,14 @@ class Outbox:
                 self._resend_all = True
                 log.info("learner %s joined: re-sending %d unacknowledged messages", key, len(self._pending))
 
-    def wait_for_room(self, stop: threading.Event) -> None:
-        """Re-send what is due, and wait while the outbox is full (slowing down instead of dropping)."""
+    def wait_for_room(self, stop: threading.Event, deadline: float | None = None) -> None:
+        """Re-send what is due, and wait while the outbox is full (slowing down instead of dropping), until ``stop``
+        is set or ``time.monotonic()`` passes ``deadline``."""
         while True:
             self._resend_due()
             with self._cond:
-                if len(self._pending) < self.limit or stop.is_set():
+                over = deadline is not None and time.monotonic() >= deadline
+                if len(self._pending) < self.limit or stop.is_set() or over:
                     return
                 self.waits += 1
                 self._cond.wait(timeout=1.0)

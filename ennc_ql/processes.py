@@ -88,7 +88,7 @@ def cmd_learner(args: argparse.Namespace) -> int:
     stop = stop_on_signals()
     with (
         open_monitor(sink_from_args(args), process=config.learner_id, recording_id=args.recording_id) as monitor,
-        _open_transport(args, "learner") as transport,
+        _open_transport(args, "learner", config.learner_id) as transport,
     ):
         try:
             service = LearnerService(transport, config, run_dir, resume=args.resume, monitor=monitor)
@@ -125,7 +125,7 @@ def cmd_actor(args: argparse.Namespace) -> int:
     stop = stop_on_signals()
     with (
         open_monitor(sink_from_args(args), process=config.actor_id, recording_id=args.recording_id) as monitor,
-        _open_transport(args, "actor") as transport,
+        _open_transport(args, "actor", config.actor_id) as transport,
     ):
         actor = RobotActor(transport, config, monitor=monitor)
         handles = connect(actor, transport)
@@ -141,7 +141,7 @@ def cmd_actor(args: argparse.Namespace) -> int:
     return 0
 
 
-def _open_transport(args: argparse.Namespace, command: str) -> Any:
+def _open_transport(args: argparse.Namespace, command: str, ident: str) -> Any:
     import zenoh
 
     from protocol import ZenohTransport
@@ -150,4 +150,9 @@ def _open_transport(args: argparse.Namespace, command: str) -> Any:
         conf = config_from_args(args)
     except (ValueError, OSError, zenoh.ZError) as exc:
         fail(command, f"zenoh configuration: {exc}")
+    # With credentials, the router's access control lets this process publish only under its user name: any other
+    # id would have every message dropped in silence, and its outbox would never drain.
+    user = json.loads(conf.get_json("transport/auth/usrpwd/user"))
+    if user is not None and user != ident:
+        fail(command, f"the zenoh configuration authenticates as {user!r} but this process's id is {ident!r}")
     return ZenohTransport.open(conf, keys_from_args(args))

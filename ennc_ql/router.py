@@ -55,7 +55,7 @@ def run_router(conf: zenoh.Config, stop: threading.Event) -> None:
 
 def cmd_router(args: argparse.Namespace) -> int:
     """The ``router`` subcommand: run until SIGTERM or SIGINT."""
-    if args.mode != "router":
+    if args.mode not in (None, "router"):
         raise SystemExit(f"ennc-ql router: --mode must be router, got {args.mode!r}")
     # argparse's append action would add to a non-empty default instead of replacing it, hence the default here.
     if not args.listen and not args.zenoh_config:
@@ -73,5 +73,5 @@ def add_router_parser(subparsers: Any) -> argparse.ArgumentParser:
         epilog=f"Without --listen or --zenoh-config it listens on {DEFAULT_LISTEN}.",
     )
     add_connection_args(p)
-    p.set_defaults(mode="router", func=cmd_router)
+    p.set_defaults(func=cmd_router)
     return p

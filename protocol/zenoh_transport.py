@@ -39,6 +39,7 @@ import zenoh
 from protocol.codec import encode
 from protocol.keys import DEFAULT_KEYS, ENCODING, KeySpace
 from protocol.messages import Message
+from protocol.security import MAX_MESSAGE_BYTES
 from protocol.transport import (
     Closeable,
     M,
@@ -60,22 +61,25 @@ _JOIN_TIMEOUT_S = 10.0
 def zenoh_config(
     connect: Sequence[str] = (),
     listen: Sequence[str] = (),
-    mode: str = "peer",
+    mode: str | None = None,
     config_file: str | None = None,
     multicast_scouting: bool | None = None,
 ) -> zenoh.Config:
     """Build a zenoh Config: ``config_file`` (JSON5) if given, then these settings on top.
 
-    ``multicast_scouting=None`` keeps the file's setting, or turns scouting off without a file: explicit
-    endpoints are what works across machines and containers. Clients retry their router forever
-    (``connect/timeout_ms = -1``) instead of failing when started before it.
+    ``mode=None`` keeps the file's mode, or is ``peer`` without a file. ``multicast_scouting=None`` keeps the
+    file's setting, or turns scouting off without a file: explicit endpoints are what works across machines and
+    containers. Clients retry their router forever (``connect/timeout_ms = -1``) instead of failing when started
+    before it. Zenoh's largest message is capped at :data:`~protocol.security.MAX_MESSAGE_BYTES` (a file may set
+    less), so an oversize message is dropped while it is reassembled, before it can fill memory.
 
     >>> conf = zenoh_config(connect=["tcp/10.0.0.1:7447"], mode="client")
     """
-    if mode not in MODES:
+    if mode is not None and mode not in MODES:
         raise ValueError(f"mode {mode!r} not one of {MODES}")
     conf = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
-    conf.insert_json5("mode", json.dumps(mode))
+    if mode is not None or not config_file:
+        conf.insert_json5("mode", json.dumps(mode or "peer"))
     if connect:
         conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
     if listen:
@@ -84,6 +88,8 @@ def zenoh_config(
         conf.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast_scouting)))
     if mode == "client":
         conf.insert_json5("connect/timeout_ms", "-1")
+    limit = min(int(conf.get_json("transport/link/rx/max_message_size")), MAX_MESSAGE_BYTES)
+    conf.insert_json5("transport/link/rx/max_message_size", str(limit))
     return conf
 
 
@@ -97,7 +103,9 @@ def add_connection_args(parser: argparse.ArgumentParser) -> None:
         "--listen", action="append", default=[], metavar="ENDPOINT", help="endpoint to listen on (repeatable)"
     )
     group.add_argument("--zenoh-config", metavar="FILE", help="zenoh JSON5 config file; the flags above override it")
-    group.add_argument("--mode", choices=MODES, default="peer", help="zenoh session mode (default: peer)")
+    group.add_argument(
+        "--mode", choices=MODES, default=None, help="zenoh session mode (default: peer, or as in --zenoh-config)"
+    )
     group.add_argument(
         "--multicast-scouting",
         action=argparse.BooleanOptionalAction,
