@@ -191,7 +191,7 @@ class Monitoring:
         if self.viewer is not None:
             self.viewer.close()
         if self.proxy is not None:
-            _stop(self.proxy, grace=5.0)
+            stop_child(self.proxy, grace=5.0)
         if self.sink.kind != "save":
             return None
         parts = sorted((self.run_dir / "rerun").glob("*.rrd"))
@@ -243,7 +243,7 @@ class Supervisor:
     def start(self, config: ActorConfig) -> None:
         self.configs[config.actor_id] = config
         with open(self.run_dir / f"{config.actor_id}.log", "a") as log_file:
-            self.procs[config.actor_id] = _spawn(self.argv_of(config), log_file, nice=ACTOR_NICENESS)
+            self.procs[config.actor_id] = spawn_child(self.argv_of(config), log_file, nice=ACTOR_NICENESS)
 
     def check(self) -> list[str]:
         messages = []
@@ -270,7 +270,7 @@ class Supervisor:
 
     def stop_all(self) -> None:
         for proc in self.procs.values():
-            _stop(proc, grace=10.0)
+            stop_child(proc, grace=10.0)
 
 
 def run_processes(
@@ -300,7 +300,7 @@ def run_processes(
         *monitoring.child_args("learner"),
     ]
     with open(run_dir / "learner.log", "w") as learner_log:
-        learner_proc = _spawn(learner_argv, learner_log)
+        learner_proc = spawn_child(learner_argv, learner_log)
     try:
         for config in actors:
             supervisor.start(config)
@@ -308,7 +308,7 @@ def run_processes(
         _watch(endpoint, namespace, learner, learner_proc, supervisor)
     finally:
         supervisor.stop_all()
-        _stop(learner_proc, grace=60.0)
+        stop_child(learner_proc, grace=60.0)
     if learner_proc.returncode != 0:
         raise LaunchError(
             f"the learner exited with status {learner_proc.returncode}; the end of {run_dir / 'learner.log'}:\n"
@@ -317,10 +317,13 @@ def run_processes(
     return endpoint, dict(supervisor.restarts)
 
 
-def _spawn(argv: list[str], log_file: IO[str], nice: int = 0) -> subprocess.Popen[bytes]:
+def spawn_child(
+    argv: list[str], log_file: IO[str], nice: int = 0, stdout: IO[str] | int = subprocess.DEVNULL
+) -> subprocess.Popen[bytes]:
+    """``ennc-ql <argv>`` as a child process with this interpreter, its stderr into ``log_file``, at ``nice``."""
     proc = subprocess.Popen(
         [sys.executable, "-m", "ennc_ql.cli", *argv],
-        stdout=subprocess.DEVNULL,
+        stdout=stdout,
         stderr=log_file,
         stdin=subprocess.DEVNULL,
     )
@@ -330,7 +333,8 @@ def _spawn(argv: list[str], log_file: IO[str], nice: int = 0) -> subprocess.Pope
     return proc
 
 
-def _stop(proc: subprocess.Popen[bytes], grace: float) -> None:
+def stop_child(proc: subprocess.Popen[bytes], grace: float) -> None:
+    """SIGTERM, then SIGKILL if ``proc`` is still running after ``grace`` seconds."""
     if proc.poll() is None:
         proc.terminate()
         try:
