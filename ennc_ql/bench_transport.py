@@ -33,10 +33,12 @@ import logging
 import secrets
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -45,8 +47,10 @@ import zenoh
 from ennc_ql.allocator import keep_freed_memory
 from ennc_ql.config import positive
 from ennc_ql.progress import ProgressBar
+from ennc_ql.secure import SecureSet, write_secure_set
 from ennc_ql.system import free_port
 from protocol import DEFAULT_KEYS, N_ACTIONS, ExperienceBatch, ZenohTransport, encode, zenoh_config
+from protocol.security import ROUTER
 
 log = logging.getLogger(__name__)
 
@@ -126,11 +130,14 @@ def _answer(line: str) -> None:
     sys.stdout.flush()
 
 
-def publisher_main(endpoint: str, actor_id: str, batch_size: int, shared_memory: bool) -> int:
+def publisher_main(
+    endpoint: str, actor_id: str, batch_size: int, shared_memory: bool, config_file: str | None = None
+) -> int:
     """Body of a publisher subprocess: serve the parent's commands on stdin until it closes."""
     template = template_batch(actor_id, secrets.randbits(64), batch_size, seed=secrets.randbits(32))
     payload = encode(template)
-    with ZenohTransport.open(_config(shared_memory, connect=[endpoint])) as transport:
+    conf = _config(shared_memory, connect=[endpoint], config_file=config_file, mode="peer")
+    with ZenohTransport.open(conf) as transport:
         key = transport.keys.experience(actor_id)
         raw = transport.session.declare_publisher(
             f"{RAW_KEY}/{actor_id}",
@@ -201,12 +208,16 @@ class _Publishers:
 
 
 @contextmanager
-def _publishers(endpoint: str, actors: int, batch_size: int, shared_memory: bool) -> Iterator[_Publishers]:
+def _publishers(
+    endpoint: str, actors: int, batch_size: int, shared_memory: bool, secure: SecureSet | None
+) -> Iterator[_Publishers]:
     procs: list[subprocess.Popen[str]] = []
     shm_flag = "--shared-memory" if shared_memory else "--no-shared-memory"
     try:
         for i in range(actors):
             argv = ["--publisher", endpoint, f"bench-{i}", str(batch_size), shm_flag]
+            if secure is not None:
+                argv += ["--zenoh-config", str(secure.config(f"bench-{i}"))]
             procs.append(
                 subprocess.Popen(
                     [sys.executable, "-m", "ennc_ql.bench_transport", *argv],
@@ -255,14 +266,43 @@ def _wait_until(predicate: Callable[[], bool], timeout: float) -> None:
         time.sleep(0.005)
 
 
+def _secure_set(folder: str, actors: int) -> SecureSet:
+    port = free_port()
+    spec = SecureSet(
+        folder=Path(folder),
+        actor_ids=tuple(f"bench-{i}" for i in range(actors)),
+        listen=(f"tls/127.0.0.1:{port}",),
+        connect=(f"tls/localhost:{port}",),
+    )
+    write_secure_set(spec)
+    return spec
+
+
+def _receiver_config(shared_memory: bool, endpoint: str, secure: SecureSet | None) -> zenoh.Config:
+    if secure is None:
+        return _config(shared_memory, listen=[endpoint])
+    # The router's TLS and credentials on the receiving peer: the publishers' links are those of a secure run.
+    # Access control stays off because the raw phase's key is outside the protocol; it is one key-expression
+    # lookup per message at the router, beside TLS's encryption of every byte.
+    conf = _config(shared_memory, config_file=str(secure.config(ROUTER)), mode="peer")
+    conf.insert_json5("access_control/enabled", "false")
+    return conf
+
+
 def bench_transport(
-    actors: int = 2, batch_size: int = 16384, seconds: float = 3.0, shared_memory: bool = False
+    actors: int = 2, batch_size: int = 16384, seconds: float = 3.0, shared_memory: bool = False, secure: bool = False
 ) -> dict[str, Any]:
-    """Run both phases for ``seconds`` each; the keys are those of the module docstring plus counts."""
+    """Run both phases for ``seconds`` each; the keys are those of the module docstring plus counts.
+
+    ``secure``: every link is mutual TLS with user/password authentication, as in a secure run
+    (``ennc-ql secure init``'s files, in a temporary folder).
+    """
     # Imported here, not at the top: the publisher subprocesses run this module and need no learner.
     from learner.intake import ExperienceIntake
 
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    folder = tempfile.TemporaryDirectory(prefix="enncql-bench-") if secure else None
+    spec = _secure_set(folder.name, actors) if folder is not None else None
+    endpoint = spec.connect[0] if spec is not None else f"tcp/127.0.0.1:{free_port()}"
     ingest = ExperienceIntake(STORE_CAPACITY, DIM)
     stored, raw = _Arrivals(), _Arrivals()
 
@@ -271,13 +311,15 @@ def bench_transport(
         stored.mark()
 
     with ExitStack() as stack:
+        if folder is not None:
+            stack.enter_context(folder)
         bar = stack.enter_context(ProgressBar("bench transport", total=3, unit="phases"))
-        transport = stack.enter_context(ZenohTransport.open(_config(shared_memory, listen=[endpoint])))
+        transport = stack.enter_context(ZenohTransport.open(_receiver_config(shared_memory, endpoint, spec)))
         transport.subscribe(DEFAULT_KEYS.experience(), ExperienceBatch, on_experience)
         raw_sub = transport.session.declare_subscriber(f"{RAW_KEY}/*", lambda _sample: raw.mark())
         stack.callback(raw_sub.undeclare)
         bar.show(status=f"starting {actors} publisher processes")
-        publishers = stack.enter_context(_publishers(endpoint, actors, batch_size, shared_memory))
+        publishers = stack.enter_context(_publishers(endpoint, actors, batch_size, shared_memory, spec))
         publishers.wait_ready()
         bar.mark(f"{actors} publishers matched", n=1)
 
@@ -306,6 +348,7 @@ def bench_transport(
         "payload_bytes": len(encode(template_batch("bench-0", 0, batch_size))),
         "seconds": seconds,
         "shared_memory": shared_memory,
+        "secure": secure,
         "tuples_per_s": round(tuples_per_s),
         "raw_zenoh_tuples_per_s": round(raw_tuples_per_s),
         "ratio": round(tuples_per_s / raw_tuples_per_s, 3) if raw_tuples_per_s else 0.0,
@@ -333,7 +376,8 @@ def transport_table(out: dict[str, Any]) -> str:
     met = out["tuples_per_s"] >= TARGET["tuples_per_s"] and out["ratio"] >= TARGET["ratio"] and out["lost"] == 0
     return (
         f"{out['actors']} actors -> learner store, batches of {out['batch_size']} tuples "
-        f"({out['payload_bytes'] / 1024:.0f} KiB), shared memory {'on' if out['shared_memory'] else 'off'}\n"
+        f"({out['payload_bytes'] / 1024:.0f} KiB), shared memory {'on' if out['shared_memory'] else 'off'}, "
+        f"{'mutual TLS + passwords' if out['secure'] else 'plain TCP'}\n"
         f"  protocol path: {out['tuples_per_s'] / 1e6:6.2f} M tuples/s, lost {out['lost']}\n"
         f"  raw zenoh:     {out['raw_zenoh_tuples_per_s'] / 1e6:6.2f} M tuples/s\n"
         f"  ratio {out['ratio']:.2f} (target >= {TARGET['ratio']} with >= {TARGET['tuples_per_s'] / 1e6:.0f} M "
@@ -353,17 +397,23 @@ def add_bench_transport_args(parser: argparse.ArgumentParser) -> None:
         default=False,
         help="transport: let zenoh use shared memory, as between processes of one host (default: off, as across hosts)",
     )
+    parser.add_argument(
+        "--secure",
+        action="store_true",
+        help="transport: mutual TLS and password authentication on every link, as in a secure run",
+    )
 
 
 def _publisher_entry(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m ennc_ql.bench_transport", description="bench publisher")
     parser.add_argument("--publisher", nargs=3, metavar=("ENDPOINT", "ACTOR_ID", "BATCH_SIZE"), required=True)
     parser.add_argument("--shared-memory", action=argparse.BooleanOptionalAction, default=False)
+    parser.add_argument("--zenoh-config", help="the publisher's zenoh configuration (a secure run's)")
     args = parser.parse_args(argv)
     endpoint, actor_id, batch_size = args.publisher
     logging.basicConfig(level=logging.WARNING, stream=sys.stderr, format="%(asctime)s %(name)s: %(message)s")
     keep_freed_memory()  # as every ennc-ql process does: the publishers stand for actors
-    return publisher_main(endpoint, actor_id, int(batch_size), args.shared_memory)
+    return publisher_main(endpoint, actor_id, int(batch_size), args.shared_memory, args.zenoh_config)
 
 
 if __name__ == "__main__":

@@ -104,7 +104,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.what == "transport":
         from ennc_ql.bench_transport import bench_transport, transport_table
 
-        out = bench_transport(args.actors, args.batch_size, args.seconds, args.shared_memory)
+        out = bench_transport(args.actors, args.batch_size, args.seconds, args.shared_memory, args.secure)
         _emit(out, args.json, transport_table(out))
     if args.what == "sim":
         with open_monitor(sink_from_args(args), process="bench", recording_id=args.recording_id) as monitor:

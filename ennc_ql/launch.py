@@ -18,7 +18,6 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,6 +41,7 @@ from monitor import (
 )
 from monitor.recordings import rerun_cli
 from protocol import Status
+from protocol.security import OBSERVER, ROUTER
 
 log = logging.getLogger(__name__)
 
@@ -221,91 +221,139 @@ def log_tail(path: Path, lines: int = 15) -> str:
 
 
 class Supervisor:
-    """``up``'s actor processes: one that exits while the run goes on is reported at once with the tail of its log
-    and started again after a back-off (1, 2, 4 s, ...), at most ``max_restarts`` times; past that the run goes on
-    without it, saying so. Usage (from the progress loop, once a second)::
+    """``up``'s restartable children (the actors, and the router of a secure run): one that exits while the run goes
+    on is reported at once with the tail of its log and started again after a back-off (1, 2, 4 s, ...), at most
+    ``max_restarts`` times; past that the run goes on without it, saying so. Usage (from the progress loop, once a
+    second)::
 
-        supervisor = Supervisor(run_dir, argv_of, max_restarts=3)
-        supervisor.start(config)                # for each actor
+        supervisor = Supervisor(run_dir, max_restarts=3)
+        supervisor.start("actor-0", ["actor", "--config", ...], nice=ACTOR_NICENESS)   # for each child
         for message in supervisor.check(): ...  # what happened since the last check
         supervisor.stop_all()
     """
 
-    def __init__(self, run_dir: Path, argv_of: Callable[[ActorConfig], list[str]], max_restarts: int = 3) -> None:
+    def __init__(self, run_dir: Path, max_restarts: int = 3) -> None:
         self.run_dir = run_dir
-        self.argv_of = argv_of
         self.max_restarts = max_restarts
         self.procs: dict[str, subprocess.Popen[bytes]] = {}
-        self.configs: dict[str, ActorConfig] = {}
+        self.argv: dict[str, tuple[list[str], int]] = {}  # name -> (argv, niceness)
         self.restarts: dict[str, int] = {}
-        self._due: dict[str, float] = {}  # actor id -> when to start it again
+        self._due: dict[str, float] = {}  # name -> when to start it again
 
-    def start(self, config: ActorConfig) -> None:
-        self.configs[config.actor_id] = config
-        with open(self.run_dir / f"{config.actor_id}.log", "a") as log_file:
-            self.procs[config.actor_id] = spawn_child(self.argv_of(config), log_file, nice=ACTOR_NICENESS)
+    def start(self, name: str, argv: list[str], nice: int = 0) -> None:
+        self.argv[name] = (argv, nice)
+        with open(self.run_dir / f"{name}.log", "a") as log_file:
+            self.procs[name] = spawn_child(argv, log_file, nice=nice)
 
     def check(self) -> list[str]:
         messages = []
         now = time.monotonic()
-        for actor_id, proc in list(self.procs.items()):
-            if proc.poll() is None or actor_id in self._due:
+        for name, proc in list(self.procs.items()):
+            if proc.poll() is None or name in self._due:
                 continue
-            n = self.restarts.get(actor_id, 0)
-            tail = log_tail(self.run_dir / f"{actor_id}.log")
+            n = self.restarts.get(name, 0)
+            tail = log_tail(self.run_dir / f"{name}.log")
             if n >= self.max_restarts:
-                messages.append(f"{actor_id} exited with status {proc.returncode} again; not restarted ({n} restarts)")
-                log.error("%s exited with status %s; its log ends:\n%s", actor_id, proc.returncode, tail)
-                del self.procs[actor_id]
+                messages.append(f"{name} exited with status {proc.returncode} again; not restarted ({n} restarts)")
+                log.error("%s exited with status %s; its log ends:\n%s", name, proc.returncode, tail)
+                del self.procs[name]
                 continue
-            self._due[actor_id] = now + 2.0**n
-            messages.append(f"{actor_id} exited with status {proc.returncode}; restarting in {2**n} s")
-            log.error("%s exited with status %s; its log ends:\n%s", actor_id, proc.returncode, tail)
-        for actor_id, due in list(self._due.items()):
+            self._due[name] = now + 2.0**n
+            messages.append(f"{name} exited with status {proc.returncode}; restarting in {2**n} s")
+            log.error("%s exited with status %s; its log ends:\n%s", name, proc.returncode, tail)
+        for name, due in list(self._due.items()):
             if now >= due:
-                del self._due[actor_id]
-                self.restarts[actor_id] = self.restarts.get(actor_id, 0) + 1
-                self.start(self.configs[actor_id])
+                del self._due[name]
+                self.restarts[name] = self.restarts.get(name, 0) + 1
+                self.start(name, *self.argv[name])
         return messages
 
     def stop_all(self) -> None:
-        for proc in self.procs.values():
-            stop_child(proc, grace=10.0)
+        # Actors first, the router last: actors flush their outboxes through it.
+        for name in sorted(self.procs, key=lambda n: n == ROUTER):
+            stop_child(self.procs[name], grace=10.0)
+
+
+@dataclass(frozen=True, slots=True)
+class Endpoints:
+    """How each process of a local run joins it: zenoh flags per process, and the observer's own config."""
+
+    learner: list[str]
+    actors: dict[str, list[str]]
+    observer: Any  # a zenoh.Config (zenoh is imported only once a run starts)
+    shown: str
+    """The endpoint as the report shows it."""
+    router: list[str] | None = None
+    """The router's flags, in a secure run."""
+
+
+def plain_endpoints(actors: list[ActorConfig]) -> Endpoints:
+    """Peer mode on a loopback port: the learner listens, every actor and the observer connect to it."""
+    from protocol import zenoh_config
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    observer = zenoh_config(connect=[endpoint], mode="peer", multicast_scouting=False)
+    return Endpoints(["--listen", endpoint], {a.actor_id: ["--connect", endpoint] for a in actors}, observer, endpoint)
+
+
+def secure_endpoints(learner: LearnerConfig, actors: list[ActorConfig], run_dir: Path, namespace: str) -> Endpoints:
+    """A router on a loopback TLS port, every process its client with its own certificate, password and
+    access-control identity (``ennc-ql secure init``'s files, written into ``run_dir/secure``)."""
+    from ennc_ql.secure import SecureSet, write_secure_set
+    from protocol import zenoh_config
+
+    port = free_port()
+    spec = SecureSet(
+        folder=run_dir / "secure",
+        actor_ids=tuple(a.actor_id for a in actors),
+        learner_id=learner.learner_id,
+        namespace=namespace,
+        listen=(f"tls/127.0.0.1:{port}",),
+        connect=(f"tls/localhost:{port}",),
+    )
+    write_secure_set(spec)
+
+    def flags(ident: str) -> list[str]:
+        return ["--zenoh-config", str(spec.config(ident))]
+
+    return Endpoints(
+        flags(learner.learner_id),
+        {a.actor_id: flags(a.actor_id) for a in actors},
+        zenoh_config(config_file=str(spec.config(OBSERVER))),
+        spec.connect[0],
+        router=flags(ROUTER),
+    )
 
 
 def run_processes(
-    learner: LearnerConfig, actors: list[ActorConfig], run_dir: Path, monitoring: Monitoring, namespace: str
+    learner: LearnerConfig,
+    actors: list[ActorConfig],
+    run_dir: Path,
+    monitoring: Monitoring,
+    namespace: str,
+    secure: bool = False,
 ) -> tuple[str, dict[str, int]]:
-    """Spawn the learner and the actors with their configuration files, show progress until the learner exits
-    (restarting actors that die), stop the actors; the endpoint they used is returned (the learner's report is in
-    the run folder) with the restarts of each actor. Raises :class:`LaunchError` if the learner fails."""
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    """Spawn the learner and the actors (and, ``secure``, the router they all authenticate to) with their
+    configuration files, show progress until the learner exits (restarting actors and the router if they die),
+    stop the others; the endpoint they used is returned (the learner's report is in the run folder) with the
+    restarts of each child. Raises :class:`LaunchError` if the learner fails."""
+    ends = secure_endpoints(learner, actors, run_dir, namespace) if secure else plain_endpoints(actors)
     common = ["--namespace", namespace, "--no-multicast-scouting"]
-    log.info("learner + %d actors on %s, %.0f s", len(actors), endpoint, learner.duration or 0.0)
-
-    def actor_argv(config: ActorConfig) -> list[str]:
-        toml = str(run_dir / f"{config.actor_id}.toml")
-        return ["actor", "--config", toml, "--connect", endpoint, *common, *monitoring.child_args(config.actor_id)]
-
-    supervisor = Supervisor(run_dir, actor_argv)
-    learner_argv = [
-        "learner",
-        "--config",
-        str(run_dir / "learner.toml"),
-        "--run-dir",
-        str(run_dir),
-        "--listen",
-        endpoint,
-        *common,
-        *monitoring.child_args("learner"),
-    ]
+    log.info("learner + %d actors on %s, %.0f s", len(actors), ends.shown, learner.duration or 0.0)
+    supervisor = Supervisor(run_dir)
+    if ends.router is not None:
+        supervisor.start(ROUTER, ["router", *ends.router])
+    learner_argv = ["learner", "--config", str(run_dir / "learner.toml"), "--run-dir", str(run_dir)]
+    learner_argv += [*ends.learner, *common, *monitoring.child_args("learner")]
     with open(run_dir / "learner.log", "w") as learner_log:
         learner_proc = spawn_child(learner_argv, learner_log)
     try:
         for config in actors:
-            supervisor.start(config)
+            toml = str(run_dir / f"{config.actor_id}.toml")
+            argv = ["actor", "--config", toml, *ends.actors[config.actor_id], *common]
+            supervisor.start(config.actor_id, argv + monitoring.child_args(config.actor_id), nice=ACTOR_NICENESS)
         monitoring.start()
-        _watch(endpoint, namespace, learner, learner_proc, supervisor)
+        _watch(ends.observer, namespace, learner, learner_proc, supervisor, len(actors))
     finally:
         supervisor.stop_all()
         stop_child(learner_proc, grace=60.0)
@@ -314,7 +362,7 @@ def run_processes(
             f"the learner exited with status {learner_proc.returncode}; the end of {run_dir / 'learner.log'}:\n"
             + log_tail(run_dir / "learner.log")
         )
-    return endpoint, dict(supervisor.restarts)
+    return ends.shown, dict(supervisor.restarts)
 
 
 def spawn_child(
@@ -355,14 +403,19 @@ def cluster_status(status: LearnerStatus) -> str:
 
 
 def _watch(
-    endpoint: str, namespace: str, learner: LearnerConfig, proc: subprocess.Popen[bytes], supervisor: Supervisor
+    conf: Any,
+    namespace: str,
+    learner: LearnerConfig,
+    proc: subprocess.Popen[bytes],
+    supervisor: Supervisor,
+    actors: int,
 ) -> None:
     """Show the learner's progress from its status messages until it exits, and supervise the actors meanwhile.
 
     The bar runs on the learner's own training clock, carried forward between status messages (every 2 s) so it
     moves each second; past the duration the learner evaluates and writes its report and sends no more status.
     """
-    from protocol import KeySpace, ZenohTransport, zenoh_config
+    from protocol import KeySpace, ZenohTransport
 
     keys = KeySpace(namespace)
     duration = learner.duration or 0.0
@@ -376,10 +429,9 @@ def _watch(
             latest = LearnerStatus.from_counters(msg.counters)
             received = time.monotonic()
 
-    conf = zenoh_config(connect=[endpoint], mode="peer", multicast_scouting=False)
     with ProgressBar("up", total=duration, unit="s") as bar, ZenohTransport.open(conf, keys) as transport:
         transport.subscribe(keys.status(learner.learner_id), Status, on_status)
-        bar.show(status=f"starting the learner and {len(supervisor.configs)} actor(s)")
+        bar.show(status=f"starting the learner and {actors} actor(s)")
         version, coverage = 0, -1.0
         while proc.poll() is None:
             time.sleep(1.0)

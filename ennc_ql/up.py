@@ -2,7 +2,9 @@
 
 One learner and N actor processes (real OS processes, the same commands a multi-machine run uses), joined by
 Zenoh in peer mode on a loopback endpoint with multicast scouting off, so nothing leaves the machine and no router
-is needed; ``--serial`` runs the same objects in this one process on the in-memory bus instead. Every actor learns
+is needed; ``--secure`` joins them through a router instead, each with its own certificate, password and
+access-control identity (``ennc-ql secure init``'s files, in ``runs/<id>/secure``); ``--serial`` runs the same
+objects in this one process on the in-memory bus. Every actor learns
 every robot's table (option 2); the learner averages their changes by visits. The flags are generated from
 ``ennc_ql.launch.UpConfig`` (with ``up``'s presets, ``UP_PRESETS``); every process's resolved configuration is
 written into ``runs/<id>/`` (``up.toml``, ``learner.toml``, ``actor-<i>.toml``) and the children start from those
@@ -41,6 +43,11 @@ def add_up_parser(sub: Any) -> None:
     p = sub.add_parser("up", help="learner + N actors as local processes (embedded Zenoh, peer mode on loopback)")
     p.add_argument("--config", metavar="FILE", help="TOML file of up's configuration (e.g. a run's up.toml)")
     p.add_argument("--serial", action="store_true", help="learner and actors as objects in this one process")
+    p.add_argument(
+        "--secure",
+        action="store_true",
+        help="through a router with mutual TLS, a password per process and access control (files in runs/<id>/secure)",
+    )
     p.add_argument("--runs", type=Path, default=Path("runs"), help="parent folder of the run folder (default runs/)")
     p.add_argument("--run-id", help="run folder name (default: a timestamp)")
     p.add_argument("--json", action="store_true", help="print the learner's report as one JSON object")
@@ -68,12 +75,16 @@ def cmd_up(args: argparse.Namespace) -> int:
     started = time.monotonic()
     recording = endpoint = None
     restarts: dict[str, int] = {}
+    if args.serial and args.secure:
+        fail("up", "--serial runs on the in-memory bus, which has no network to secure; drop one of them")
     if args.serial:
         report = run_serial(learner, actors, run_dir)
     else:
         monitoring = Monitoring(args.rerun or Sink("save", str(run_dir / paths.RECORDING_FILE)), run_id, run_dir)
         try:
-            endpoint, restarts = run_processes(learner, actors, run_dir, monitoring, namespace=f"run-{run_id}")
+            endpoint, restarts = run_processes(
+                learner, actors, run_dir, monitoring, namespace=f"run-{run_id}", secure=args.secure
+            )
         except LaunchError as exc:
             fail("up", str(exc))
         finally:
@@ -86,7 +97,13 @@ def cmd_up(args: argparse.Namespace) -> int:
         "run_id": run_id,
         "run_dir": str(run_dir),
         "command": f"ennc-ql up --config {run_dir / 'up.toml'}",
-        "config": {"actors": config.actors, "duration": config.duration, "seed": config.seed, "serial": args.serial},
+        "config": {
+            "actors": config.actors,
+            "duration": config.duration,
+            "seed": config.seed,
+            "serial": args.serial,
+            "secure": args.secure,
+        },
         "endpoint": endpoint,
         "actor_restarts": restarts,
         "wall_seconds": round(time.monotonic() - started, 1),

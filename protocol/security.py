@@ -30,10 +30,12 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from protocol.codec import MAX_PAYLOAD_BYTES
-from protocol.keys import KeySpace
+
+if TYPE_CHECKING:  # only its methods are used: importing this module needs no zenoh
+    from protocol.keys import KeySpace
 
 OBSERVER = "observer"
 """The identity of read-only tools (``ennc-ql up``'s progress watch, ``chaos``' checks): status and policies."""

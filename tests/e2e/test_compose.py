@@ -120,3 +120,87 @@ def test_compose_topology_runs_as_local_processes(tmp_path: Path) -> None:
     assert report["policy_version"] >= 1
     assert all(a["policy_version"] >= 1 and a["policies_applied"] >= 1 for a in actors)
     assert all(a["outbox"] == 0 for a in actors)  # everything they sent was acknowledged
+
+
+# -- compose.secure.yaml ----------------------------------------------------------------------------------------------
+
+SECURE = COMPOSE.with_name("compose.secure.yaml")
+MOUNT = "/run/secrets"
+
+
+def secure_compose() -> dict[str, Any]:
+    spec: dict[str, Any] = yaml.safe_load(SECURE.read_text())
+    return spec
+
+
+def mounted(service: dict[str, Any], secrets: dict[str, Any]) -> dict[str, str]:
+    """target file name -> the file under ./secrets it comes from, for every secret ``service`` mounts."""
+    out = {}
+    for entry in service["secrets"]:
+        source = secrets[entry["source"]]["file"]
+        assert source.startswith("./secrets/")
+        out[entry["target"]] = source.removeprefix("./secrets/")
+    return out
+
+
+def referenced(config: Path) -> set[str]:
+    """The files under the mount that a generated zenoh configuration refers to."""
+    return set(re.findall(re.escape(MOUNT) + r"/([A-Za-z0-9_.-]+)", config.read_text()))
+
+
+def test_secure_compose_mounts_for_each_service_exactly_its_own_secrets(tmp_path: Path) -> None:
+    from ennc_ql.cli import main
+
+    spec = secure_compose()
+    services, secrets = spec["services"], spec["secrets"]
+    actors = sorted(name for name in services if name.startswith("actor-"))
+    assert (
+        main(["secure", "init", str(tmp_path), "--actors", str(len(actors)), "--host", "router", "--mount", MOUNT]) == 0
+    )
+    parser = build_parser()
+    for name, service in services.items():
+        files = mounted(service, secrets)
+        assert all(target == source for target, source in files.items())  # each file under the name it was made
+        assert all((tmp_path / source).exists() for source in files.values())
+        args = parser.parse_args(service["command"])
+        config = Path(args.zenoh_config)
+        assert config.parent == Path(MOUNT) and config.name in files
+        # What the process's configuration refers to is mounted, and nothing else: no other identity's key.
+        assert set(files) == referenced(tmp_path / config.name) | {config.name}, name
+        ident = "learner" if args.command == "learner" else name  # the router's and actors' services are their ids
+        assert {f for f in files if f.endswith(".key")} == {f"{ident}.key"}
+        if args.command == "actor":
+            assert args.actor_id == name
+    router_config = (tmp_path / "router.json5").read_text()
+    assert '"tls/0.0.0.0:7447"' in router_config and "7447:7447/tcp" in services["router"]["ports"]
+    assert '"tls/router:7447"' in (tmp_path / "learner.json5").read_text()
+
+
+def test_secure_compose_topology_runs_as_local_processes(tmp_path: Path) -> None:
+    from ennc_ql.cli import main
+
+    services = secure_compose()["services"]
+    actors = sorted(name for name in services if name.startswith("actor-"))
+    port, folder, runs = free_port(), tmp_path / "secrets", tmp_path / "runs"
+    assert main(["secure", "init", str(folder), "--actors", str(len(actors)), "--port", str(port)]) == 0
+
+    def local(argv: list[str]) -> list[str]:
+        return [
+            re.sub(r"(^|=)/runs(?=/|$)", lambda m: m.group(1) + str(runs), a.replace(MOUNT, str(folder))) for a in argv
+        ]
+
+    with Processes(tmp_path) as procs:
+        # The configuration listens on every interface; the test keeps to loopback (flags override the file).
+        procs.start("router", ennc_ql(*local(services["router"]["command"]), "--listen", f"tls/127.0.0.1:{port}"))
+        learner_argv = local(services["learner"]["command"])
+        procs.start("learner", ennc_ql(*learner_argv, *LEARNER_BUDGET))
+        for name in actors:
+            procs.start(name, ennc_ql(*local(services[name]["command"]), *ACTOR_BUDGET))
+        results = [procs.json_result(name, timeout=90) for name in actors]
+        report = procs.json_result("learner", timeout=90)
+        assert procs.procs["router"].poll() is None, "the router died\n" + procs.log_tail("router")
+    # Each actor's stream reached the learner once and whole, through the authenticating router, and policies
+    # came back to every actor.
+    assert report["tuples_by_actor"] == {name: r["tuples_sent"] for name, r in zip(actors, results, strict=True)}
+    assert all(r["tuples_sent"] > 0 and r["outbox"] == 0 and r["policies_applied"] >= 1 for r in results)
+    assert report["gaps"] == 0 and report["rejected_by_type"] == {}

@@ -5,14 +5,13 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from actors.config import ActorConfig
 from ennc_ql.launch import Supervisor
 
 
 def test_an_exiting_actor_is_restarted_with_back_off_then_given_up(tmp_path: Path) -> None:
     # A child that fails at once: its configuration names a robot that does not exist.
-    supervisor = Supervisor(tmp_path, lambda c: ["actor", "--actor-id", c.actor_id, "--learn", "99"], max_restarts=1)
-    supervisor.start(ActorConfig(actor_id="a0"))
+    supervisor = Supervisor(tmp_path, max_restarts=1)
+    supervisor.start("a0", ["actor", "--actor-id", "a0", "--learn", "99"])
     messages: list[str] = []
     deadline = time.monotonic() + 120
     while "a0" in supervisor.procs and time.monotonic() < deadline:

@@ -1,0 +1,46 @@
+"""``ennc-ql secure init`` as a command: one-line errors, and a second run that keeps the CA but replaces every
+identity's key and password (so a leaked password is revoked by running it again)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from ennc_ql.cli import main
+
+
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (["--actors", "0"], "--actors must be at least 1, got 0"),
+        (["--namespace", "a b"], "namespace chunk"),
+    ],
+)
+def test_bad_flags_are_one_line_errors(flags: list[str], message: str, tmp_path: Path) -> None:
+    out = subprocess.run(
+        [sys.executable, "-m", "ennc_ql.cli", "secure", "init", str(tmp_path / "s"), *flags],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode == 2
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("ennc-ql secure init: error:") and message in lines[0]
+    assert not (tmp_path / "s" / "ca.key").exists()
+
+
+def test_a_second_run_keeps_the_ca_and_replaces_keys_and_passwords(tmp_path: Path) -> None:
+    folder = tmp_path / "s"
+    assert main(["secure", "init", str(folder), "--actors", "1"]) == 0
+    first = {p.name: p.read_bytes() for p in folder.iterdir()}
+    assert main(["secure", "init", str(folder), "--actors", "3"]) == 0
+    second = {p.name: p.read_bytes() for p in folder.iterdir()}
+    assert second["ca.pem"] == first["ca.pem"] and second["ca.key"] == first["ca.key"]
+    for name in ("actor-0.key", "learner.key", "credentials.txt", "actor-0.json5"):
+        assert second[name] != first[name]
+    assert {"actor-1.json5", "actor-2.key"} <= set(second)
+    users = [line.split(":")[0] for line in second["credentials.txt"].decode().splitlines()]
+    assert users == ["learner", "actor-0", "actor-1", "actor-2", "observer"]

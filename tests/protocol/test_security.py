@@ -1,0 +1,259 @@
+"""The secure set on real zenoh sessions: a router with the generated configuration and clients with theirs.
+
+The deny paths are what matter (an allow-all mistake passes every allow test): each identity tries every key it
+must not use, and peers without a password, with another CA's certificate, with one identity's certificate and
+another's password, or over plain TCP never deliver anything.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import zenoh
+
+from ennc_ql.secure import SecureSet, write_secure_set
+from ennc_ql.system import free_port
+from protocol import KeySpace, zenoh_config
+from protocol.security import MAX_MESSAGE_BYTES
+
+ACTORS = ("actor-0", "actor-1")
+KEYS = KeySpace("sec")
+
+
+@pytest.fixture(scope="module")
+def secure_set(tmp_path_factory: pytest.TempPathFactory) -> SecureSet:
+    port = free_port()
+    spec = SecureSet(
+        folder=tmp_path_factory.mktemp("secure"),
+        actor_ids=ACTORS,
+        namespace=KEYS.namespace,
+        listen=(f"tls/127.0.0.1:{port}",),
+        connect=(f"tls/localhost:{port}",),
+    )
+    write_secure_set(spec)
+    return spec
+
+
+def _conf(spec: SecureSet, ident: str) -> zenoh.Config:
+    return zenoh.Config.from_file(str(spec.config(ident)))
+
+
+def _document(path: Path) -> dict[str, Any]:
+    text = path.read_text()
+    return dict(json.loads(text[text.index("\n") + 1 :]))  # after the header comment
+
+
+def _from_document(doc: dict[str, Any]) -> zenoh.Config:
+    conf = zenoh.Config()
+    for key, value in doc.items():
+        conf.insert_json5(key, json.dumps(value))
+    return conf
+
+
+class Inbox:
+    """Payloads each identity received, by key."""
+
+    def __init__(self) -> None:
+        self.got: dict[str, list[tuple[str, bytes]]] = {}
+        self._lock = threading.Lock()
+
+    def handler(self, who: str) -> Callable[[zenoh.Sample], None]:
+        def on_sample(sample: zenoh.Sample) -> None:
+            with self._lock:
+                self.got.setdefault(who, []).append((str(sample.key_expr), sample.payload.to_bytes()))
+
+        return on_sample
+
+    def of(self, who: str) -> list[tuple[str, bytes]]:
+        with self._lock:
+            return list(self.got.get(who, []))
+
+
+def _wait(predicate: Callable[[], bool], timeout: float = 30.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.05)
+    return False
+
+
+@pytest.fixture(scope="module")
+def cluster(secure_set: SecureSet) -> Iterator[dict[str, zenoh.Session]]:
+    with zenoh.open(_conf(secure_set, "router")):
+        sessions = {ident: zenoh.open(_conf(secure_set, ident)) for ident in ("learner", *ACTORS, "observer")}
+        try:
+            yield sessions
+        finally:
+            for session in sessions.values():
+                session.close()
+
+
+def test_each_identity_publishes_and_receives_only_what_the_rules_allow(cluster: dict[str, zenoh.Session]) -> None:
+    inbox = Inbox()
+    # Everyone subscribes to everything: what arrives is what the router's egress rules let through.
+    subs = [s.declare_subscriber(f"{KEYS.root}/**", inbox.handler(who)) for who, s in cluster.items()]
+    time.sleep(1.0)  # the declarations reach the router; a put before that would go nowhere for everyone alike
+    # Each identity's own keys first, then keys it has no right to.
+    attempts = {
+        "learner": [
+            *(KEYS.policy(), KEYS.ack("actor-0"), KEYS.reject("actor-1"), KEYS.status("learner")),
+            *(KEYS.experience("actor-0"), KEYS.qinc("actor-1"), KEYS.status("actor-0")),
+        ],
+        "actor-0": [
+            *(KEYS.experience("actor-0"), KEYS.qinc("actor-0"), KEYS.status("actor-0")),
+            *(KEYS.experience("actor-1"), KEYS.qinc("actor-1"), KEYS.policy(), KEYS.ack("actor-0"), KEYS.status("x")),
+        ],
+        "observer": [KEYS.experience("observer"), KEYS.policy(), KEYS.status("observer")],
+    }
+    for who, keys in attempts.items():
+        for key in keys:
+            cluster[who].put(key, who.encode())
+    # The last allowed put of each kind has arrived once this holds (one router, in-order per link).
+    assert _wait(lambda: len(inbox.of("observer")) >= 2 and len(inbox.of("actor-1")) >= 2)
+    time.sleep(1.0)  # and anything wrongly allowed would have arrived by now as well
+    for sub in subs:
+        sub.undeclare()
+
+    def remote(who: str) -> set[tuple[str, str]]:
+        return {(key.removeprefix(KEYS.root + "/"), payload.decode()) for key, payload in inbox.of(who)} - {
+            (key.removeprefix(KEYS.root + "/"), who) for key in attempts.get(who, [])
+        }  # minus the session's own puts, delivered locally
+
+    assert remote("learner") == {("experience/actor-0", "actor-0"), ("qinc/actor-0", "actor-0")}
+    assert remote("actor-0") == {("policy", "learner"), ("ack/actor-0", "learner")}
+    assert remote("actor-1") == {("policy", "learner"), ("reject/actor-1", "learner")}
+    assert remote("observer") == {("policy", "learner"), ("status/learner", "learner"), ("status/actor-0", "actor-0")}
+
+
+def test_only_the_learner_serves_the_policy_and_only_its_own_token_counts(cluster: dict[str, zenoh.Session]) -> None:
+    def serve(answer: bytes) -> Callable[[zenoh.Query], None]:
+        def on_query(query: zenoh.Query) -> None:
+            with query:
+                query.reply(KEYS.policy_latest(), answer)
+
+        return on_query
+
+    queryables = [
+        cluster["learner"].declare_queryable(KEYS.policy_latest(), serve(b"genuine")),
+        cluster["actor-1"].declare_queryable(KEYS.policy_latest(), serve(b"forged")),
+    ]
+    seen: list[str] = []
+    tokens = [
+        cluster["actor-0"].liveliness().declare_token(KEYS.alive("actor", "actor-0")),
+        cluster["actor-0"].liveliness().declare_token(KEYS.alive("learner", "learner")),  # not its own
+        cluster["actor-1"].liveliness().declare_token(KEYS.alive("actor", "actor-0")),  # not its own
+    ]
+    watch = (
+        cluster["learner"]
+        .liveliness()
+        .declare_subscriber(f"{KEYS.root}/alive/**", lambda s: seen.append(str(s.key_expr)), history=True)
+    )
+    time.sleep(1.0)
+    replies = [r.ok.payload.to_bytes() for r in cluster["actor-0"].get(KEYS.policy_latest(), timeout=5) if r.ok]
+    observer = [r.ok.payload.to_bytes() for r in cluster["observer"].get(KEYS.policy_latest(), timeout=5) if r.ok]
+    assert _wait(lambda: len(seen) >= 1)
+    time.sleep(0.5)
+    for handle in [*queryables, *tokens, watch]:
+        handle.undeclare()
+    assert replies == [b"genuine"] and observer == [b"genuine"]
+    assert seen == [KEYS.alive("actor", "actor-0")]  # one token reached the learner: actor-0's own
+
+
+@pytest.mark.parametrize(
+    "case", ["no password", "wrong password", "other CA", "one's certificate, another's password", "plain TCP"]
+)
+def test_a_peer_that_cannot_prove_its_identity_never_connects(
+    case: str, secure_set: SecureSet, cluster: dict[str, zenoh.Session], tmp_path: Path
+) -> None:
+    doc = _document(secure_set.config("actor-0"))
+    tls = doc["transport"]["link"]["tls"]
+    if case == "no password":
+        del doc["transport"]["auth"]
+    elif case == "wrong password":
+        doc["transport"]["auth"]["usrpwd"]["password"] = "guess"
+    elif case == "other CA":
+        other = SecureSet(folder=tmp_path / "other", actor_ids=ACTORS, namespace=KEYS.namespace)
+        write_secure_set(other)
+        doc = _document(other.config("actor-0"))
+        doc["connect"] = copy.deepcopy(_document(secure_set.config("actor-0"))["connect"])
+    elif case == "one's certificate, another's password":
+        tls["connect_certificate"] = tls["connect_certificate"].replace("actor-0", "actor-1")
+        tls["connect_private_key"] = tls["connect_private_key"].replace("actor-0", "actor-1")
+    else:
+        doc["connect"]["endpoints"] = [e.replace("tls/localhost", "tcp/127.0.0.1") for e in doc["connect"]["endpoints"]]
+    doc["connect"]["timeout_ms"] = 3000
+    got: list[bytes] = []
+    sub = cluster["learner"].declare_subscriber(KEYS.experience("actor-0"), lambda s: got.append(s.payload.to_bytes()))
+    try:
+        with zenoh.open(_from_document(doc)) as intruder:
+            # Only the mixed case opens (both halves are valid); the subject needs both to name one identity.
+            assert case == "one's certificate, another's password"
+            time.sleep(1.0)
+            intruder.put(KEYS.experience("actor-0"), b"intruder")
+            intruder.put(KEYS.experience("actor-1"), b"intruder")
+            time.sleep(1.0)
+    except zenoh.ZError as exc:
+        assert "Unable to connect" in str(exc)
+    finally:
+        sub.undeclare()
+    assert got == []
+
+
+def test_files_are_private_certificates_verify_and_nothing_secret_is_logged(
+    secure_set: SecureSet, caplog: pytest.LogCaptureFixture, tmp_path: Path
+) -> None:
+    from cryptography import x509
+    from cryptography.hazmat.primitives.asymmetric import ec
+
+    folder = secure_set.folder
+    assert folder.stat().st_mode & 0o777 == 0o700
+    for path in folder.iterdir():
+        mode = path.stat().st_mode & 0o777
+        assert mode == (0o644 if path.suffix == ".pem" else 0o600), path.name
+    ca = x509.load_pem_x509_certificate((folder / "ca.pem").read_bytes())
+    ca_key = ca.public_key()
+    assert isinstance(ca_key, ec.EllipticCurvePublicKey)
+    for ident in ("router", "learner", *ACTORS, "observer"):
+        cert = x509.load_pem_x509_certificate((folder / f"{ident}.pem").read_bytes())
+        cert.verify_directly_issued_by(ca)
+        assert cert.subject.get_attributes_for_oid(x509.NameOID.COMMON_NAME)[0].value == ident
+        assert not cert.extensions.get_extension_for_class(x509.BasicConstraints).value.ca
+    router = x509.load_pem_x509_certificate((folder / "router.pem").read_bytes())
+    names = router.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    assert "localhost" in names.get_values_for_type(x509.DNSName)
+    # The router's dictionary holds every client identity, each with its own password.
+    lines = dict(line.split(":", 1) for line in (folder / "credentials.txt").read_text().splitlines())
+    assert set(lines) == {"learner", *ACTORS, "observer"} and len(set(lines.values())) == len(lines)
+    # A fresh set written while logging is captured: no password or key material in any record.
+    caplog.set_level("DEBUG")
+    again = SecureSet(folder=tmp_path / "again", actor_ids=ACTORS)
+    write_secure_set(again)
+    secrets = (again.folder / "credentials.txt").read_text().split()
+    text = caplog.text
+    assert caplog.records and all(s.split(":", 1)[1] not in text for s in secrets) and "PRIVATE KEY" not in text
+
+
+def test_zenoh_drops_a_message_over_the_protocol_limit_while_reassembling_it() -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    got: list[int] = []
+    receiver_conf = zenoh_config(listen=[endpoint])
+    assert int(receiver_conf.get_json("transport/link/rx/max_message_size")) == MAX_MESSAGE_BYTES
+    with zenoh.open(receiver_conf) as receiver, zenoh.open(zenoh_config(connect=[endpoint])) as sender:
+        sub = receiver.declare_subscriber("big/*", lambda s: got.append(len(s.payload.to_bytes())))
+        publisher = sender.declare_publisher("big/x", congestion_control=zenoh.CongestionControl.BLOCK)
+        assert _wait(lambda: bool(publisher.matching_status.matching))
+        publisher.put(b"a" * 1000)
+        publisher.put(bytes(MAX_MESSAGE_BYTES + 1024 * 1024))
+        publisher.put(b"b" * 10)  # the link survives the dropped message
+        assert _wait(lambda: 10 in got)
+        publisher.undeclare()
+        sub.undeclare()
+    assert got == [1000, 10]
