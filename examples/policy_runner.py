@@ -1,0 +1,277 @@
+"""Reference runner for an ``ennc-ql-policy`` file, written from ``docs/policy-file.md`` alone.
+
+Only numpy and the standard library: nothing of the project is imported. It loads a policy file, simulates the
+scenario its header names (all trials side by side, one seeded generator), drives every robot with the policy and
+prints the mean coverage (metric A: % of targets in view of at least one robot, averaged over steps and trials)::
+
+    python examples/policy_runner.py POLICY.npz --trials 10 --seed 0           # as `ennc-ql eval --policy POLICY.npz`
+    python examples/policy_runner.py POLICY.npz --trials 10 --seed 0 --json    # per-trial figures as JSON
+    python examples/policy_runner.py POLICY.npz --violate still-start          # break one documented rule
+
+``--violate`` exists to show that the rules matter: ``still-start`` gives robots no search heading (lost robots
+stand still), ``no-reflect`` never reflects the search heading off the wall (wandering robots stick to the rim).
+Section names in the comments refer to docs/policy-file.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+Floats = NDArray[np.float64]
+Ints = NDArray[np.int64]
+Bools = NDArray[np.bool_]
+
+REQUIRED = ("header", "prototypes", "labels", "offsets", "tables", "robot_table")
+VIOLATIONS = ("still-start", "no-reflect")
+
+
+@dataclass(frozen=True)
+class PolicyFile:
+    """The members of a policy file that acting needs (section "Members")."""
+
+    header: dict[str, Any]
+    prototypes: NDArray[np.float32]  # (P, d), unscaled
+    offsets: Ints  # (L + 1,)
+    tables: NDArray[np.float32]  # (R, P)
+    robot_table: Ints  # (M,)
+    scale: NDArray[np.float32] | None  # (d,) or absent
+
+    @property
+    def scenario(self) -> dict[str, Any]:
+        return dict(self.header["scenario"])
+
+
+def load_policy(path: Path) -> PolicyFile:
+    """Read the ``.npz`` with numpy and check the format (section "Reading it with NumPy")."""
+    with np.load(path, allow_pickle=False) as data:
+        arrays = {name: data[name] for name in data.files}
+    missing = [name for name in REQUIRED if name not in arrays]
+    if missing:
+        raise SystemExit(f"{path}: missing members {missing}")
+    header = json.loads(arrays["header"].tobytes().decode("utf-8"))
+    if header.get("format") != "ennc-ql-policy" or header.get("format_version") != 1:
+        raise SystemExit(f"{path}: not an ennc-ql-policy file of format version 1")
+    return PolicyFile(
+        header=header,
+        prototypes=arrays["prototypes"],
+        offsets=arrays["offsets"].astype(np.int64),
+        tables=arrays["tables"],
+        robot_table=arrays["robot_table"].astype(np.int64),
+        scale=arrays.get("scale"),
+    )
+
+
+def unit(angle: Floats) -> Floats:
+    """(..., 2) unit vectors (cos, sin) of ``angle``."""
+    return np.stack([np.cos(angle), np.sin(angle)], axis=-1)
+
+
+def uniform_in_disk(rng: np.random.Generator, radius: float, shape: tuple[int, int]) -> Floats:
+    """Uniform points in the disk: radius R·√u, angle uniform (section "Start of a trial")."""
+    r = radius * np.sqrt(rng.random(shape))
+    angle = rng.uniform(0.0, 2.0 * np.pi, shape)
+    return r[..., None] * unit(angle)
+
+
+@dataclass(frozen=True)
+class Observation:
+    """What every robot senses at one instant (sections "Sensing" and "The state")."""
+
+    full_state: NDArray[np.float32]  # (E, m, 6): nearest target, furthest target, nearest robot (dx, dy)
+    lost: Bools  # (E, m): no target in view
+    covered: Ints  # (E,): targets in view of at least one robot
+
+
+def _pick(offsets: Floats, index: Ints) -> Floats:
+    """(E, m, 2) the offset ``offsets[e, i, index[e, i]]``."""
+    return np.take_along_axis(offsets, index[:, :, None, None], axis=2)[:, :, 0]
+
+
+def sense(sc: dict[str, Any], robots: Floats, targets: Floats, rng: np.random.Generator) -> Observation:
+    """In view is d² ≤ r_s², on true positions; only the reported offsets carry noise."""
+    n_arenas, m, n = robots.shape[0], robots.shape[1], targets.shape[1]
+    sigma, mask, r2 = sc["sensor_noise_std"], sc["mask_value"], sc["sensing_range"] * sc["sensing_range"]
+    noise_t: Floats | float = 0.0
+    noise_r: Floats | float = 0.0
+    if sigma > 0.0:  # draw order: targets, then robots (section "Evaluation protocol")
+        noise_t = rng.normal(0.0, sigma, (n_arenas, m, n, 2))
+        noise_r = rng.normal(0.0, sigma, (n_arenas, m, m, 2))
+    off_t = targets[:, None, :, :] - robots[:, :, None, :]  # [e, i, j]: target j minus robot i
+    d2_t = off_t[..., 0] * off_t[..., 0] + off_t[..., 1] * off_t[..., 1]
+    seen_t = d2_t <= r2
+    off_r = robots[:, None, :, :] - robots[:, :, None, :]  # [e, i, k]: robot k minus robot i
+    d2_r = off_r[..., 0] * off_r[..., 0] + off_r[..., 1] * off_r[..., 1]
+    seen_r = (d2_r <= r2) & ~np.eye(m, dtype=bool)[None]
+    # argmin / argmax return the first extreme: the lowest index wins a tie, as documented.
+    nearest_t = np.argmin(np.where(seen_t, d2_t, np.inf), axis=2)
+    furthest_t = np.argmax(np.where(seen_t, d2_t, -1.0), axis=2)
+    nearest_r = np.argmin(np.where(seen_r, d2_r, np.inf), axis=2)
+    any_t, any_r = seen_t.any(axis=2)[..., None], seen_r.any(axis=2)[..., None]
+    full = np.concatenate(
+        [
+            np.where(any_t, _pick(off_t + noise_t, nearest_t), mask),
+            np.where(any_t, _pick(off_t + noise_t, furthest_t), mask),
+            np.where(any_r, _pick(off_r + noise_r, nearest_r), mask),
+        ],
+        axis=-1,
+    ).astype(np.float32)
+    return Observation(full_state=full, lost=~any_t[..., 0], covered=seen_t.any(axis=1).sum(axis=1))
+
+
+def featurize(policy: PolicyFile, obs: Observation) -> NDArray[np.float32]:
+    """(E·m, d) states: all six numbers (collab6d) or one target pair (local2d, by scenario.local_target)."""
+    full = obs.full_state.reshape(-1, 6)
+    name = policy.header["featurizer"]["name"]
+    if name == "collab6d":
+        return full
+    if name == "local2d":
+        return full[:, 2:4] if policy.scenario["local_target"] == "furthest" else full[:, 0:2]
+    raise SystemExit(f"unknown featurizer {name!r}")
+
+
+def cells(policy: PolicyFile, states: NDArray[np.float32]) -> Ints:
+    """(N, L) cell of each state under each action: nearest prototype, ``scale`` as divisor, lowest j on a tie."""
+    x = (states if policy.scale is None else states / policy.scale).astype(np.float64)
+    n_actions = policy.offsets.size - 1
+    out = np.empty((x.shape[0], n_actions), dtype=np.int64)
+    for a in range(n_actions):
+        lo, hi = policy.offsets[a], policy.offsets[a + 1]
+        protos = policy.prototypes[lo:hi]
+        c = (protos if policy.scale is None else protos / policy.scale).astype(np.float64)
+        d2 = ((x[:, None, :] - c[None, :, :]) ** 2).sum(axis=-1)
+        out[:, a] = lo + np.argmin(d2, axis=1)
+    return out
+
+
+def greedy(policy: PolicyFile, cell: Ints, rows: Ints) -> Ints:
+    """(N,) argmax_a tables[row, cell[:, a]], lowest action on a tie (np.argmax takes the first maximum)."""
+    return np.argmax(policy.tables[rows[:, None], cell], axis=1)
+
+
+def reflect(heading: Floats, pos: Floats, radius: float) -> Floats:
+    """Search headings reflected off the wall where the robot stands on it and the heading points outward."""
+    r = np.sqrt(pos[..., 0] * pos[..., 0] + pos[..., 1] * pos[..., 1])[..., None]
+    normal = pos / np.maximum(r, 1e-300)
+    outward = (heading[..., 0] * normal[..., 0] + heading[..., 1] * normal[..., 1])[..., None]
+    at_wall = (r >= radius - 1e-9) & (outward > 0)
+    return np.where(at_wall, heading - 2.0 * outward * normal, heading)
+
+
+def move_targets(
+    sc: dict[str, Any], pos: Floats, vel: Floats, speed: Floats, rng: np.random.Generator
+) -> tuple[Floats, Floats]:
+    """Turn with target_turn_prob (speed kept), move, reflect specularly off the circle (section "Moving")."""
+    turn = rng.random(speed.shape) < sc["target_turn_prob"]
+    new_angle = rng.uniform(0.0, 2.0 * np.pi, speed.shape)
+    vel = np.where(turn[..., None], speed[..., None] * unit(new_angle), vel)
+    pos = pos + vel
+    radius = sc["arena_radius"]
+    r = np.sqrt(pos[..., 0] * pos[..., 0] + pos[..., 1] * pos[..., 1])[..., None]
+    out = r > radius
+    u = pos / r
+    reflected_pos = pos - 2.0 * (r - radius) * u
+    vn = (vel[..., 0] * u[..., 0] + vel[..., 1] * u[..., 1])[..., None]
+    reflected_vel = vel - 2.0 * vn * u
+    return np.where(out, reflected_pos, pos), np.where(out, reflected_vel, vel)
+
+
+def move_robots(pos: Floats, displacement: Floats, radius: float) -> Floats:
+    """Move, then project back onto the circle (no bounce) where outside."""
+    pos = pos + displacement
+    r = np.sqrt(pos[..., 0] * pos[..., 0] + pos[..., 1] * pos[..., 1])[..., None]
+    return np.where(r > radius, pos * (radius / r), pos)
+
+
+def run(policy: PolicyFile, trials: int, steps: int, seed: int, violate: str | None = None) -> Floats:
+    """(trials,) coverage of each trial in %, following section "One test trial, step by step"."""
+    sc, head = policy.scenario, policy.header
+    rng = np.random.default_rng(seed)
+    m, n, radius, speed = sc["n_robots"], sc["n_targets"], sc["arena_radius"], sc["robot_speed"]
+    robots = uniform_in_disk(rng, radius, (trials, m))
+    targets = uniform_in_disk(rng, radius, (trials, n))
+    target_speed = rng.uniform(0.0, sc["target_speed_frac"] * speed, (trials, n))
+    target_vel = target_speed[..., None] * unit(rng.uniform(0.0, 2.0 * np.pi, (trials, n)))
+    heading = unit(rng.uniform(0.0, 2.0 * np.pi, (trials, m)))
+    if violate == "still-start":
+        heading = np.zeros_like(heading)
+    directions = np.array([a["direction"] for a in sorted(head["actions"], key=lambda a: a["index"])])
+    # Table row of every state: robot i of arena e is state e·m + i.
+    rows = np.tile(policy.robot_table[np.arange(m) % policy.robot_table.size], trials)
+    mode, every, cap = head["action_mode"], int(head["action_steps"]), int(head["max_action_steps"])
+    action = np.zeros((trials, m), np.int64)
+    start_cell = np.zeros((trials, m), np.int64)  # until_change: cell of the decision state under the action
+    count = np.zeros((trials, m), np.int64)  # until_change: steps the action has lasted
+    obs = sense(sc, robots, targets, rng)
+    total = np.zeros(trials)
+    for t in range(steps):
+        # When robots decide: a shared clock (fixed) or each robot's own (until_change); everyone at t = 0.
+        if mode == "fixed":
+            if t % every == 0:
+                action = greedy(policy, cells(policy, featurize(policy, obs)), rows).reshape(trials, m)
+        elif mode == "until_change":
+            cell = cells(policy, featurize(policy, obs)).reshape(trials, m, -1)
+            now = np.take_along_axis(cell, action[..., None], axis=2)[..., 0]
+            decide = np.full((trials, m), True) if t == 0 else (now != start_cell) | (count >= cap)
+            chosen = greedy(policy, cell.reshape(trials * m, -1), rows).reshape(trials, m)
+            action = np.where(decide, chosen, action)
+            start_cell = np.where(decide, np.take_along_axis(cell, action[..., None], axis=2)[..., 0], start_cell)
+            count = np.where(decide, 1, count + 1)
+        else:
+            raise SystemExit(f"unknown action_mode {mode!r}")
+        # Lost robots: the heading is reflected for every robot, every step; lost-ness is checked every step.
+        if violate != "no-reflect":
+            heading = reflect(heading, robots, radius)
+        displacement = speed * directions[action]
+        lost = obs.lost[..., None]
+        if head["lost_behaviour"] == "wander":
+            displacement = np.where(lost, speed * heading, displacement)
+        elif head["lost_behaviour"] == "stay":
+            displacement = np.where(lost, 0.0, displacement)
+        # Moving: targets draw their turns first (random stream order), then robots move; both from time-t positions.
+        targets, target_vel = move_targets(sc, targets, target_vel, target_speed, rng)
+        robots = move_robots(robots, displacement, radius)
+        obs = sense(sc, robots, targets, rng)
+        total += 100.0 * obs.covered / n
+    return total / steps
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="Run an ennc-ql policy file in a plain-numpy CMOMMT simulator.")
+    parser.add_argument("policy", type=Path, help="the policy file (.npz)")
+    parser.add_argument("--trials", type=int, default=10, help="trials run side by side (default 10)")
+    parser.add_argument("--steps", type=int, default=1000, help="steps per trial (default 1000)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of numpy.random.default_rng (default 0)")
+    parser.add_argument("--violate", choices=VIOLATIONS, help="break one documented rule on purpose")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    args = parser.parse_args(argv)
+    if args.trials < 1 or args.steps < 1:
+        parser.error("--trials and --steps must be at least 1")
+    policy = load_policy(args.policy)
+    per_trial = run(policy, args.trials, args.steps, args.seed, args.violate)
+    if args.json:
+        out = {
+            "policy": str(args.policy),
+            "trials": args.trials,
+            "steps": args.steps,
+            "seed": args.seed,
+            "violate": args.violate,
+            "coverage_mean": float(per_trial.mean()),
+            "coverage_std": float(per_trial.std()),
+            "coverage_per_trial": [float(c) for c in per_trial],
+        }
+        print(json.dumps(out))
+    else:
+        runs = f"{args.trials} trials x {args.steps} steps, seed {args.seed}"
+        print(f"{per_trial.mean():.2f} % of targets observed ({runs})")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,91 @@
+"""docs/policy-file.md is complete: a runner written from it alone (examples/policy_runner.py, plain numpy) gives the
+coverage `ennc-ql eval` gives on the same policy file, trials and seed, and breaking one documented rule does not.
+
+Two small policies cover both decision modes: ENNC-QL option 2 (collab6d, per-robot tables, a `scale`, `fixed`
+shared clock) and VQQL local (local2d, one table, no `scale`, `until_change` per-robot clocks).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from algorithm.experiments import METHODS, Budget, train
+from algorithm.phase1 import Phase1Config
+from algorithm.policy_file import save_policy
+from ennc_ql.cli import main
+from sim import scenario
+
+RUNNER = Path(__file__).resolve().parents[1] / "examples" / "policy_runner.py"
+TRIALS, STEPS, SEED = 20, 1000, 0
+# A learning budget of about a second or three: the policies are poor, but they are policies the project wrote.
+TINY = Budget(
+    arenas=24,
+    explore_trials=1,
+    phase2_trials=2,
+    phase1=Phase1Config(max_iterations=1, n_cycles=25, max_patterns=1500),
+    codebook_patterns=1500,
+    test_trials=1,
+    test_steps=10,
+)
+
+
+@pytest.fixture(scope="module", params=["ennc-ql-collab-option2", "vqql-local-16"])
+def policy_file(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    outcome = train(METHODS[request.param], TINY, seed=0)
+    return save_policy(outcome.policy, scenario(), tmp_path_factory.mktemp("policy") / f"{request.param}.npz")
+
+
+def project_coverage(path: Path, capsys: pytest.CaptureFixture[str]) -> np.ndarray:
+    """Per-trial coverage from the project's own `ennc-ql eval --policy PATH --json`."""
+    capsys.readouterr()
+    args = ["eval", "--policy", str(path), "--trials", str(TRIALS), "--steps", str(STEPS), "--seed", str(SEED)]
+    assert main([*args, "--json"]) == 0
+    return np.asarray(json.loads(capsys.readouterr().out)["coverage_per_trial"])
+
+
+def runner_coverage(path: Path, *extra: str) -> np.ndarray:
+    """Per-trial coverage from the reference runner, run as a separate program (it imports nothing of the project)."""
+    args = [str(path), "--trials", str(TRIALS), "--steps", str(STEPS), "--seed", str(SEED), "--json", *extra]
+    done = subprocess.run([sys.executable, str(RUNNER), *args], capture_output=True, text=True, timeout=120, check=True)
+    return np.asarray(json.loads(done.stdout)["coverage_per_trial"])
+
+
+def tolerance(a: np.ndarray, b: np.ndarray) -> float:
+    """Three standard errors of the difference of the two means.
+
+    The runner does not promise the project's random streams, so the two runs are treated as independent samples
+    of TRIALS trials each: SE(mean_a − mean_b) = sqrt(s_a²/N + s_b²/N) with the sample standard deviations. Two
+    correct simulators then differ by more than 3 SE with probability ≈ 0.3%; a run that shares the streams (as the
+    runner does today: its per-trial figures equal the project's exactly) only makes the check easier to pass. One
+    point is the floor, so that near-identical per-trial figures cannot make the bound vanish.
+    """
+    se = float(np.sqrt(a.var(ddof=1) / a.size + b.var(ddof=1) / b.size))
+    return max(3.0 * se, 1.0)
+
+
+def test_runner_reproduces_ennc_ql_eval(policy_file: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    project = project_coverage(policy_file, capsys)
+    runner = runner_coverage(policy_file)
+    assert runner.shape == project.shape == (TRIALS,)
+    gap, bound = abs(runner.mean() - project.mean()), tolerance(runner, project)
+    assert gap <= bound, f"runner {runner.mean():.2f}% vs project {project.mean():.2f}% (bound {bound:.2f})"
+
+
+@pytest.mark.parametrize("violation", ["still-start", "no-reflect"])
+def test_breaking_a_documented_rule_shows(
+    policy_file: Path, violation: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Robots without a search heading (standing still while lost) or whose heading is never reflected off the wall
+    # must observe clearly fewer targets: the same 3-SE bound, one-sided, must separate them from the project.
+    project = project_coverage(policy_file, capsys)
+    broken = runner_coverage(policy_file, "--violate", violation)
+    bound = tolerance(broken, project)
+    assert broken.mean() < project.mean() - bound, (
+        f"--violate {violation}: {broken.mean():.2f}% vs project {project.mean():.2f}% (bound {bound:.2f})"
+    )
