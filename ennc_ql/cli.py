@@ -160,6 +160,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_rerun_args(p)
     p.set_defaults(func=cmd_eval)
 
+    from ennc_ql.chaos import add_chaos_parser
     from ennc_ql.processes import add_actor_parser, add_learner_parser
     from ennc_ql.router import add_router_parser
     from ennc_ql.secure import add_secure_parser
@@ -170,6 +171,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_actor_parser(sub)
     add_router_parser(sub)
     add_secure_parser(sub)
+    add_chaos_parser(sub)
 
     p = sub.add_parser("reproduce", help="the paper's Figure 5 and 6: every method, tables and a bar chart")
     p.add_argument("--quick", action="store_true", help="reduced budget: 1 process per method, shorter learning")
