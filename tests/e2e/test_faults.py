@@ -1,9 +1,10 @@
 """Faults at the worst moment, from outside: the learner SIGKILLed just after a checkpoint landed (the moment with
-the most unsaved state), then resumed; a peer that sends under another actor's identity.
+the most unsaved state), then resumed; a poisoned message from a client written from docs/protocol.md alone.
+(Spoofing, router restarts, stopped and killed actors, unauthenticated peers and oversize messages are
+``ennc-ql chaos``'s, tested in test_chaos.py.)
 
 Asserted: tuples exactly once; every acknowledged increment's visits are in the final tables; policy versions
-strictly increase across the restart; the run's clock goes on from the checkpoint; nothing a lying peer sends is
-stored.
+strictly increase across the restart; the run's clock goes on from the checkpoint; the poisoned stream flows on.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import pytest
 
 from algorithm.policy_file import load_policy
 from learner.checkpoint import VersionMark
-from protocol import ExperienceBatch, PolicyUpdate, ZenohTransport, encode, zenoh_config
+from protocol import PolicyUpdate, ZenohTransport, zenoh_config
 from protocol.keys import KeySpace
 from tests.e2e.test_cluster import Cluster, checkpoint_version, cluster, finish, wait_for
 
@@ -98,45 +99,6 @@ def test_learner_killed_just_after_a_checkpoint_resumes_exactly(cluster: Cluster
     times = [t for t, _ in report["coverage_curve"]]
     assert times == sorted(times)
     assert report["policy_version"] > published_before
-
-
-def test_a_peer_sending_under_another_actors_identity_stores_nothing(cluster: Cluster, tmp_path: Path) -> None:
-    run_dir = tmp_path / "run"
-    learner = cluster.learner(run_dir)
-    actor = cluster.actor("actor-0", "--learn", "0-9")
-    wait_for(lambda: checkpoint_version(run_dir) >= 1, 120, "a first policy")
-    conf = zenoh_config(connect=[cluster.endpoint], mode="peer", multicast_scouting=False)
-    keys = KeySpace(cluster.namespace)
-    n = 7
-    lie = ExperienceBatch(
-        actor_id="actor-0",  # the genuine actor's id, on the liar's own key
-        incarnation=1,
-        seq=0,
-        policy_version=0,
-        robot=np.zeros(n, np.int16),
-        state=np.zeros((n, 6), np.float32),
-        action=np.zeros(n, np.uint8),
-        reward=np.zeros(n, np.float32),
-        next_state=np.zeros((n, 6), np.float32),
-        done=np.zeros(n, bool),
-    )
-    with ZenohTransport.open(conf, keys) as liar:
-        wait_for(lambda: liar.has_subscribers(keys.experience("mallory")), 30, "the learner's subscription")
-        for _ in range(5):
-            liar.session.put(keys.experience("mallory"), encode(lie))  # past our own publish-side check
-        time.sleep(1.0)
-    status = finish(actor, sig=signal.SIGTERM)
-    report = finish(learner, sig=signal.SIGTERM)
-    assert report["rejected_by_type"].get("IdentityMismatch") == 5
-    assert set(report["tuples_by_actor"]) == {"actor-0"}
-    assert report["tuples_by_actor"]["actor-0"] == status["tuples_sent"]  # the genuine stream is whole
-    assert report["duplicates"] == 0  # nothing of the genuine stream was suppressed as a duplicate
-
-
-def _encoded(msg: ExperienceBatch) -> bytes:
-    from protocol import encode
-
-    return encode(msg)
 
 
 def test_a_poisoned_message_is_rejected_and_its_stream_flows_on(cluster: Cluster, tmp_path: Path) -> None:
