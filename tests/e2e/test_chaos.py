@@ -10,7 +10,6 @@ applied; and no process of the run is left behind. Configuration errors are one 
 
 from __future__ import annotations
 
-import doctest
 import itertools
 import json
 import re
@@ -24,7 +23,6 @@ import psutil
 import pytest
 
 from algorithm.policy_file import load_policy
-from ennc_ql import chaos
 from ennc_ql.chaos import FAULTS
 from tests.e2e import ennc_ql
 
@@ -196,8 +194,3 @@ def test_a_bad_fault_name_or_soak_value_is_a_one_line_error(tmp_path: Path, flag
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("ennc-ql chaos: error:") and bad in lines[0], result.stderr
     assert not list(tmp_path.iterdir())  # nothing started, nothing written
-
-
-def test_the_examples_in_the_chaos_docstrings_run() -> None:
-    result = doctest.testmod(chaos)
-    assert result.attempted > 0 and result.failed == 0

@@ -1,0 +1,62 @@
+"""``ennc-ql chaos``: the fault suite. A real cluster of OS processes trains while faults are injected; the
+reliability contract of docs/protocol.md is then checked from outside and the figures are printed.
+
+The cluster: ``ennc-ql router`` on a free loopback port, and the learner and N actors as its clients (so the router
+can be restarted under them). With ``--secure`` (the default) every process has its own certificate, password and
+access-control identity (``ennc-ql secure init``'s files, in ``RUN/secure``), and chaos holds one more identity,
+``mallory``: authenticated, and played by chaos as a hostile peer. A zenoh session of chaos's own (the ``observer``
+identity) records every policy version on the wire and the latest Status of every process.
+
+Once the first policy is checkpointed, one fault every ``--fault-interval`` seconds, in rotation:
+
+=================  ===============================================================================================
+learner-kill       SIGKILL the learner just after a checkpoint landed (the most unsaved state); restart ``--resume``
+router-restart     SIGKILL the router and start it again on the same port
+actor-stop         SIGSTOP an actor for the zenoh lease + 3 s, then SIGCONT: the learner counts it gone, then back
+actor-kill         SIGKILL an actor (never actor-0 while there are others) and start a new incarnation of it
+poison             seq 0, a batch with NaN rewards at seq 1, then seq 2 on a peer's key: a Reject of 1, an ack of 2
+spoof              batches claiming actor-0's id on a peer's own key; secure: puts on actor-0's key itself
+unauthenticated    (secure) a session with a valid certificate but no password: refused
+wrong-certificate  (secure) a session with the right password but a certificate of another CA: refused
+oversize           one 160 MiB put: dropped by zenoh while reassembling it; RSS barely rises, the learner stays up
+=================  ===============================================================================================
+
+The rotation always completes one round, past ``--duration`` if need be; after that no fault starts once the
+duration is over. Then the actors are stopped (each flushes its outbox and prints its final status), then the
+learner (it writes ``RUN/report.json``), then the router, and the contract is checked, each check from figures of
+different processes: exactly-once storage, every acknowledged visit in the final tables, policy versions strictly
+increasing across restarts, the poisoned stream flowing on, nothing stored from hostile peers, bounded RSS. Exit
+status 0 if every check holds, 1 if one fails; ``RUN/chaos.json`` holds what ``--json`` prints. Usage::
+
+    ennc-ql chaos                                       # 120 s, secure, every fault, one every 20 s
+    ennc-ql chaos --no-secure --duration 90             # plain TCP (the two TLS faults do not apply)
+    ennc-ql chaos --soak 2h --faults learner-kill,router-restart,oversize
+    ennc-ql chaos --json --actors 3 --actor-arenas 64 --learner-min-tuples 20000
+"""
+
+# The package, by role: options (the faults by name, the defaults, parsing), command (the parser, the command),
+# cluster (the processes and chaos's read-only session), peers (the hostile peer), faults (the run and each fault),
+# checks (the contract checked from the figures, and the table).
+
+from __future__ import annotations
+
+from ennc_ql.chaos.checks import Check, Evidence, figures_and_checks, results_table
+from ennc_ql.chaos.command import add_chaos_parser, cmd_chaos
+from ennc_ql.chaos.faults import Chaos
+from ennc_ql.chaos.options import FAULTS, SECURE_ONLY, ChaosOptions, chaos_options, parse_duration, parse_faults
+
+__all__ = [
+    "FAULTS",
+    "SECURE_ONLY",
+    "Chaos",
+    "ChaosOptions",
+    "Check",
+    "Evidence",
+    "add_chaos_parser",
+    "chaos_options",
+    "cmd_chaos",
+    "figures_and_checks",
+    "parse_duration",
+    "parse_faults",
+    "results_table",
+]

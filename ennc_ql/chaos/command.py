@@ -1,0 +1,121 @@
+"""The ``ennc-ql chaos`` command: its parser, and a run from the options to the figures printed and the exit
+status."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import signal
+import sys
+import time
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+from ennc_ql.chaos.checks import results_table
+from ennc_ql.chaos.cluster import WaitTimeout
+from ennc_ql.chaos.faults import Chaos
+from ennc_ql.chaos.options import (
+    DEFAULT_DURATION_S,
+    DEFAULT_FAULT_INTERVAL_S,
+    DEFAULT_RSS_INTERVAL_S,
+    FAULTS,
+    SOAK_RSS_INTERVAL_S,
+    chaos_options,
+)
+from ennc_ql.config import add_config_flags, positive
+from ennc_ql.launch import SET_BY_UP, UP_PRESETS, UpConfig
+from ennc_ql.processes import configure, fail, writable_dir
+from protocol import check_id
+
+LEARNER_EXTRA_S = 3600.0
+"""The learner's own duration is chaos's plus this: chaos ends it by SIGTERM once the actors drained, never the
+clock, so every acknowledged message is in its report."""
+
+
+def _interrupted(signum: int, _frame: FrameType | None) -> None:
+    # SIGTERM as Ctrl-C: the run's `finally` then kills every child instead of leaving them behind.
+    raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
+def cmd_chaos(args: argparse.Namespace) -> int:
+    options = chaos_options(args)
+    config: UpConfig = configure(UpConfig, args, "chaos", defaults=UP_PRESETS)
+    config = dataclasses.replace(config, duration=options.duration + LEARNER_EXTRA_S)
+    run_id = args.run_id or time.strftime("chaos-%Y%m%d-%H%M%S")
+    try:
+        check_id(run_id, "--run-id")
+        namespace = check_id(f"chaos-{run_id}", "--run-id (in the namespace chaos-<id>)")
+    except ValueError as exc:
+        fail("chaos", str(exc))
+    if (args.runs / run_id).exists() and any((args.runs / run_id).iterdir()):
+        # A report or checkpoint left there by another run would be taken for this one's.
+        fail("chaos", f"--run-id {run_id}: {args.runs / run_id} is not empty; choose another run id")
+    run_dir = writable_dir(args.runs / run_id, "chaos", "--runs")
+    signal.signal(signal.SIGTERM, _interrupted)
+    try:
+        out = Chaos(options, config, run_dir, run_id, namespace).run()
+    except KeyboardInterrupt:
+        print("ennc-ql chaos: interrupted; every child process was killed", file=sys.stderr)
+        return 130
+    except WaitTimeout as exc:
+        print(f"ennc-ql chaos: the cluster did not start: {exc}; see the logs in {run_dir}", file=sys.stderr)
+        return 1
+    (run_dir / "chaos.json").write_text(json.dumps(out, indent=2))
+    print(json.dumps(out) if args.json else results_table(out))
+    return 0 if out["passed"] else 1
+
+
+def add_chaos_parser(sub: Any) -> None:
+    from ennc_ql import chaos  # the package's docstring: the command's usage and fault table (imported by now)
+
+    p = sub.add_parser(
+        "chaos",
+        help="the fault suite: a real cluster trains under injected faults, then the reliability contract is checked",
+        description=(chaos.__doc__ or "").split("\n\n")[0],
+    )
+    p.add_argument(
+        "--duration",
+        dest="chaos_duration",
+        type=positive(float),
+        metavar="SECONDS",
+        help=f"run length from the cluster's start (default {DEFAULT_DURATION_S:.0f}; one round of faults at least)",
+    )
+    p.add_argument(
+        "--soak",
+        metavar="DURATION",
+        help=f"a long run, e.g. 90s, 30m, 2h (sets the duration; RSS every {SOAK_RSS_INTERVAL_S:.0f} s)",
+    )
+    p.add_argument(
+        "--secure",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="TLS, passwords and access control, with the TLS faults (default: on)",
+    )
+    p.add_argument(
+        "--fault-interval",
+        type=positive(float),
+        default=DEFAULT_FAULT_INTERVAL_S,
+        metavar="SECONDS",
+        help=f"seconds between fault starts (default {DEFAULT_FAULT_INTERVAL_S:.0f})",
+    )
+    p.add_argument("--faults", metavar="NAME,...", help=f"faults in rotation (default all: {', '.join(FAULTS)})")
+    p.add_argument(
+        "--rss-interval",
+        type=positive(float),
+        metavar="SECONDS",
+        help="seconds between RSS samples "
+        f"(default {DEFAULT_RSS_INTERVAL_S:.0f}, {SOAK_RSS_INTERVAL_S:.0f} with --soak)",
+    )
+    p.add_argument("--runs", type=Path, default=Path("runs"), help="parent folder of the run folder (default runs/)")
+    p.add_argument("--run-id", help="run folder name (default chaos-<timestamp>)")
+    p.add_argument("--config", metavar="FILE", help="TOML file of the cluster's configuration (e.g. a run's up.toml)")
+    p.add_argument("--json", action="store_true", help="print the figures and checks as one JSON object")
+    add_config_flags(
+        p.add_argument_group("cluster configuration (ennc_ql.launch.UpConfig)"),
+        UpConfig,
+        exclude=(*SET_BY_UP, "duration"),
+        defaults=UP_PRESETS,
+    )
+    p.set_defaults(func=cmd_chaos)
