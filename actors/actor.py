@@ -135,6 +135,8 @@ class RobotActor:
     def run(self, stop: threading.Event) -> ActorStatus:
         self._stop = stop
         start = time.monotonic()
+        # The viewer's train_time: seconds since this loop began, as the learner's clock counts from its own loop.
+        self.monitor.use_clock(lambda: time.monotonic() - start)
         self._deadline = None if self.config.duration is None else start + self.config.duration
         next_status = start
         log.info(

@@ -5,10 +5,13 @@ Call sequence in a process::
     parser = argparse.ArgumentParser(); add_rerun_args(parser)      # --rerun off|save PATH|spawn|connect URL|serve
     args = parser.parse_args()                                      #   and --recording-id ID
     with open_monitor(sink_from_args(args), process="learner", recording_id=args.recording_id) as monitor:
-        monitor.send_blueprint(actor_ids=["actor-0", "actor-1"], n_actions=8)        # learner or launcher, once
+        monitor.use_clock(run_clock)                                    # train_time: seconds of training
+        monitor.send_blueprint(["actor-0", "actor-1"], arena_radius=1000.0, sensing_range=150.0)   # learner
+        monitor.reference_levels({"random": 16.6, "local": 56.3, "a-cmommt": 72.1})               # once
         monitor.learner_metrics(learner_step=i, policy_version=v, tuples_per_s=..., live_actors=2,
                                 store_size=..., rejected=0, lag={"actor-0": 1})
         monitor.eval_coverage(59.4, policy_version=v, learner_step=i)
+        monitor.final_coverage(61.5, trials=50, policy_version=v, learner_step=i)   # at the end
         monitor.q_stats(tables, policy_version=v)
         monitor.prototypes(prototypes_per_action, q_per_action, policy_version=v)
         # in an actor:
@@ -24,13 +27,16 @@ Call sequence in a process::
   once; Rerun is imported only when another sink is opened (``import monitor`` never loads it).
 - **Timelines** (names in :mod:`monitor.paths`): ``sim_step`` (actor's simulation step, or the step of a recorded
   trial), ``policy_version`` (learner), ``learner_step`` (iterations of the learner's main loop, one per status
-  publish; evaluation points carry the iteration they ran in), and ``wall_time`` on every row so that series of
-  different processes line up. Each call attaches exactly the timelines passed to it.
+  publish; evaluation points carry the iteration they ran in), and on every row ``train_time`` (seconds of
+  training, the x-axis of the default layout: the clock given to ``use_clock``) and ``wall_time``. Each call
+  attaches exactly the sequence timelines passed to it.
 - **Entity paths** (:mod:`monitor.paths`): ``actors/<id>/arena/{boundary,sensing,robots,targets}``,
-  ``actors/<id>/{coverage,reward,tuples_per_s,policy_version}``, ``learner/coverage/eval``,
-  ``learner/{tuples_per_s,policy_version,live_actors,store_size,rejected}``, ``learner/lag/<id>``,
-  ``learner/q/{mean,min,max}``, ``learner/prototypes/action_<k>``, and for a recorded test trial ``eval/arena/...``
-  and ``eval/coverage``.
+  ``actors/<id>/{coverage,reward,tuples_per_s,policy_version,rss_mb}``, ``learner/coverage/{eval,final}``,
+  ``learner/coverage/reference/<controller>``, ``learner/{tuples_per_s,policy_version,live_actors,store_size,
+  rejected,rss_mb}``, ``learner/lag/<id>``, ``learner/q/{mean,min,max}``, ``learner/prototypes/action_<k>``, the
+  colour key ``key/...``, and for a recorded test trial ``eval/arena/...`` and ``eval/coverage``.
+- **The layout** (:mod:`monitor.layout`): the learning curve first, over the whole run, the viewer opening at the
+  end; colours in :mod:`monitor.style` (one per actor in every panel); 2-D views north up (:mod:`monitor.paths`).
 - **Several processes, one file.** Processes cannot share one .rrd: under ``ennc-ql up`` each child saves
   ``paths.part_file(run_dir, process)`` (``runs/<id>/rerun/<process>.rrd``) with the shared recording id, and the
   launcher calls :func:`merge_recordings` into ``runs/<id>/recording.rrd`` at the end; :func:`summarize_recording`

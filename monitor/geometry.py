@@ -8,6 +8,10 @@ import numpy as np
 
 COLORMAP = "viridis"
 
+PROTOTYPE_REACH = 1.2
+"""Half-width of a prototype view in sensing ranges, as in ``ennc_ql.figures.policy_figure``: the (dx, dy) of a
+target in view lie within one sensing range; the masked value (nothing in view) lies far outside and is not shown."""
+
 
 def observed_targets(robot_pos: np.ndarray, target_pos: np.ndarray, sensing_range: float) -> np.ndarray:
     """(n,) bool: target j lies within ``sensing_range`` (inclusive, as in ``sim``) of at least one robot.
@@ -43,20 +47,31 @@ def project_2d(prototypes: np.ndarray) -> np.ndarray:
     return points[:, :2].copy()
 
 
-def q_colors(q_values: Sequence[np.ndarray]) -> list[np.ndarray]:
-    """(p_k, 4) uint8 RGBA per action, ``COLORMAP`` normalised over the Q range of all actions together.
+def q_range(q_values: Sequence[np.ndarray]) -> tuple[float, float]:
+    """(min, max) of the finite Q values of all actions together; (0, 0) when there is none."""
+    arrays = [np.asarray(q, dtype=np.float64).reshape(-1) for q in q_values]
+    finite = np.concatenate([a[np.isfinite(a)] for a in arrays]) if arrays else np.zeros(0)
+    return (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
 
-    One range for all actions keeps colours comparable across the panels; a constant Q gets the middle colour.
-    """
+
+def colormap(values: np.ndarray) -> np.ndarray:
+    """(n, 4) uint8 RGBA of ``COLORMAP`` at ``values`` in [0, 1] (NaN takes the low end)."""
     import matplotlib
 
     cmap = matplotlib.colormaps[COLORMAP]
-    arrays = [np.asarray(q, dtype=np.float64).reshape(-1) for q in q_values]
-    finite = np.concatenate([a[np.isfinite(a)] for a in arrays]) if arrays else np.zeros(0)
-    lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
+    scaled = np.asarray(values, dtype=np.float64).reshape(-1)
+    return np.asarray(cmap(np.nan_to_num(scaled, nan=0.0), bytes=True), dtype=np.uint8).reshape(-1, 4)
+
+
+def q_colors(q_values: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """(p_k, 4) uint8 RGBA per action, ``COLORMAP`` normalised over :func:`q_range` of all actions together.
+
+    One range for all actions keeps colours comparable across the panels; a constant Q gets the middle colour.
+    """
+    lo, hi = q_range(q_values)
     span = hi - lo
     colors = []
-    for a in arrays:
-        scaled = (a - lo) / span if span > 0 else np.full_like(a, 0.5)
-        colors.append(np.asarray(cmap(np.nan_to_num(scaled, nan=0.0), bytes=True), dtype=np.uint8).reshape(-1, 4))
+    for q in q_values:
+        a = np.asarray(q, dtype=np.float64).reshape(-1)
+        colors.append(colormap((a - lo) / span if span > 0 else np.full_like(a, 0.5)))
     return colors

@@ -6,7 +6,7 @@ unconditionally; guard only work done *to prepare* a call (``if monitor.enabled:
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from types import TracebackType
 from typing import Self
 
@@ -17,13 +17,18 @@ class Monitor:
     """Where a process sends what it wants watched. See :mod:`monitor` for the call sequence.
 
     Timelines: every call takes the sequence timelines that apply as keyword arguments (``sim_step``,
-    ``policy_version``, ``learner_step``); exactly those, plus ``wall_time`` (now), are attached to what it logs.
+    ``policy_version``, ``learner_step``); exactly those, plus ``train_time`` (the clock of :meth:`use_clock`) and
+    ``wall_time`` (now), are attached to what it logs.
     """
 
     @property
     def enabled(self) -> bool:
         """False for the no-op monitor: skip computing what would only be logged."""
         return False
+
+    def use_clock(self, clock: Callable[[], float]) -> None:
+        """Stamp ``train_time`` with ``clock()`` (seconds of training) from now on; until called, the seconds since
+        the monitor was opened."""
 
     def scalars(
         self,
@@ -48,9 +53,10 @@ class Monitor:
     ) -> None:
         """One arena at one step under ``origin`` (``paths.actor_arena(actor_id)`` or ``paths.EVAL_ARENA``).
 
-        ``robot_pos`` (m, 2) and ``target_pos`` (n, 2) in arena units. Draws the boundary (static, once per origin
-        and radius), the sensing disks, the robots, and the targets green when observed (within ``sensing_range``
-        of a robot) and red otherwise.
+        ``robot_pos`` (m, 2) and ``target_pos`` (n, 2) in arena units. Draws the boundary and the north-up transform
+        (static, once per origin and radius), the sensing disks, the robots, and the targets in
+        :data:`monitor.style.OBSERVED` when observed (within ``sensing_range`` of a robot), else
+        :data:`monitor.style.UNOBSERVED`.
         """
 
     def prototypes(
@@ -58,15 +64,28 @@ class Monitor:
     ) -> None:
         """Each action's prototypes at ``learner/prototypes/action_<k>``, projected to 2-D, coloured by Q.
 
-        ``prototypes[k]`` (p_k, d) in the standardized space of the discretization, ``q_values[k]`` (p_k,). See
-        :func:`monitor.geometry.project_2d` for the projection and :func:`monitor.geometry.q_colors` for colours.
+        ``prototypes[k]`` (p_k, d) in arena units (the views' fixed range is the sensing range), ``q_values[k]``
+        (p_k,). See :func:`monitor.geometry.project_2d` for the projection and :func:`monitor.geometry.q_colors`
+        for colours; the key's Q scale is labelled with this policy's Q range.
         """
 
     def q_stats(self, q_tables: Sequence[np.ndarray], *, policy_version: int, learner_step: int | None = None) -> None:
         """Mean, min and max over every finite entry of ``q_tables`` at ``learner/q/{mean,min,max}``."""
 
     def eval_coverage(self, coverage: float, *, policy_version: int, learner_step: int | None = None) -> None:
-        """Metric A (%) of the current policy on the test trials, at ``learner/coverage/eval``."""
+        """Metric A (%) of the current policy on the test trials, at ``learner/coverage/eval`` (the learning curve);
+        the reference levels are drawn again at the same time, so that they span the curve."""
+
+    def reference_levels(self, levels: Mapping[str, float]) -> None:
+        """Metric A (%) of hand-made controllers (by ``sim.HAND_MADE`` name) on the same test trials as
+        :meth:`eval_coverage`, at ``learner/coverage/reference/<name>``: flat lines from now on, drawn again with
+        every evaluation point."""
+
+    def final_coverage(
+        self, coverage: float, *, trials: int, policy_version: int, learner_step: int | None = None
+    ) -> None:
+        """The final figure (%) on ``trials`` test trials, a marker of its own at ``learner/coverage/final``: it is
+        measured on more trials than the curve's points, so it is not joined to them."""
 
     def learner_metrics(
         self,
@@ -79,7 +98,10 @@ class Monitor:
         rejected: int,
         lag: Mapping[str, int],
     ) -> None:
-        """The learner's status figures; ``lag`` maps actor id to policy versions behind (``learner/lag/<id>``)."""
+        """The learner's status figures; ``lag`` maps actor id to policy versions behind (``learner/lag/<id>``).
+
+        The process's resident memory is logged with them (``learner/rss_mb``).
+        """
 
     def actor_metrics(
         self,
@@ -93,11 +115,25 @@ class Monitor:
     ) -> None:
         """An actor's training figures at ``actors/<actor_id>/...``; figures left ``None`` are not logged.
 
-        ``coverage`` (%) over its arenas, ``mean_reward`` per learning trial, ``policy_version`` it acts with.
+        ``coverage`` (%) over its arenas, ``mean_reward`` per learning trial, ``policy_version`` it acts with; the
+        process's resident memory is logged with them (``actors/<actor_id>/rss_mb``).
         """
 
-    def send_blueprint(self, actor_ids: Sequence[str] = (), n_actions: int = 0, *, eval_trial: bool = False) -> None:
-        """Lay the viewer out: an arena view per actor, a prototype view per action, the eval trial, the curves."""
+    def send_blueprint(
+        self,
+        actor_ids: Sequence[str] = (),
+        *,
+        eval_trial: bool = False,
+        arena_radius: float | None = None,
+        sensing_range: float | None = None,
+    ) -> None:
+        """Lay the viewer out (see :func:`monitor.layout.default_blueprint`) and log the colour key: for training,
+        the curves, an arena view per actor and the compass rose of prototype views; for ``eval_trial`` (replaying a
+        test trial) the trial and its coverage.
+
+        ``arena_radius`` and ``sensing_range`` fix the 2-D views' ranges (None: fitted to the data); with
+        ``sensing_range`` the prototype views get their static axes and sensing circle.
+        """
 
     def close(self) -> None:
         """Flush what is logged and close the sink; later calls are ignored."""

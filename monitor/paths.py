@@ -1,6 +1,10 @@
 """Names shared by every process that logs into the one recording: application id, timelines, entity paths.
 
 Paths are written without a leading ``/``; Rerun treats ``a/b`` and ``/a/b`` alike.
+
+North up: Rerun's 2-D views draw +y downwards, the simulator has north = +y. Each drawing root (an arena origin,
+``learner/prototypes/action_<k>``) therefore carries a static transform that mirrors y, and its 2-D view takes the
+root's parent as origin so that the transform applies; logged positions stay in arena coordinates.
 """
 
 from __future__ import annotations
@@ -20,20 +24,29 @@ POLICY_VERSION = "policy_version"
 LEARNER_STEP = "learner_step"
 """Sequence: iterations of the learner's main loop (one per status publish); evaluation points carry the
 iteration they ran in."""
+TRAIN_TIME = "train_time"
+"""Duration: seconds of training, on every row; the training views' x-axis. The learner's rows carry its run clock
+(the clock of the learning curve in ``report.json``, which survives ``--resume``); an actor's rows carry the seconds
+since its own loop started, which under ``ennc-ql up`` begins within seconds of the learner's."""
 WALL_TIME = "wall_time"
-"""Timestamp: seconds since the Unix epoch at the logging process; the one timeline every row carries, so series
-from different processes line up on it."""
+"""Timestamp: seconds since the Unix epoch at the logging process, on every row."""
 
 # -- learner ----------------------------------------------------------------------------------------------------
 
 LEARNER = "learner"
 LEARNER_COVERAGE_EVAL = "learner/coverage/eval"
-"""Metric A (%) of the current policy on the seeded test trials."""
+"""Metric A (%) of the current policy on the seeded test trials: the learning curve."""
+LEARNER_COVERAGE_FINAL = "learner/coverage/final"
+"""Metric A (%) of the final policy on the (more) test trials of the final figure: a marker of its own."""
+LEARNER_COVERAGE_REFERENCE = "learner/coverage/reference"
+"""Parent of ``learner/coverage/reference/<controller>``: a hand-made controller on the curve's test trials."""
 LEARNER_TUPLES_PER_S = "learner/tuples_per_s"
 LEARNER_POLICY_VERSION = "learner/policy_version"
 LEARNER_LIVE_ACTORS = "learner/live_actors"
 LEARNER_STORE_SIZE = "learner/store_size"
 LEARNER_REJECTED = "learner/rejected"
+LEARNER_RSS = "learner/rss_mb"
+"""Resident memory of the learner process (MB)."""
 LEARNER_LAG = "learner/lag"
 """Parent of ``learner/lag/<actor_id>``: policy versions an actor's latest experience lags behind."""
 LEARNER_Q = "learner/q"
@@ -50,6 +63,7 @@ ACTOR_COVERAGE = "coverage"
 ACTOR_REWARD = "reward"
 ACTOR_TUPLES_PER_S = "tuples_per_s"
 ACTOR_POLICY_VERSION = "policy_version"
+ACTOR_RSS = "rss_mb"
 
 # -- a recorded test trial (``ennc-ql eval``) --------------------------------------------------------------------
 
@@ -66,6 +80,17 @@ ARENA_SENSING = "sensing"
 ARENA_ROBOTS = "robots"
 ARENA_TARGETS = "targets"
 
+PROTOTYPE_FRAME = "frame"
+"""Under ``learner/prototypes/action_<k>``: the static axes and sensing circle the prototypes are read against."""
+
+# -- the colour key ---------------------------------------------------------------------------------------------
+
+KEY = "key"
+"""What the colours mean: ``key/{robot,sensing,sensing_disk,observed,unobserved}`` (static) and the Q scale
+``key/q/{bar,ends}`` (the ends labelled with the Q range of the latest policy)."""
+KEY_Q_BAR = "key/q/bar"
+KEY_Q_ENDS = "key/q/ends"
+
 RECORDING_FILE = "recording.rrd"
 """Name of the merged recording in a run folder."""
 
@@ -76,12 +101,17 @@ def actor(actor_id: str, metric: str) -> str:
 
 
 def actor_arena(actor_id: str) -> str:
-    """Origin of an actor's arena view: ``actors/<actor_id>/arena``."""
+    """Root of an actor's arena drawing: ``actors/<actor_id>/arena`` (its view's origin is the parent)."""
     return f"{ACTORS}/{actor_id}/arena"
 
 
 def learner_lag(actor_id: str) -> str:
     return f"{LEARNER_LAG}/{actor_id}"
+
+
+def reference(controller: str) -> str:
+    """``learner/coverage/reference/<controller>``, e.g. ``reference("a-cmommt")``."""
+    return f"{LEARNER_COVERAGE_REFERENCE}/{controller}"
 
 
 def prototypes_of(action: int) -> str:

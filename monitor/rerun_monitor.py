@@ -4,30 +4,39 @@
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 import rerun as rr
 
-from monitor import geometry, paths
+from monitor import drawings, geometry, paths, style
 from monitor.interface import Monitor
 from monitor.layout import default_blueprint
+from sim.controllers import N_ACTIONS
 
 log = logging.getLogger(__name__)
 
 CLOSE_FLUSH_TIMEOUT_S = 10.0
 """How long :meth:`RerunMonitor.close` waits for buffered data to reach the sink before giving up with a warning."""
 
-_ROBOT_COLOR = (40, 110, 230, 255)
-_SENSING_COLOR = (40, 110, 230, 40)
-_OBSERVED_COLOR = (30, 180, 60, 255)
-_UNOBSERVED_COLOR = (220, 40, 40, 255)
-_BOUNDARY_COLOR = (128, 128, 128, 255)
-# Markers in UI points (negative radii in Rerun) stay visible at any zoom of a 2000-unit arena.
-_MARKER_RADIUS = rr.components.Radius.ui_points(4.0)
-_PROTOTYPE_RADIUS = rr.components.Radius.ui_points(3.0)
+_ROBOT_COLOR = style.rgba(style.ROBOT)
+_SENSING_COLOR = style.rgba(style.ROBOT, style.SENSING_ALPHA)
+_OBSERVED_COLOR = style.rgba(style.OBSERVED)
+_UNOBSERVED_COLOR = style.rgba(style.UNOBSERVED)
+_BOUNDARY_COLOR = style.rgba(style.BOUNDARY)
+
+
+def _rss_mb() -> float | None:
+    """Resident memory of this process (MB) from ``/proc`` (Linux, where runs happen); None without it."""
+    try:
+        with open("/proc/self/statm") as statm:
+            pages = int(statm.read().split()[1])
+    except OSError:
+        return None
+    return pages * os.sysconf("SC_PAGE_SIZE") / 1e6
 
 
 class RerunMonitor(Monitor):
@@ -38,12 +47,19 @@ class RerunMonitor(Monitor):
         self.process = process
         self._named: set[str] = set()
         self._boundaries: dict[str, float] = {}
+        self._flipped: set[str] = set()
+        self._references: dict[str, float] = {}
+        opened = time.monotonic()
+        self._clock: Callable[[], float] = lambda: time.monotonic() - opened
         self._closed = False
         self._lock = threading.Lock()
 
     @property
     def enabled(self) -> bool:
         return not self._closed
+
+    def use_clock(self, clock: Callable[[], float]) -> None:
+        self._clock = clock
 
     def _at(self, sim_step: int | None, policy_version: int | None, learner_step: int | None) -> None:
         # Rerun keeps the time cursor per thread and recording id (streams sharing an id in one thread share it);
@@ -56,15 +72,30 @@ class RerunMonitor(Monitor):
             rec.set_time(paths.POLICY_VERSION, sequence=policy_version)
         if learner_step is not None:
             rec.set_time(paths.LEARNER_STEP, sequence=learner_step)
+        rec.set_time(paths.TRAIN_TIME, duration=self._clock())
         rec.set_time(paths.WALL_TIME, timestamp=time.time())
 
-    def _scalar(self, path: str, name: str, value: float) -> None:
+    def _first(self, path: str, seen: set[str]) -> bool:
+        """True the first time ``path`` is asked about for ``seen`` (thread-safe: callers log from several threads)."""
         with self._lock:
-            first = path not in self._named
-            self._named.add(path)
-        if first:
-            self.rec.log(path, rr.SeriesLines(names=name), static=True)
+            first = path not in seen
+            seen.add(path)
+        return first
+
+    def _scalar(self, path: str, name: str, value: float, marker: rr.components.MarkerShape | None = None) -> None:
+        """One point of a series named ``name``: a line, or points drawn as ``marker``."""
+        if self._first(path, self._named):
+            series: rr.SeriesLines | rr.SeriesPoints = (
+                rr.SeriesLines(names=name)
+                if marker is None
+                else rr.SeriesPoints(names=name, markers=marker, marker_sizes=style.MARKER_SIZE)
+            )
+            self.rec.log(path, series, static=True)
         self.rec.log(path, rr.Scalars(float(value)))
+
+    def _north_up(self, root: str) -> None:
+        if self._first(root, self._flipped):
+            self.rec.log(root, drawings.NORTH_UP, static=True)
 
     def scalars(
         self,
@@ -97,6 +128,7 @@ class RerunMonitor(Monitor):
         with self._lock:
             new_boundary = self._boundaries.get(origin) != arena_radius
             self._boundaries[origin] = arena_radius
+        self._north_up(origin)
         if new_boundary:
             outline = rr.LineStrips2D([geometry.circle(arena_radius)], colors=_BOUNDARY_COLOR)
             rec.log(f"{origin}/{paths.ARENA_BOUNDARY}", outline, static=True)
@@ -111,11 +143,11 @@ class RerunMonitor(Monitor):
         )
         rec.log(
             f"{origin}/{paths.ARENA_ROBOTS}",
-            rr.Points2D(robots, radii=_MARKER_RADIUS, colors=_ROBOT_COLOR, draw_order=20.0),
+            rr.Points2D(robots, radii=drawings.MARKER_RADIUS, colors=_ROBOT_COLOR, draw_order=20.0),
         )
         rec.log(
             f"{origin}/{paths.ARENA_TARGETS}",
-            rr.Points2D(targets, radii=_MARKER_RADIUS, colors=target_colors, draw_order=30.0),
+            rr.Points2D(targets, radii=drawings.MARKER_RADIUS, colors=target_colors, draw_order=30.0),
         )
 
     def prototypes(
@@ -132,11 +164,13 @@ class RerunMonitor(Monitor):
             points = geometry.project_2d(protos)
             if len(points) != len(q):
                 raise ValueError(f"action {k}: {len(points)} prototypes but {len(q)} Q values")
+            self._north_up(paths.prototypes_of(k))
             self.rec.log(
                 paths.prototypes_of(k),
-                rr.Points2D(points, radii=_PROTOTYPE_RADIUS, colors=rgba),
+                rr.Points2D(points, radii=drawings.PROTOTYPE_RADIUS, colors=rgba),
                 rr.AnyValues(q=q),
             )
+        self.rec.log(paths.KEY_Q_ENDS, drawings.q_ends(*geometry.q_range(q_values)))
 
     def q_stats(self, q_tables: Sequence[np.ndarray], *, policy_version: int, learner_step: int | None = None) -> None:
         if self._closed:
@@ -153,7 +187,34 @@ class RerunMonitor(Monitor):
         if self._closed:
             return
         self._at(None, policy_version, learner_step)
-        self._scalar(paths.LEARNER_COVERAGE_EVAL, "test trials", coverage)
+        self._scalar(paths.LEARNER_COVERAGE_EVAL, "learned policy", coverage)
+        self._log_references()
+
+    def reference_levels(self, levels: Mapping[str, float]) -> None:
+        if self._closed:
+            return
+        with self._lock:
+            self._references.update(levels)
+        self._at(None, None, None)
+        self._log_references()
+
+    def _log_references(self) -> None:
+        """The levels at the current time: a flat line through every point of the curve."""
+        with self._lock:
+            levels = dict(self._references)
+        for controller, level in levels.items():
+            label, _ = style.REFERENCES[controller]
+            self._scalar(paths.reference(controller), f"{label} {level:.1f}%", level)
+
+    def final_coverage(
+        self, coverage: float, *, trials: int, policy_version: int, learner_step: int | None = None
+    ) -> None:
+        if self._closed:
+            return
+        self._at(None, policy_version, learner_step)
+        name = f"final, {trials} trials"
+        self._scalar(paths.LEARNER_COVERAGE_FINAL, name, coverage, rr.components.MarkerShape.Diamond)
+        self._log_references()
 
     def learner_metrics(
         self,
@@ -174,6 +235,9 @@ class RerunMonitor(Monitor):
         self._scalar(paths.LEARNER_LIVE_ACTORS, "live actors", live_actors)
         self._scalar(paths.LEARNER_STORE_SIZE, "tuples stored", store_size)
         self._scalar(paths.LEARNER_REJECTED, "rejected messages", rejected)
+        rss = _rss_mb()
+        if rss is not None:
+            self._scalar(paths.LEARNER_RSS, "learner", rss)
         for actor_id, behind in lag.items():
             self._scalar(paths.learner_lag(actor_id), actor_id, behind)
 
@@ -194,16 +258,34 @@ class RerunMonitor(Monitor):
             paths.ACTOR_REWARD: mean_reward,
             paths.ACTOR_TUPLES_PER_S: tuples_per_s,
             paths.ACTOR_POLICY_VERSION: policy_version,
+            paths.ACTOR_RSS: _rss_mb(),
         }
         self._at(sim_step, policy_version, None)
         for metric, value in figures.items():
             if value is not None:
                 self._scalar(paths.actor(actor_id, metric), actor_id, value)
 
-    def send_blueprint(self, actor_ids: Sequence[str] = (), n_actions: int = 0, *, eval_trial: bool = False) -> None:
+    def send_blueprint(
+        self,
+        actor_ids: Sequence[str] = (),
+        *,
+        eval_trial: bool = False,
+        arena_radius: float | None = None,
+        sensing_range: float | None = None,
+    ) -> None:
         if self._closed:
             return
-        self.rec.send_blueprint(default_blueprint(actor_ids, n_actions, eval_trial=eval_trial))
+        blueprint = default_blueprint(
+            actor_ids, eval_trial=eval_trial, arena_radius=arena_radius, sensing_range=sensing_range
+        )
+        self.rec.send_blueprint(blueprint)
+        # The drawings the views are read against; static, so sending them again with a new layout costs nothing.
+        for path, entry in drawings.key(q_scale=not eval_trial):
+            self.rec.log(path, entry, static=True)
+        if not eval_trial and sensing_range is not None:
+            for k in range(N_ACTIONS):
+                for path, part in drawings.prototype_frame(k, sensing_range):
+                    self.rec.log(path, part, static=True)
 
     def close(self) -> None:
         with self._lock:

@@ -41,10 +41,11 @@ def test_up_saves_one_recording_of_every_process(tmp_path: Path) -> None:
     for actor in actors:
         assert f"{paths.actor_arena(actor)}/targets" in entities
         assert rows(recording, paths.actor(actor, paths.ACTOR_COVERAGE), "Scalars:scalars", paths.SIM_STEP)
-    # The evaluations of the learner, the last of them the final figure of the report.
+    # The evaluations of the learner (the learning curve), and the final figure of the report as its own marker.
     evaluations = rows(recording, paths.LEARNER_COVERAGE_EVAL, "Scalars:scalars", paths.POLICY_VERSION)
     assert len(evaluations) >= 2
-    assert abs(evaluations[-1][1][0] - report["final_coverage_mean"]) < 1e-3
+    final = rows(recording, paths.LEARNER_COVERAGE_FINAL, "Scalars:scalars", paths.POLICY_VERSION)
+    assert len(final) == 1 and abs(final[-1][1][0] - report["final_coverage_mean"]) < 1e-3
     prototypes = [paths.prototypes_of(k) for k in range(len(report["prototypes_per_action"]))]
     assert set(prototypes) <= entities
     logged = sum(len(rows(recording, p, "Points2D:positions", paths.POLICY_VERSION)[-1][1]) for p in prototypes)

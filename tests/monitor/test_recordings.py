@@ -13,10 +13,10 @@ import pytest
 from rerun.chunk import RrdReader
 
 from ennc_ql.system import free_port
-from monitor import RecordingError, Sink, merge_recordings, open_monitor, paths, summarize_recording
+from monitor import RecordingError, Sink, merge_recordings, open_monitor, paths, style, summarize_recording
 from monitor.geometry import observed_targets
 from monitor.recordings import rerun_cli
-from tests.monitor.rrd import blueprint, rows
+from tests.monitor.rrd import layout, rows
 
 REPO = Path(__file__).resolve().parents[2]
 RECORDING_ID = "test-run-1"
@@ -55,7 +55,7 @@ os.kill(os.getpid(), signal.SIGKILL)
 
 def write_learner_part(path: Path) -> None:
     with open_monitor(Sink("save", str(path)), process="learner", recording_id=RECORDING_ID) as monitor:
-        monitor.send_blueprint(["actor-0"], N_ACTIONS)
+        monitor.send_blueprint(["actor-0"], arena_radius=1000.0, sensing_range=150.0)
         for step, version in enumerate(VERSIONS):
             monitor.learner_metrics(
                 learner_step=step,
@@ -91,7 +91,8 @@ def test_merged_parts_form_one_recording(merged: Path) -> None:
     assert summary["application_ids"] == [paths.APPLICATION_ID]
     assert summary["blueprints"] == 1
     assert summary["size_bytes"] == merged.stat().st_size > 0
-    assert {paths.SIM_STEP, paths.POLICY_VERSION, paths.LEARNER_STEP, paths.WALL_TIME} <= set(summary["timelines"])
+    timelines = {paths.SIM_STEP, paths.POLICY_VERSION, paths.LEARNER_STEP, paths.TRAIN_TIME, paths.WALL_TIME}
+    assert timelines <= set(summary["timelines"])
     expected_rows = {
         paths.LEARNER_COVERAGE_EVAL: len(VERSIONS),
         paths.LEARNER_TUPLES_PER_S: len(VERSIONS),
@@ -118,8 +119,13 @@ def test_scalars_keep_their_values_and_timelines(merged: Path) -> None:
     assert actor_coverage == [(t, [float(t)]) for t in ACTOR_STEPS]
 
 
+def packed(color: style.Rgb) -> int:
+    """RGBA packed into one integer, as Rerun stores colours."""
+    return int.from_bytes(bytes(style.rgba(color)), "big")
+
+
 def test_targets_are_coloured_by_observation(merged: Path) -> None:
-    green, red = 0x1EB43CFF, 0xDC2828FF  # packed RGBA as Rerun stores colours
+    green, red = packed(style.OBSERVED), packed(style.UNOBSERVED)
     logged = rows(merged, f"{paths.actor_arena('actor-0')}/targets", "Points2D:colors", paths.SIM_STEP)
     assert [t for t, _ in logged] == list(ACTOR_STEPS)
     for t, colors in logged:
@@ -138,16 +144,29 @@ def test_prototypes_are_projected_with_their_q(merged: Path) -> None:
         np.testing.assert_allclose(q, q_values[2])
 
 
+def test_drawings_are_mirrored_north_up(merged: Path) -> None:
+    """Rerun's 2-D views draw +y down: each drawing root mirrors y, so that north (+y) is drawn at the top."""
+    flip = [1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 1.0]
+    for root in (paths.actor_arena("actor-0"), *(paths.prototypes_of(k) for k in range(N_ACTIONS))):
+        (transform,) = [
+            chunk.to_record_batch().column("Transform3D:mat3x3").to_pylist()[0]
+            for chunk in RrdReader(merged).stream()
+            if chunk.entity_path == f"/{root}" and chunk.is_static
+        ]
+        assert transform == [flip]
+
+
 def test_training_blueprint_lays_out_every_actor_and_action(merged: Path) -> None:
-    views, timeline = blueprint(merged)
-    assert timeline == paths.WALL_TIME
+    views = {view.name: (view.kind, view.origin) for view in layout(merged).views}
     spatial = {name: origin for name, (kind, origin) in views.items() if kind == "2D"}
+    # The prototype views are the compass rose of the 8 moves, whatever the recording holds.
     assert spatial == {
-        "actor-0 arena": paths.actor_arena("actor-0"),
-        **{f"action {k}": paths.prototypes_of(k) for k in range(N_ACTIONS)},
+        "actor-0 arena": "actors/actor-0",
+        "key": paths.KEY,
+        **{name: paths.LEARNER_PROTOTYPES for name in ("N", "NE", "E", "SE", "S", "SW", "W", "NW")},
     }
     curves = {name for name, (kind, _) in views.items() if kind == "TimeSeries"}
-    assert {"coverage (%)", "tuples/s", "policy version", "policy lag (versions)", "Q values", "store size"} <= curves
+    assert {"test coverage (%)", "training coverage (%)", "tuples/s", "policy version", "tuples stored"} <= curves
 
 
 def test_each_call_carries_only_its_own_timelines(tmp_path: Path) -> None:
@@ -161,9 +180,21 @@ def test_each_call_carries_only_its_own_timelines(tmp_path: Path) -> None:
     assert timelines[f"/{paths.LEARNER_COVERAGE_EVAL}"] - {"log_time"} == {
         "policy_version",
         "learner_step",
+        "train_time",
         "wall_time",
     }
-    assert timelines["/a/b"] - {"log_time"} == {"sim_step", "wall_time"}
+    assert timelines["/a/b"] - {"log_time"} == {"sim_step", "train_time", "wall_time"}
+
+
+def test_train_time_comes_from_the_clock_in_use(tmp_path: Path) -> None:
+    path = tmp_path / "clock.rrd"
+    with open_monitor(Sink("save", str(path)), process="p", recording_id="r") as monitor:
+        monitor.scalars("opened", {"x": 1.0})  # until a clock is given: seconds since the monitor opened
+        monitor.use_clock(lambda: 12.5)
+        monitor.scalars("run", {"x": 1.0})
+    ((opened, _),) = rows(path, "opened/x", "Scalars:scalars", paths.TRAIN_TIME)
+    assert 0 <= opened < 10e9  # nanoseconds
+    assert rows(path, "run/x", "Scalars:scalars", paths.TRAIN_TIME) == [(12_500_000_000, [1.0])]
 
 
 def test_merge_reports_bad_input(tmp_path: Path, merged: Path) -> None:

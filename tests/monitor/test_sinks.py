@@ -86,12 +86,15 @@ import monitor
 from monitor import Sink, open_monitor, paths
 m = open_monitor(Sink("off"), process="learner", recording_id="r")
 with m:
-    m.send_blueprint(["actor-0"], 8)
+    m.use_clock(lambda: 1.0)
+    m.send_blueprint(["actor-0"], arena_radius=1000.0, sensing_range=150.0)
     m.arena(paths.actor_arena("actor-0"), np.zeros((10, 2)), np.ones((10, 2)),
             sensing_range=150.0, arena_radius=1000.0, sim_step=0)
     m.prototypes([np.zeros((3, 6))], [np.zeros(3)], policy_version=1)
     m.q_stats([np.zeros((3, 8))], policy_version=1)
     m.eval_coverage(50.0, policy_version=1)
+    m.reference_levels({"random": 16.6})
+    m.final_coverage(50.0, trials=50, policy_version=1)
     m.learner_metrics(learner_step=1, policy_version=1, tuples_per_s=1.0, live_actors=1, store_size=1,
                       rejected=0, lag={"actor-0": 0})
     m.actor_metrics("actor-0", sim_step=5, coverage=1.0, mean_reward=0.0, tuples_per_s=1.0)

@@ -10,7 +10,7 @@ import pytest
 from monitor import Sink, open_monitor, paths, summarize_recording
 from monitor.trial import record_trial, trial_hook
 from sim import HAND_MADE, evaluate, scenario
-from tests.monitor.rrd import blueprint, rows
+from tests.monitor.rrd import layout, rows
 
 STEPS = 30
 
@@ -33,9 +33,11 @@ def test_record_trial_logs_the_arena_at_every_step(tmp_path: Path) -> None:
     coverage = logged_coverage(path)
     assert [t for t, _ in coverage] == list(range(1, STEPS + 1))
     assert np.mean([v for _, v in coverage]) == pytest.approx(score)
-    views, timeline = blueprint(path)
-    assert views == {"test trial": ("2D", paths.EVAL_ARENA), "coverage (%)": ("TimeSeries", "/")}
-    assert timeline == paths.SIM_STEP
+    replay = layout(path)
+    views = {view.name: (view.kind, view.origin) for view in replay.views}
+    # The arena is seen from its parent, so that the arena root's north-up mirror applies.
+    assert views == {"test trial": ("2D", paths.EVAL), "key": ("2D", paths.KEY), "coverage (%)": ("TimeSeries", "/")}
+    assert replay.time_panel["TimePanelBlueprint:timeline"] == paths.SIM_STEP
 
 
 def test_trial_hook_records_the_chosen_trial_of_an_evaluation(tmp_path: Path) -> None:
