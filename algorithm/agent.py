@@ -5,6 +5,7 @@ Usage::
     agent = TabularAgent(policy, Phase2Config())
     cells = agent.cells(states)                                        # (N, L) cell of each (s, a)
     actions = agent.act(robots, cells, rng, explore=True)              # ε-greedy on each robot's own table
+    actions = agent.explore(greedy_actions, rng)                       # the same ε flips on greedy actions
     agent.learn(robots, cell_sa, next_cells, rewards, dones)           # Eq. 1
     snapshot = agent.policy()
 """
@@ -59,12 +60,15 @@ class TabularAgent:
 
     def act(self, robots: np.ndarray, cells: np.ndarray, rng: np.random.Generator, explore: bool) -> np.ndarray:
         """(N,) greedy actions on each robot's table; with ``explore`` a fraction ε is replaced by random ones."""
-        q = self._lookup(robots, cells)
-        actions = np.argmax(q, axis=1)
-        if explore and self.config.epsilon > 0:
-            flip = rng.random(actions.size) < self.config.epsilon
-            actions = np.where(flip, rng.integers(0, N_ACTIONS, actions.size), actions)
-        return actions
+        actions = np.argmax(self._lookup(robots, cells), axis=1)
+        return self.explore(actions, rng) if explore else actions
+
+    def explore(self, greedy: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """``greedy`` (N,) actions with a fraction ε replaced by random ones (what ``act`` does with ``explore``)."""
+        if self.config.epsilon <= 0:
+            return greedy
+        flip = rng.random(greedy.size) < self.config.epsilon
+        return np.where(flip, rng.integers(0, N_ACTIONS, greedy.size), greedy)
 
     def learn(
         self,

@@ -12,15 +12,21 @@ All L discretizations are stored concatenated, so that one flat vector of Σ_a P
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
+
+from algorithm._search import SearchIndex, build_index, search
 
 _CHUNK = 16384
 
 
 def nearest(points: np.ndarray, prototypes: np.ndarray) -> np.ndarray:
-    """(N,) index of the nearest prototype (Euclidean; lowest index on a tie) for each row of ``points``."""
+    """(N,) index of the nearest prototype (Euclidean; lowest index on a tie) for each row of ``points``.
+
+    Brute force (a matmul per chunk), for one-off searches such as LBG's; :meth:`Discretization.cells` answers the
+    many searches of learning and acting with a built index instead.
+    """
     points = np.asarray(points, dtype=np.float64)
     prototypes = np.asarray(prototypes, dtype=np.float64)
     sq = np.einsum("pd,pd->p", prototypes, prototypes)
@@ -46,6 +52,8 @@ class Discretization:
     """(d,) float32 per-dimension scale of the metric: a state's cell is its nearest prototype under
     |(x − c) / scale|. None means plain Euclidean. ENNC-QL fits on standardized states (see
     :class:`~algorithm.phase1.Phase1Config`), so its discretizations carry the scale they were fitted with."""
+    _index: tuple[SearchIndex, bool] | None = field(default=None, init=False, repr=False, compare=False)
+    """The search index of :meth:`cells` and whether every action shares action 0's prototypes, built on first use."""
 
     def __post_init__(self) -> None:
         p = self.prototypes
@@ -108,20 +116,29 @@ class Discretization:
         return self.prototypes[self.offsets[action] : self.offsets[action + 1]]
 
     def cells(self, states: np.ndarray) -> np.ndarray:
-        """(N, L) int64 global cell of each state under each action's discretization."""
+        """(N, L) int64 global cell of each state under each action's discretization: its nearest prototype
+        (lowest index on a tie) under float64 squared distances, found by :mod:`algorithm._search`."""
         states = np.asarray(states)
         if states.ndim != 2 or states.shape[1] != self.dim:
             raise ValueError(f"states must have shape (N, {self.dim}), got {states.shape}")
-        out = np.empty((states.shape[0], self.n_actions), dtype=np.int64)
+        if not np.isfinite(states).all():
+            raise ValueError("states must be finite")
         if self.scale is not None:
             states = states / self.scale
-        if self.is_shared():
-            local = nearest(states, self._scaled(0))
-            out[:] = self.offsets[:-1][None, :] + local[:, None]
-            return out
-        for a in range(self.n_actions):
-            out[:, a] = self.offsets[a] + nearest(states, self._scaled(a))
-        return out
+        index, shared = self._search_index()
+        if shared:
+            return self.offsets[:-1][None, :] + search(index, states)
+        return search(index, states)
+
+    def _search_index(self) -> tuple[SearchIndex, bool]:
+        if self._index is None:
+            shared = self.is_shared()
+            actions = 1 if shared else self.n_actions
+            index = build_index([self._scaled(a) for a in range(actions)], self.offsets)
+            # Frozen for callers; the index is derived from the fields, so caching it changes nothing they see.
+            object.__setattr__(self, "_index", (index, shared))
+        assert self._index is not None
+        return self._index
 
     def _scaled(self, action: int) -> np.ndarray:
         protos = self.action_prototypes(action)

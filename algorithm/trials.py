@@ -25,7 +25,7 @@ from algorithm.policy import ActionMode
 from algorithm.transitions import Transitions
 from sim import FEATURIZERS, ScenarioConfig
 from sim.rollout import StepHook
-from sim.trial import TrialState, random_actions, reset_trial, step_trial
+from sim.trial import TrialState, TrialStep, random_actions, reset_trial, step_trial
 
 
 @dataclass(frozen=True, slots=True)
@@ -72,37 +72,55 @@ class ExperienceSlice:
         # VQQL actions last until the held action's cell changes, so they need the agent's discretization.
         until_change = sc.action_mode == "until_change" and agent is not None
         hold = sc.max_action_steps if until_change else cfg.action_steps
-        robot_ids = np.broadcast_to(np.arange(cfg.n_robots), state.shape)
         decide = np.ones(state.shape, dtype=bool)
         cell_sa = np.zeros(state.shape, np.int64)  # cell of (s, a) for the held action, for Eq. 1 and VQQL
+        # (E·m, L) every robot's cells at the latest state searched for it. A state is searched once: the decision
+        # made in it and the update of the tuple ending in it (its s′) read the same row.
+        cells = None if agent is None else agent.cells(_flat(state.features))
         parts: list[Transitions] = []
         while True:
-            action, cell_sa = self._decide(agent, state, decide, cell_sa, learn)
+            action, cell_sa = self._decide(agent, state, decide, cell_sa, learn, cells)
             state, out = step_trial(cfg, state, action, decide, rng, hold=hold)
             if on_step is not None:
                 on_step(state.world, state.obs)
-            cells = None
-            if until_change and agent is not None:
-                cells = agent.cells(state.features.reshape(-1, state.features.shape[-1])).reshape(*state.shape, -1)
-                now = np.take_along_axis(cells, out.action[..., None], axis=2)[..., 0]
-                out = out.with_boundary(now != cell_sa)
-            emit = out.transition
-            if emit.any():
-                batch = Transitions(
-                    robot=robot_ids[emit].astype(np.int16),
-                    state=out.start_features[emit],
-                    action=out.action[emit].astype(np.uint8),
-                    reward=out.reward[emit],
-                    next_state=out.next_features[emit],
-                    done=out.done[emit],
-                )
-                parts.append(batch)
-                if learn and agent is not None:
-                    next_cells = agent.cells(batch.next_state) if cells is None else cells[emit]
-                    agent.learn(robot_ids[emit], cell_sa[emit], next_cells, batch.reward, batch.done)
+            if agent is not None and cells is not None:
+                # Robots that decide next, and learners whose tuple ends here and bootstraps from s′ (VQQL: all,
+                # for the cell-change boundary). Rows of ended trials keep older cells that Eq. 1 does not read.
+                need = np.ones(state.shape, bool) if until_change else out.decide | (out.transition & ~out.done)
+                rows = np.flatnonzero(need)
+                cells[rows] = agent.cells(_flat(state.features)[rows])
+                if until_change:
+                    now = np.take_along_axis(cells.reshape(*state.shape, -1), out.action[..., None], axis=2)[..., 0]
+                    out = out.with_boundary(now != cell_sa)
+            self._emit(out, agent if learn else None, cell_sa, cells, parts)
             if out.trial_over:
                 return Transitions.concat(parts) if parts else Transitions.empty(FEATURIZERS[sc.featurizer])
             decide = out.decide
+
+    def _emit(
+        self,
+        out: TrialStep,
+        learner: TabularAgent | None,
+        cell_sa: np.ndarray,
+        cells: np.ndarray | None,
+        parts: list[Transitions],
+    ) -> None:
+        """Append the tuples that end on this step to ``parts``; with ``learner``, apply Eq. 1 to them."""
+        emit = out.transition
+        if not emit.any():
+            return
+        robots = np.broadcast_to(np.arange(emit.shape[1]), emit.shape)[emit]
+        batch = Transitions(
+            robot=robots.astype(np.int16),
+            state=out.start_features[emit],
+            action=out.action[emit].astype(np.uint8),
+            reward=out.reward[emit],
+            next_state=out.next_features[emit],
+            done=out.done[emit],
+        )
+        parts.append(batch)
+        if learner is not None and cells is not None:
+            learner.learn(robots, cell_sa[emit], cells[np.flatnonzero(emit)], batch.reward, batch.done)
 
     def _decide(
         self,
@@ -111,25 +129,32 @@ class ExperienceSlice:
         decide: np.ndarray,
         cell_sa: np.ndarray,
         explore: bool,
+        all_cells: np.ndarray | None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """(E, m) actions, read where ``decide``, and the cell of (s, a) of every robot's held action.
 
-        Learners explore ε-greedily when ``explore``; the other robots act greedily.
+        ``all_cells`` (E·m, L) holds the cells of the deciding robots' states. Learners explore ε-greedily when
+        ``explore``; the other robots act greedily.
         """
         if not decide.any():
             return state.action, cell_sa
-        if agent is None:
+        if agent is None or all_cells is None:
             return random_actions(state, self.rng), cell_sa
         m = state.shape[1]
         who = np.flatnonzero(decide)
-        cells = agent.cells(state.features.reshape(-1, state.features.shape[-1])[who])
+        cells = all_cells[who]
         robots = who % m
         learner_rows = self.learner_mask[robots]
         chosen = agent.act(robots, cells, self.rng, explore=False)
         if explore and learner_rows.any():
-            chosen[learner_rows] = agent.act(robots[learner_rows], cells[learner_rows], self.rng, explore=True)
+            chosen[learner_rows] = agent.explore(chosen[learner_rows], self.rng)
         action = state.action.reshape(-1).copy()
         action[who] = chosen
         new_cell_sa = cell_sa.reshape(-1).copy()
         new_cell_sa[who] = cells[np.arange(who.size), chosen]
         return action.reshape(state.shape), new_cell_sa.reshape(state.shape)
+
+
+def _flat(features: np.ndarray) -> np.ndarray:
+    """(E·m, d) view of (E, m, d) states."""
+    return features.reshape(-1, features.shape[-1])

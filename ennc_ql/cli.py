@@ -85,7 +85,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from ennc_ql.bench import bench_ennc, bench_sim
+    from ennc_ql.bench import actor_table, bench_actor, bench_ennc, bench_sim
 
     if args.what == "ennc":
         out = bench_ennc(args.patterns, args.cycles, args.phase1_tuples)
@@ -116,6 +116,14 @@ def cmd_bench(args: argparse.Namespace) -> int:
             for name in rates
         )
         _emit(out, args.json, table)
+    if args.what == "actor":
+        policy = None
+        if args.policy is not None:
+            from algorithm.policy_file import load_policy
+
+            policy = load_policy(args.policy)[0]
+        out = bench_actor(args.scenario, args.arenas, args.seconds, policy=policy)
+        _emit(out, args.json, actor_table(out))
     return 0
 
 
@@ -186,11 +194,16 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("bench", help="measure performance figures")
     p.add_argument(
         "what",
-        choices=["sim", "ennc", "transport"],
-        help="sim: simulator robot-steps/s; ennc: ENNC vs k-means and phase 1 time; transport: actors -> store",
+        choices=["sim", "ennc", "transport", "actor"],
+        help="sim: simulator robot-steps/s; ennc: ENNC vs k-means and phase 1 time; transport: actors -> store; "
+        "actor: a phase-2 actor slice against the bare simulator",
     )
     p.add_argument("--scenario", default="cmommt-v1", choices=sorted(SCENARIOS))
-    p.add_argument("--seconds", type=float, default=1.5, help="sim: measuring time per configuration")
+    p.add_argument(
+        "--seconds", type=float, default=1.5, help="sim: measuring time per configuration; actor: per phase of a round"
+    )
+    p.add_argument("--arenas", type=positive(int), default=500, help="actor: arenas of the slice (default 500, as up)")
+    p.add_argument("--policy", help="actor: a policy file to act on (default: learn one by phase 1 on exploration)")
     p.add_argument("--patterns", type=positive(int), default=100_000, help="ennc: patterns of the ENNC fit")
     p.add_argument("--cycles", type=positive(int), default=250, help="ennc: ENNC cycles / k-means iterations")
     p.add_argument(

@@ -1,0 +1,43 @@
+"""``ennc-ql bench actor``: an actor's phase-2 slice against the bare simulator (figures only, no timing asserted)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from algorithm.discretization import Discretization
+from algorithm.policy import Policy
+from algorithm.policy_file import save_policy
+from ennc_ql.cli import main
+from sim import scenario
+
+
+@pytest.fixture
+def policy_file(tmp_path: Path) -> Path:
+    cfg = scenario()
+    rng = np.random.default_rng(0)
+    disc = Discretization.from_per_action([rng.uniform(-150, 150, (size, 6)) for size in (3, 5, 2, 7, 1, 4, 6, 2)])
+    policy = Policy("collab6d", disc, np.zeros((cfg.n_robots, disc.size), np.float32), np.arange(cfg.n_robots))
+    return save_policy(policy, cfg, tmp_path / "policy.npz")
+
+
+def test_bench_actor_reports_the_slice_against_the_simulator(
+    capsys: pytest.CaptureFixture[str], policy_file: Path
+) -> None:
+    argv = ["bench", "actor", "--policy", str(policy_file), "--arenas", "4", "--seconds", "0.01", "--json"]
+    assert main(argv) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert {"robot_steps_per_s", "sim_robot_steps_per_s", "ratio", "tuples_per_s", "prototypes_per_action"} <= set(out)
+    assert out["prototypes_per_action"] == [3, 5, 2, 7, 1, 4, 6, 2]
+    assert out["robot_steps_per_s"] > 0 and out["sim_robot_steps_per_s"] > 0 and out["tuples_per_s"] > 0
+    assert out["ratio"] == pytest.approx(out["robot_steps_per_s"] / out["sim_robot_steps_per_s"], rel=1e-3, abs=1e-4)
+    assert out["arenas"] == 4
+
+
+def test_bench_actor_prints_a_table_without_json(capsys: pytest.CaptureFixture[str], policy_file: Path) -> None:
+    assert main(["bench", "actor", "--policy", str(policy_file), "--arenas", "2", "--seconds", "0.01"]) == 0
+    text = capsys.readouterr().out
+    assert "robot-steps/s" in text and "ratio" in text
