@@ -25,7 +25,10 @@ Usage, one cycle by hand (what :class:`algorithm.ennc.ENNC` does 250 times)::
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
+from scipy.spatial import cKDTree
 from torch import Tensor
 
 #: Bytes of distance matrix evaluated per chunk when the caller gives no chunk size. On CPU a few MiB keeps
@@ -37,6 +40,10 @@ CUDA_CHUNK_BYTES = 256 << 20
 #: :func:`refresh_nearest` falls back to a full pass when its partial work exceeds this fraction of one; the
 #: gathers of the partial path cost about what this margin leaves.
 REFRESH_FULL_FRACTION = 0.6
+
+#: Build options of the k-d trees over the prototypes (one or two per cycle): an unbalanced tree with larger
+#: leaves built in half the time and queried about 20 % faster on 7 000 6-D prototypes.
+KD_TREE: dict[str, Any] = {"leafsize": 32, "balanced_tree": False}
 
 #: Relative gap (to ``||x||² + max ||c||²``) under which two scores from different passes count as a tie;
 #: float64 rounding of a 6-term dot product is about 1e-15 of that scale.
@@ -86,17 +93,24 @@ def nearest_prototype(X: Tensor, prototypes: Tensor, chunk_rows: int | None = No
 
 def _duplicates(prototypes: Tensor) -> Tensor:
     """(P,) bool: rows equal to a row of lower index."""
-    none = torch.zeros(prototypes.shape[0], dtype=torch.bool, device=prototypes.device)
-    if prototypes.shape[0] < 2:
-        return none
-    # Equal rows have equal norms: when no two norms are equal (the usual case) there is nothing to group.
-    norms = torch.sort((prototypes * prototypes).sum(dim=1)).values
-    if not bool((norms[1:] == norms[:-1]).any()):
-        return none
-    _, group = torch.unique(prototypes, dim=0, return_inverse=True)
-    order = torch.arange(prototypes.shape[0], device=prototypes.device)
-    first = torch.full_like(order, prototypes.shape[0]).scatter_reduce_(0, group, order, reduce="amin")
-    return first[group] != order
+    n_proto = prototypes.shape[0]
+    duplicate = torch.zeros(n_proto, dtype=torch.bool, device=prototypes.device)
+    if n_proto < 2:
+        return duplicate
+    # Equal rows have equal norms: only rows that share their norm with another need grouping (a row-wise
+    # unique over all P rows cost a quarter of a cycle at P ≈ 7 000).
+    norms, by_norm = torch.sort((prototypes * prototypes).sum(dim=1))
+    tied = norms[1:] == norms[:-1]
+    if not bool(tied.any()):
+        return duplicate
+    shares = torch.zeros(n_proto, dtype=torch.bool, device=prototypes.device)
+    shares[1:] |= tied
+    shares[:-1] |= tied
+    rows = by_norm[shares]
+    _, group = torch.unique(prototypes.index_select(0, rows), dim=0, return_inverse=True)
+    first = torch.full_like(rows, n_proto).scatter_reduce_(0, group, rows, reduce="amin")
+    duplicate[rows] = first[group] != rows
+    return duplicate
 
 
 def nearest_among_new(
@@ -205,21 +219,40 @@ def _reach(prototypes: Tensor, moved: Tensor) -> Tensor:
     """(P,) distance from each prototype to the nearest other prototype that may now take its patterns:
     any other one if it moved, a moved one otherwise (∞ when there is none).
 
-    Computed in blocks of prototype rows so that memory stays near 4 M distances for any P.
+    Two k-d tree queries, O(P·log P): the (P, P) distance table they replace took a quarter of the cycle at
+    1 851 prototypes on 5 000 patterns.
     """
-    n_proto = prototypes.shape[0]
-    reach = torch.full((n_proto,), float("inf"), dtype=prototypes.dtype, device=prototypes.device)
-    if not bool(moved.any()):
+    reach = torch.full((prototypes.shape[0],), float("inf"), dtype=prototypes.dtype, device=prototypes.device)
+    if not bool(moved.any()) or prototypes.shape[0] < 2:
         return reach
-    block = max(1, (4 << 20) // n_proto)
-    for start in range(0, n_proto, block):
-        stop = min(n_proto, start + block)
-        dist = torch.cdist(prototypes[start:stop], prototypes, compute_mode="donot_use_mm_for_euclid_dist")
-        candidate = moved[None, :] | moved[start:stop, None]
-        rows = torch.arange(stop - start, device=prototypes.device)
-        candidate[rows, rows + start] = False
-        reach[start:stop] = dist.masked_fill(~candidate, float("inf")).amin(dim=1)
+    points = prototypes.cpu().numpy()
+    is_moved = moved.cpu().numpy()
+    # A moved prototype: its nearest other prototype (the second hit; the first is itself or a duplicate at 0).
+    dist_all, _ = cKDTree(points, **KD_TREE).query(points[is_moved], k=2)
+    reach[moved] = torch.as_tensor(dist_all[:, 1], dtype=prototypes.dtype, device=prototypes.device)
+    if not is_moved.all():
+        dist_moved, _ = cKDTree(points[is_moved], **KD_TREE).query(points[~is_moved], k=1)
+        reach[~moved] = torch.as_tensor(dist_moved, dtype=prototypes.dtype, device=prototypes.device)
     return reach
+
+
+def nearest_neighbours(prototypes: Tensor, k: int) -> Tensor:
+    """(P, k) int64: the ``k`` nearest other prototypes of each prototype, nearest first (k < P).
+
+    A k-d tree query (O(P·log P)) instead of the (P, P) distance table. A duplicate of a prototype counts as
+    a neighbour at distance 0; the prototype itself never does.
+
+    >>> nearest_neighbours(torch.tensor([[0.0], [1.0], [3.0]], dtype=torch.float64), 1).tolist()
+    [[1], [0], [1]]
+    """
+    points = prototypes.cpu().numpy()
+    _, hits = cKDTree(points, **KD_TREE).query(points, k=k + 1)
+    hits = torch.as_tensor(hits.reshape(points.shape[0], k + 1), dtype=torch.int64)
+    # The prototype itself is among the k + 1 hits unless more than k duplicates tie at 0: move it last
+    # (stable, so the others keep their order) and drop the last column.
+    is_self = hits == torch.arange(points.shape[0])[:, None]
+    order = torch.argsort(is_self.to(torch.int8), dim=1, stable=True)
+    return hits.gather(1, order[:, :k]).to(prototypes.device)
 
 
 def _keep_nearer(
@@ -394,10 +427,7 @@ def fight(
     k = min(k_fight, n_proto - 1)
     if k <= 0:
         return owner
-    dist = torch.cdist(prototypes, prototypes, compute_mode="donot_use_mm_for_euclid_dist")
-    dist.fill_diagonal_(float("inf"))
-    # topk is O(P·k) per row where a full sort of the (P, P) table dominated the cycle at P ≈ 1000.
-    neighbours = torch.topk(dist, k, dim=1, largest=False, sorted=True).indices
+    neighbours = nearest_neighbours(prototypes, k)
     gap = q[:, None] - q[neighbours]
     best_gap, best = gap.max(dim=1)
     target = neighbours.gather(1, best[:, None]).squeeze(1)

@@ -18,7 +18,10 @@ in the form ``check_estimator(ENNC(), expected_failed_checks=EXPECTED_FAILED_CHE
 
 Cost: a cycle is dominated by region assignment, O(N·P·d). The first one is a full chunked GEMM pass; later
 cycles only re-examine patterns that the last move, die or reproduction can have re-assigned (centre–centre
-bound, :func:`algorithm._ennc_ops.refresh_nearest`), typically a fifth of a full pass once the population settles.
+bound, :func:`algorithm._ennc_ops.refresh_nearest`), typically a fifth of a full pass once the population settles,
+and under a tenth once it holds thousands of small regions. The prototype–prototype steps (the fight's nearest
+neighbours, the bound's nearest-candidate distance) are k-d tree queries, O(P·log P), so no step grows as P²:
+(P, P) tables took 40 % of the cycle at 1 851 prototypes on 5 000 patterns, and ever more as P grew.
 
 Usage::
 

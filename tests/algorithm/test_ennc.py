@@ -213,6 +213,26 @@ def test_only_the_k_nearest_neighbours_are_fought() -> None:
     assert owner.view(3, 2).tolist() == [[0, 0], [0, 1], [2, 2]]
 
 
+def test_nearest_neighbours_match_a_brute_force_table_and_never_include_the_prototype_itself() -> None:
+    protos = torch.rand((300, 6), generator=torch.Generator().manual_seed(0), dtype=F64)
+    dist = torch.cdist(protos, protos).fill_diagonal_(float("inf"))
+    for k in (1, 3):
+        assert torch.equal(ops.nearest_neighbours(protos, k), torch.topk(dist, k, largest=False).indices)
+    # Duplicates are neighbours at distance 0, whichever of them the tree returns first.
+    dup = t([[0.0], [0.0], [0.0], [5.0]])
+    assert ops.nearest_neighbours(dup, 2)[:3].sort(dim=1).values.tolist() == [[1, 2], [0, 2], [0, 1]]
+
+
+def test_reach_is_the_distance_to_the_nearest_prototype_that_may_take_the_patterns() -> None:
+    protos = torch.rand((200, 6), generator=torch.Generator().manual_seed(1), dtype=F64)
+    moved = torch.rand(200, generator=torch.Generator().manual_seed(2)) < 0.3
+    candidate = moved[None, :] | moved[:, None]
+    candidate.fill_diagonal_(False)
+    expected = torch.cdist(protos, protos).masked_fill(~candidate, float("inf")).amin(dim=1)
+    torch.testing.assert_close(ops._reach(protos, moved), expected, rtol=1e-14, atol=1e-14)
+    assert torch.isinf(ops._reach(protos, torch.zeros(200, dtype=torch.bool))).all()
+
+
 def test_a_cell_claimed_twice_goes_to_the_higher_quality_winner() -> None:
     protos = t([[-1.0], [0.0], [1.0]])
     labels, q = torch.tensor([0, 1, 0]), t([0.6, 0.0, 0.9])
