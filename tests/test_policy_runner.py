@@ -7,6 +7,7 @@ shared clock) and VQQL local (local2d, one table, no `scale`, `until_change` per
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -15,24 +16,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from algorithm.experiments import METHODS, Budget, train
-from algorithm.phase1 import Phase1Config
+from algorithm.experiments import METHODS, train
 from algorithm.policy_file import save_policy
 from ennc_ql.cli import main
 from sim import scenario
+from tests.ennc_ql.test_reproduce import TINY as TINY_REPRODUCE
 
 RUNNER = Path(__file__).resolve().parents[1] / "examples" / "policy_runner.py"
 TRIALS, STEPS, SEED = 20, 1000, 0
-# A learning budget of about a second or three: the policies are poor, but they are policies the project wrote.
-TINY = Budget(
-    arenas=24,
-    explore_trials=1,
-    phase2_trials=2,
-    phase1=Phase1Config(max_iterations=1, n_cycles=25, max_patterns=1500),
-    codebook_patterns=1500,
-    test_trials=1,
-    test_steps=10,
-)
+# reproduce's test budget (a second or three of learning: poor policies, but policies the project wrote), with
+# the learning process's own test trials cut short: this test evaluates the policy itself.
+TINY = dataclasses.replace(TINY_REPRODUCE, test_trials=1, test_steps=10)
 
 
 @pytest.fixture(scope="module", params=["ennc-ql-collab-option2", "vqql-local-16"])
