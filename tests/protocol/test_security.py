@@ -257,3 +257,41 @@ def test_zenoh_drops_a_message_over_the_protocol_limit_while_reassembling_it() -
         publisher.undeclare()
         sub.undeclare()
     assert got == [1000, 10]
+
+
+def test_a_client_configured_from_docs_protocol_section_8_alone_delivers(
+    secure_set: SecureSet, cluster: dict[str, zenoh.Session]
+) -> None:
+    """The settings docs/protocol.md §8 lists for a client, written by hand (not secure init's file): its own
+    certificate, key and password, the CA, the router's TLS endpoint."""
+    folder = secure_set.folder
+    password = dict(line.split(":", 1) for line in (folder / "credentials.txt").read_text().splitlines())["actor-1"]
+    conf = zenoh.Config()
+    settings = {
+        "mode": "client",
+        "connect/endpoints": list(secure_set.connect),
+        "connect/timeout_ms": 10_000,
+        "scouting/multicast/enabled": False,
+        "transport/link/tls/root_ca_certificate": str(folder / "ca.pem"),
+        "transport/link/tls/connect_certificate": str(folder / "actor-1.pem"),
+        "transport/link/tls/connect_private_key": str(folder / "actor-1.key"),
+        "transport/link/tls/enable_mtls": True,
+        "transport/auth/usrpwd/user": "actor-1",
+        "transport/auth/usrpwd/password": password,
+    }
+    for key, value in settings.items():
+        conf.insert_json5(key, json.dumps(value))
+    got: list[bytes] = []
+    sub = cluster["learner"].declare_subscriber(KEYS.experience("*"), lambda s: got.append(s.payload.to_bytes()))
+    try:
+        with zenoh.open(conf) as client:
+            publisher = client.declare_publisher(KEYS.experience("actor-1"))
+            assert _wait(lambda: bool(publisher.matching_status.matching))
+            publisher.put(b"by the document")
+            client.put(KEYS.experience("actor-0"), b"not its key")
+            assert _wait(lambda: b"by the document" in got)
+            time.sleep(0.5)
+            publisher.undeclare()
+    finally:
+        sub.undeclare()
+    assert got == [b"by the document"]
