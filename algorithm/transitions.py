@@ -56,7 +56,8 @@ class Transitions:
             done=np.concatenate([p.done for p in parts]),
         )
 
-    def take(self, index: np.ndarray) -> Transitions:
+    def take(self, index: np.ndarray | slice) -> Transitions:
+        """The tuples at ``index``: copies for an index array, views for a slice."""
         return Transitions(
             robot=self.robot[index],
             state=self.state[index],

@@ -6,7 +6,7 @@ congestion control, reliable):
 1. **protocol**: each publisher builds an :class:`~protocol.ExperienceBatch` per sequence number (d = 6) and
    publishes it through :class:`~protocol.ZenohTransport` (validation + msgpack codec), as an actor does; the
    receiver is the learner's real receive path, :class:`learner.intake.ExperienceIntake` behind a ZenohTransport
-   subscription (decode, validate, de-duplicate by (actor, incarnation, seq), store in the ring buffer).
+   subscription (decode, validate, de-duplicate by (actor, incarnation, seq), keep in the bounded store).
 2. **raw zenoh**: the publishers ``put`` one pre-built byte string of the same size in a loop; a plain subscriber
    only counts.
 
@@ -59,7 +59,7 @@ DIM = 6
 RAW_KEY = "enncql-bench/raw"
 """Outside the protocol's key space: the raw payloads are not messages."""
 STORE_CAPACITY = 1 << 20
-"""Tuples in the receiver's ring buffer (the learner's default is of the same order)."""
+"""Tuples the receiver's store keeps (the learner's default is of the same order)."""
 TARGET = {"tuples_per_s": 5e6, "ratio": 0.5, "lost": 0}
 _STARTUP_TIMEOUT_S = 60.0
 _DRAIN_TIMEOUT_S = 30.0

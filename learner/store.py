@@ -1,21 +1,26 @@
 """The learner's bounded experience store and its per-sender sequence ledger.
 
-The store is a ring buffer of columnar tuples: memory is fixed at construction, and when it is full the oldest
-tuples are overwritten (counted in ``overwritten``). The ledger de-duplicates batches by (actor, incarnation,
-seq) and counts the sequence numbers that never arrived. Both round-trip through plain arrays for checkpoints.
+The store keeps the newest ``capacity`` tuples as a queue of the batches they arrived in; when it is full the oldest
+tuples go first (counted in ``overwritten``). A batch decoded from the wire is kept as it arrived, without a copy:
+its arrays are read-only views on the payload's immutable bytes, so holding them costs exactly their size, and the
+receive path copies each tuple once (out of Zenoh) instead of a further time into a ring buffer. Memory is the
+stored tuples plus at most one batch, or one restore chunk, that is partly overwritten. The ledger de-duplicates
+batches by (actor, incarnation, seq) and counts the sequence numbers that never arrived. Both round-trip through
+plain arrays for checkpoints.
 
 Usage::
 
     store = ExperienceStore(capacity=2_000_000, dim=6)
     if ledger.accept(actor, incarnation, seq):
-        store.add(transitions)
-    sample = store.sample(100_000, rng)
+        store.add(transitions, policy_version)
+    everything = store.view()       # one contiguous copy, oldest first
 """
 
 from __future__ import annotations
 
 import json
 import logging
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,25 +29,42 @@ from algorithm.transitions import Transitions
 
 log = logging.getLogger(__name__)
 
+RESTORE_CHUNK = 65536
+"""Tuples per batch a restored store is cut into, so that overwriting it frees memory as it goes."""
+
+
+_COLUMNS = ("robot", "state", "action", "reward", "next_state", "done")
+
+
+def _copied(batch: Transitions) -> Transitions:
+    return Transitions(*(np.array(getattr(batch, name)) for name in _COLUMNS))
+
+
+def _kept(batch: Transitions) -> Transitions:
+    # Read-only arrays are the wire's (views on immutable bytes) and are kept as they are; a writeable one could
+    # still be changed by its owner, so the store keeps a copy of it.
+    if any(getattr(batch, name).flags.writeable for name in _COLUMNS):
+        return _copied(batch)
+    return batch
+
+
+@dataclass(frozen=True, slots=True)
+class _Batch:
+    tuples: Transitions
+    policy_version: int
+
 
 class ExperienceStore:
-    """A fixed-capacity ring buffer of tuples ⟨robot, s, a, r, s′, done, policy_version⟩."""
+    """The newest ``capacity`` tuples ⟨robot, s, a, r, s′, done⟩, each with the policy version that collected it."""
 
     def __init__(self, capacity: int, dim: int) -> None:
         if capacity < 1 or dim < 1:
             raise ValueError("capacity and dim must be positive")
         self.capacity = capacity
         self.dim = dim
-        self.robot = np.zeros(capacity, np.int16)
-        self.state = np.zeros((capacity, dim), np.float32)
-        self.action = np.zeros(capacity, np.uint8)
-        self.reward = np.zeros(capacity, np.float32)
-        self.next_state = np.zeros((capacity, dim), np.float32)
-        self.done = np.zeros(capacity, bool)
-        self.policy_version = np.zeros(capacity, np.int64)
         self.total = 0
         """Tuples ever added."""
-        self._head = 0  # next slot to write
+        self._batches: deque[_Batch] = deque()
         self._size = 0
 
     def __len__(self) -> int:
@@ -60,55 +82,51 @@ class ExperienceStore:
         if batch.dim != self.dim:
             raise ValueError(f"batch has state dimension {batch.dim}, the store holds {self.dim}")
         if n > self.capacity:
-            batch = batch.take(np.arange(n - self.capacity, n))
+            # Copied, so that the rest of an oversized batch is not held by the slice that stays.
+            batch = _copied(batch.take(slice(n - self.capacity, n)))
             self.total += n - self.capacity
             n = self.capacity
-        # At most two contiguous slice writes (the ring wraps once): fancy indexing cost twice as much per batch.
-        first = min(n, self.capacity - self._head)
-        for lo, hi, src in ((self._head, self._head + first, slice(0, first)), (0, n - first, slice(first, n))):
-            if hi <= lo:
-                continue
-            self.robot[lo:hi] = batch.robot[src]
-            self.state[lo:hi] = batch.state[src]
-            self.action[lo:hi] = batch.action[src]
-            self.reward[lo:hi] = batch.reward[src]
-            self.next_state[lo:hi] = batch.next_state[src]
-            self.done[lo:hi] = batch.done[src]
-            self.policy_version[lo:hi] = policy_version
+        else:
+            batch = _kept(batch)
+        self._batches.append(_Batch(batch, policy_version))
+        self._size += n
         self.total += n
-        self._head = int((self._head + n) % self.capacity)
-        self._size = min(self._size + n, self.capacity)
+        excess = self._size - self.capacity
+        while excess > 0:
+            oldest = self._batches[0]
+            size = len(oldest.tuples)
+            if size <= excess:
+                self._batches.popleft()
+                self._size -= size
+                excess -= size
+            else:
+                self._batches[0] = _Batch(oldest.tuples.take(slice(excess, size)), oldest.policy_version)
+                self._size -= excess
+                excess = 0
 
-    def view(self, index: np.ndarray | None = None) -> Transitions:
-        """The stored tuples (all, or those at ``index`` < len) as :class:`Transitions` (copies)."""
-        stored = Transitions(
-            robot=self.robot,
-            state=self.state,
-            action=self.action,
-            reward=self.reward,
-            next_state=self.next_state,
-            done=self.done,
+    def view(self) -> Transitions:
+        """Every stored tuple, oldest first, as one :class:`Transitions` (a copy)."""
+        if not self._batches:
+            return Transitions.empty(self.dim)
+        return Transitions.concat([b.tuples for b in self._batches])
+
+    @property
+    def policy_version(self) -> np.ndarray:
+        """(len,) int64 policy version of every stored tuple, oldest first."""
+        return np.concatenate(
+            [np.full(len(b.tuples), b.policy_version, np.int64) for b in self._batches] or [np.zeros(0, np.int64)]
         )
-        return stored.take(np.arange(len(self)) if index is None else index)
-
-    def sample(self, n: int, rng: np.random.Generator) -> Transitions:
-        """At most ``n`` stored tuples drawn uniformly without replacement."""
-        size = len(self)
-        if n >= size:
-            return self.view()
-        return self.view(np.sort(rng.choice(size, n, replace=False)))
 
     def to_arrays(self) -> dict[str, np.ndarray]:
-        size = len(self)
-        order = (self._head - size + np.arange(size)) % self.capacity  # oldest first: a restore keeps the age order
+        stored = self.view()  # oldest first: a restore keeps the age order
         return {
-            "store_robot": self.robot[order],
-            "store_state": self.state[order],
-            "store_action": self.action[order],
-            "store_reward": self.reward[order],
-            "store_next_state": self.next_state[order],
-            "store_done": self.done[order],
-            "store_policy_version": self.policy_version[order],
+            "store_robot": stored.robot,
+            "store_state": stored.state,
+            "store_action": stored.action,
+            "store_reward": stored.reward,
+            "store_next_state": stored.next_state,
+            "store_done": stored.done,
+            "store_policy_version": self.policy_version,
             "store_meta": np.array([self.capacity, self.dim, self.total], np.int64),
         }
 
@@ -116,13 +134,18 @@ class ExperienceStore:
     def from_arrays(cls, arrays: dict[str, np.ndarray], capacity: int | None = None) -> ExperienceStore:
         saved_capacity, dim, total = (int(v) for v in arrays["store_meta"])
         store = cls(capacity or saved_capacity, dim)
-        keep = slice(max(0, len(arrays["store_reward"]) - store.capacity), None)  # the newest, if it shrank
-        n = len(arrays["store_reward"][keep])
-        for name in ("robot", "state", "action", "reward", "next_state", "done", "policy_version"):
-            getattr(store, name)[:n] = arrays[f"store_{name}"][keep]
-        store._size = n
-        store._head = n % store.capacity
-        store.total = max(total, n)
+        size = len(arrays["store_reward"])
+        versions = arrays["store_policy_version"]
+        for lo in range(max(0, size - store.capacity), size, RESTORE_CHUNK):  # the newest, if it shrank
+            part = slice(lo, min(lo + RESTORE_CHUNK, size))
+            # A copy per chunk: the loaded arrays are freed, and a chunk's memory once it is overwritten.
+            chunk = Transitions(*(np.array(arrays[f"store_{name}"][part]) for name in _COLUMNS))
+            # A chunk holds tuples of one version: cut it where the version changes.
+            bounds = np.flatnonzero(np.diff(versions[part])) + 1
+            for a, b in zip(np.r_[0, bounds], np.r_[bounds, len(chunk)], strict=True):
+                store._batches.append(_Batch(chunk.take(slice(int(a), int(b))), int(versions[part][a])))
+        store._size = sum(len(b.tuples) for b in store._batches)
+        store.total = max(total, store._size)
         return store
 
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import math
+import struct
 from typing import Any, TypeVar
 
 import msgpack
@@ -56,29 +57,50 @@ M = TypeVar("M", bound=Message)
 _WIRE_NAMES = {dtype: name for name, dtype in WIRE_DTYPES.items()}
 
 
-def _encode_array(a: np.ndarray[Any, Any]) -> list[Any]:
-    # Validation has pinned the dtype to a little-endian one of the allow-list. A memoryview lets msgpack
-    # copy the data once, straight into its output.
-    flat = np.ascontiguousarray(a).reshape(-1).view(np.uint8)
-    return [_WIRE_NAMES[a.dtype], list(a.shape), flat.data]
+def _bin_header(n: int) -> bytes:
+    # The smallest msgpack bin header that holds n bytes, as msgpack itself writes it (bin 8, 16 or 32).
+    if n < 1 << 8:
+        return struct.pack(">BB", 0xC4, n)
+    if n < 1 << 16:
+        return struct.pack(">BH", 0xC5, n)
+    return struct.pack(">BI", 0xC6, n)
 
 
 def encode(msg: Message, *, max_bytes: int = MAX_PAYLOAD_BYTES) -> bytes:
     """Validate ``msg`` and serialise it; raise :class:`OversizePayload` beyond ``max_bytes``."""
     msg.validate()
-    body: dict[str, Any] = {}
-    for name, spec in field_specs(type(msg)).items():
+    # The document is assembled from msgpack-packed pieces around each array's raw bytes, then joined: every array
+    # is copied exactly once, straight into the payload (msgpack's own packb grows a buffer and copies it out again,
+    # which costs two more passes over ~1 MB per experience batch). The bytes are those packb would write.
+    specs = field_specs(type(msg))
+    pack = msgpack.Packer(use_bin_type=True)
+    parts: list[bytes | memoryview] = [
+        pack.pack_array_header(3),
+        pack.pack(SCHEMA_VERSION),
+        pack.pack(msg.TAG),
+        pack.pack_map_header(len(specs)),
+    ]
+    for name, spec in specs.items():
         value = getattr(msg, name)
+        parts.append(pack.pack(name))
         if spec.kind == "array":
-            body[name] = _encode_array(value)
+            # Validation has pinned the dtype to a little-endian one of the allow-list.
+            flat = np.ascontiguousarray(value).reshape(-1).view(np.uint8)
+            parts += [
+                pack.pack_array_header(3),
+                pack.pack(_WIRE_NAMES[value.dtype]),
+                pack.pack(list(value.shape)),
+                _bin_header(flat.nbytes),
+                flat.data,
+            ]
         elif spec.kind == "counters":
-            body[name] = dict(value)
+            parts.append(pack.pack(dict(value)))
         else:
-            body[name] = value
-    data: bytes = msgpack.packb([SCHEMA_VERSION, msg.TAG, body], use_bin_type=True)
-    if len(data) > max_bytes:
-        raise OversizePayload(f"{msg.TAG}: encoded size {len(data)} B exceeds {max_bytes} B")
-    return data
+            parts.append(pack.pack(value))
+    size = sum(len(part) for part in parts)
+    if size > max_bytes:
+        raise OversizePayload(f"{msg.TAG}: encoded size {size} B exceeds {max_bytes} B")
+    return b"".join(parts)
 
 
 def _decode_array(name: str, value: object) -> np.ndarray[Any, Any]:

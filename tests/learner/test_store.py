@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from algorithm.transitions import Transitions
-from learner.store import ExperienceStore, SequenceLedger
+from learner.store import RESTORE_CHUNK, ExperienceStore, SequenceLedger
 
 
 def batch(start: int, n: int, dim: int = 2) -> Transitions:
@@ -45,14 +45,34 @@ def test_store_round_trips_through_arrays_in_age_order() -> None:
     assert 3.0 not in restored.view().reward and 4.0 not in restored.view().reward
 
 
-def test_store_sample_is_uniform_without_replacement() -> None:
-    store = ExperienceStore(capacity=1000, dim=2)
-    store.add(batch(0, 1000))
-    sample = store.sample(200, np.random.default_rng(0))
-    assert len(sample) == 200 and np.unique(sample.reward).size == 200
-    assert len(store.sample(5000, np.random.default_rng(0))) == 1000
+def test_store_keeps_wire_batches_without_a_copy_and_copies_writeable_ones() -> None:
+    store = ExperienceStore(capacity=100, dim=2)
+    wire = batch(0, 10)
+    for column in (wire.robot, wire.state, wire.action, wire.reward, wire.next_state, wire.done):
+        column.flags.writeable = False
+    own = batch(10, 5)
+    store.add(wire)
+    store.add(own)
+    own.reward[:] = -1.0  # the sender changes its arrays after handing them over
+    assert store.view().reward.tolist() == list(range(15))
+    assert np.shares_memory(store._batches[0].tuples.state, wire.state)
     with pytest.raises(ValueError, match="dimension"):
         store.add(batch(0, 3, dim=4))
+
+
+def test_a_restored_store_is_cut_into_chunks_that_keep_their_versions() -> None:
+    store = ExperienceStore(capacity=3 * RESTORE_CHUNK, dim=2)
+    store.add(batch(0, RESTORE_CHUNK + 5), policy_version=1)
+    store.add(batch(RESTORE_CHUNK + 5, RESTORE_CHUNK), policy_version=2)
+    restored = ExperienceStore.from_arrays(store.to_arrays())
+    assert [len(b.tuples) for b in restored._batches] == [RESTORE_CHUNK, 5, RESTORE_CHUNK - 5, 5]
+    np.testing.assert_array_equal(restored.policy_version, store.policy_version)
+    np.testing.assert_array_equal(restored.view().reward, np.arange(2 * RESTORE_CHUNK + 5))
+    # Overwriting the oldest chunk frees it whole: nothing stored holds its memory any more.
+    first = restored._batches[0].tuples.state
+    restored.add(batch(0, RESTORE_CHUNK + 2 * RESTORE_CHUNK - 5))
+    assert not any(np.shares_memory(b.tuples.state, first) for b in restored._batches)
+    assert len(restored) == restored.capacity
 
 
 def test_ledger_deduplicates_and_counts_gaps() -> None:

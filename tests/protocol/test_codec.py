@@ -75,6 +75,30 @@ def test_round_trip(msg: Message) -> None:
     assert message_equal(decode(memoryview(data)), msg)
 
 
+@pytest.mark.parametrize("n", [0, 1, 31, 32, 2047, 2048, 16384])
+def test_encode_writes_the_bytes_msgpack_itself_would(n: int) -> None:
+    # Sizes on both sides of the bin 8 / 16 / 32 headers (255 and 65535 bytes of state at d = 2 and 6).
+    for dim in (2, 6):
+        rng = np.random.default_rng(n)
+        msg = ExperienceBatch(
+            actor_id="actor-0",
+            incarnation=2**64 - 1,
+            seq=n,
+            policy_version=3,
+            robot=rng.integers(0, 10, n).astype(np.int16),
+            state=rng.random((n, dim), dtype=np.float32),
+            action=rng.integers(0, N_ACTIONS, n).astype(np.uint8),
+            reward=rng.random(n, dtype=np.float32),
+            next_state=rng.random((n, dim), dtype=np.float32),
+            done=rng.random(n) < 0.5,
+        )
+        body = {
+            name: [value.dtype.name, list(value.shape), value.tobytes()] if isinstance(value, np.ndarray) else value
+            for name, value in ((f.name, getattr(msg, f.name)) for f in dataclasses.fields(msg))
+        }
+        assert encode(msg) == msgpack.packb([SCHEMA_VERSION, "experience", body], use_bin_type=True)
+
+
 def test_decode_as_checks_the_type() -> None:
     data = encode(GOLDEN["ack"])
     assert decode_as(data, Ack).seq == 8
