@@ -13,13 +13,14 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ennc_ql.allocator import keep_freed_memory
 from ennc_ql.config import positive
 from monitor import add_rerun_args, open_monitor, sink_from_args
-from monitor.trial import trial_hook
-from sim import HAND_MADE, SCENARIOS, Controller, ScenarioConfig, evaluate, scenario
+
+if TYPE_CHECKING:
+    from sim import Controller, ScenarioConfig
 
 log = logging.getLogger("ennc_ql")
 
@@ -33,6 +34,8 @@ def _emit(result: dict[str, Any], as_json: bool, table: str) -> None:
 
 def _controller(policy: str, scenario_name: str) -> tuple[Controller, ScenarioConfig, dict[str, Any]]:
     """A hand-made controller by name, or a learned policy from a policy file."""
+    from sim import HAND_MADE, scenario
+
     if policy in HAND_MADE:
         return HAND_MADE[policy], scenario(scenario_name), {}
     path = Path(policy)
@@ -53,6 +56,9 @@ def _controller(policy: str, scenario_name: str) -> tuple[Controller, ScenarioCo
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
+    from monitor.trial import trial_hook
+    from sim import evaluate
+
     controller, cfg, info = _controller(args.policy, args.scenario)
     if args.record_trial >= args.trials:
         raise SystemExit(f"ennc-ql eval: --record-trial {args.record_trial} but only {args.trials} trials run")
@@ -141,13 +147,25 @@ def method_names() -> list[str]:
     return [*HAND_MADE_ORDER, *METHODS]
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(router_only: bool = False) -> argparse.ArgumentParser:
+    """Every command's parser; ``router_only``: the router's alone, whose process never loads the simulator (the
+    other commands' configurations import it, and with it numba's compiler: 40 MB of resident memory)."""
+    from ennc_ql.router import add_router_parser
+
     parser = argparse.ArgumentParser(prog="ennc-ql", description=__doc__.splitlines()[0])
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging on stderr")
     sub = parser.add_subparsers(dest="command", required=True)
+    if router_only:
+        add_router_parser(sub)
+        return parser
+    from sim import SCENARIOS
 
     p = sub.add_parser("eval", help="evaluate a policy on seeded test trials (metric A)")
-    p.add_argument("--policy", default="a-cmommt", help=f"one of {', '.join(HAND_MADE)}, or a policy file (.npz)")
+    p.add_argument(
+        "--policy",
+        default="a-cmommt",
+        help="a hand-made controller (a-cmommt; any other name lists them) or a policy file (.npz)",
+    )
     p.add_argument("--scenario", default="cmommt-v1", choices=sorted(SCENARIOS))
     p.add_argument("--trials", type=positive(int), default=10, help="independent test trials (default 10)")
     p.add_argument("--steps", type=positive(int), default=1000, help="steps per trial (default 1000)")
@@ -161,7 +179,6 @@ def build_parser() -> argparse.ArgumentParser:
 
     from ennc_ql.chaos import add_chaos_parser
     from ennc_ql.processes import add_actor_parser, add_learner_parser
-    from ennc_ql.router import add_router_parser
     from ennc_ql.secure import add_secure_parser
     from ennc_ql.up import add_up_parser
 
@@ -222,7 +239,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    words = list(sys.argv[1:] if argv is None else argv)
+    # The command is the first word that is not a flag: the only options before it (-v, -h) take no value.
+    command = next((w for w in words if not w.startswith("-")), None)
+    args = build_parser(router_only=command == "router").parse_args(words)
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO,
         stream=sys.stderr,

@@ -121,6 +121,12 @@ def access_control(keys: KeySpace, learner_id: str, actor_ids: Sequence[str]) ->
     }
 
 
+# With shared memory on, Zenoh hands a large payload to a peer on the same host in a shared-memory segment instead
+# of through the link: outside TLS, and readable by whatever can open the segment. A secure run promises that every
+# byte travels encrypted, so it is off (which also spares the router mapping every peer's 16 MB segments).
+_NO_SHARED_MEMORY = {"enabled": False}
+
+
 def _tls(files: TlsFiles, side: str) -> dict[str, Any]:
     return {
         "root_ca_certificate": files.ca,
@@ -146,6 +152,7 @@ def router_config(
         "transport": {
             "link": {"tls": _tls(tls, "listen"), "rx": {"max_message_size": max_message_size}},
             "auth": {"usrpwd": {"user": ROUTER, "password": router_password, "dictionary_file": credentials_file}},
+            "shared_memory": _NO_SHARED_MEMORY,
         },
         "access_control": rules,
     }
@@ -166,6 +173,7 @@ def client_config(
         "transport": {
             "link": {"tls": _tls(tls, "connect"), "rx": {"max_message_size": max_message_size}},
             "auth": {"usrpwd": {"user": user, "password": password}},
+            "shared_memory": _NO_SHARED_MEMORY,
         },
     }
 

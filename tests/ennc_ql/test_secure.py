@@ -3,11 +3,13 @@ identity's key and password (so a leaked password is revoked by running it again
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+import zenoh
 
 from ennc_ql.cli import main
 
@@ -44,3 +46,15 @@ def test_a_second_run_keeps_the_ca_and_replaces_keys_and_passwords(tmp_path: Pat
     assert {"actor-1.json5", "actor-2.key"} <= set(second)
     users = [line.split(":")[0] for line in second["credentials.txt"].decode().splitlines()]
     assert users == ["learner", "actor-0", "actor-1", "actor-2", "observer"]
+
+
+def test_every_configuration_keeps_payloads_inside_tls(tmp_path: Path) -> None:
+    """Shared memory would hand a same-host peer its payloads outside the encrypted link: off in every file."""
+    folder = tmp_path / "s"
+    assert main(["secure", "init", str(folder), "--actors", "2"]) == 0
+    files = sorted(folder.glob("*.json5"))
+    assert [p.stem for p in files] == ["actor-0", "actor-1", "learner", "observer", "router"]
+    for path in files:
+        conf = zenoh.Config.from_file(str(path))
+        assert json.loads(conf.get_json("transport/shared_memory/enabled")) is False, path.name
+        assert json.loads(conf.get_json("transport/link/tls/enable_mtls")) is True, path.name

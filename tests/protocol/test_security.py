@@ -278,6 +278,7 @@ def test_a_client_configured_from_docs_protocol_section_8_alone_delivers(
         "transport/link/tls/enable_mtls": True,
         "transport/auth/usrpwd/user": "actor-1",
         "transport/auth/usrpwd/password": password,
+        "transport/shared_memory/enabled": False,
     }
     for key, value in settings.items():
         conf.insert_json5(key, json.dumps(value))
