@@ -113,6 +113,16 @@ def cmd_bench(args: argparse.Namespace) -> int:
             for name in rates
         )
         _emit(out, args.json, table)
+    if args.what == "phase1":
+        from ennc_ql.bench import bench_phase1, phase1_table
+
+        out = bench_phase1(tuple(args.store_sizes))
+        _emit(out, args.json, phase1_table(out))
+    if args.what == "broadcast":
+        from ennc_ql.bench_broadcast import bench_broadcast, broadcast_table
+
+        out = bench_broadcast(args.prototypes, rounds=args.rounds, scenario_name=args.scenario)
+        _emit(out, args.json, broadcast_table(out))
     if args.what == "actor":
         policy = None
         if args.policy is not None:
@@ -202,9 +212,10 @@ def build_parser(router_only: bool = False) -> argparse.ArgumentParser:
     p = sub.add_parser("bench", help="measure performance figures")
     p.add_argument(
         "what",
-        choices=["sim", "ennc", "transport", "actor"],
+        choices=["sim", "ennc", "transport", "actor", "broadcast", "phase1"],
         help="sim: simulator robot-steps/s; ennc: ENNC vs k-means and phase 1 time; transport: actors -> store; "
-        "actor: a phase-2 actor slice against the bare simulator",
+        "actor: a phase-2 actor slice against the bare simulator; broadcast: policy message size and cost against "
+        "prototypes per action; phase1: the learner's phase 1 against store size",
     )
     p.add_argument("--scenario", default="cmommt-v1", choices=sorted(SCENARIOS))
     p.add_argument(
@@ -212,6 +223,23 @@ def build_parser(router_only: bool = False) -> argparse.ArgumentParser:
     )
     p.add_argument("--arenas", type=positive(int), default=500, help="actor: arenas of the slice (default 500, as up)")
     p.add_argument("--policy", help="actor: a policy file to act on (default: learn one by phase 1 on exploration)")
+    p.add_argument(
+        "--prototypes",
+        type=positive(int),
+        nargs="+",
+        default=[100, 300, 1000, 3000, 10000],
+        metavar="P",
+        help="broadcast: prototypes per action of each measured policy (default 100 300 1000 3000 10000)",
+    )
+    p.add_argument("--rounds", type=positive(int), default=5, help="broadcast: rounds per size (default 5)")
+    p.add_argument(
+        "--store-sizes",
+        type=positive(int),
+        nargs="+",
+        default=[100_000, 300_000, 1_000_000],
+        metavar="N",
+        help="phase1: store sizes in tuples (default 100000 300000 1000000)",
+    )
     p.add_argument("--patterns", type=positive(int), default=100_000, help="ennc: patterns of the ENNC fit")
     p.add_argument("--cycles", type=positive(int), default=250, help="ennc: ENNC cycles / k-means iterations")
     p.add_argument(
