@@ -11,6 +11,7 @@ trials with 10 robots. Usage::
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections.abc import Callable
@@ -21,7 +22,7 @@ import numpy as np
 from algorithm.agent import Phase2Config, TabularAgent
 from algorithm.discretization import Discretization
 from algorithm.phase1 import Phase1Config, phase1
-from algorithm.policy import ActionMode, Policy, PolicyController
+from algorithm.policy import ActionMode, LostBehaviour, Policy, PolicyController
 from algorithm.transitions import Transitions
 from algorithm.trials import ExperienceSlice, SliceConfig
 from algorithm.vqql import lbg
@@ -128,8 +129,10 @@ def train(
     seed: int,
     base: ScenarioConfig | None = None,
     progress: Progress | None = None,
+    lost_behaviour: LostBehaviour = "wander",
 ) -> Outcome:
-    """One independent learning process of ``spec``, tested on the paper's protocol."""
+    """One independent learning process of ``spec``, tested on the paper's protocol; ``lost_behaviour`` is what a
+    robot that sees no target does in the test trials."""
     start = time.perf_counter()
     base = base or scenario()
     say = progress or (lambda message: log.info("%s[%d]: %s", spec.name, seed, message))
@@ -166,7 +169,9 @@ def train(
             say(f"phase 2: {trial + 1}/{budget.phase2_trials} trial batches, {tuples} tuples")
     test_robots = base.n_robots
     robot_table = np.arange(test_robots) % rows
-    policy = agent.policy(robot_table=robot_table, meta={"seed": seed, "tuples": tuples})
+    policy = dataclasses.replace(
+        agent.policy(robot_table=robot_table, meta={"seed": seed, "tuples": tuples}), lost_behaviour=lost_behaviour
+    )
     result = evaluate(base, PolicyController(policy), budget.test_trials, budget.test_steps, seed=budget.test_seed)
     say(f"test coverage {result.coverage_mean:.2f}%")
     states = float(spec.codebook) if spec.algorithm == "vqql" else float(disc.sizes().mean())

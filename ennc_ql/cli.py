@@ -149,6 +149,26 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_ablate(args: argparse.Namespace) -> int:
+    from algorithm.experiments import Budget
+    from ennc_ql.ablate import Setup, ablate, markdown_table, parse_sets
+    from ennc_ql.config import ConfigError
+    from ennc_ql.processes import fail
+
+    out_dir = Path(args.out) if args.out else Path("runs") / f"ablate-{args.method}"
+    try:
+        sweep = parse_sets(args.set)
+        base = Setup(budget=Budget.quick() if args.quick else Budget())
+        report = ablate(args.method, sweep, base, args.processes, out_dir, jobs=args.jobs)
+    except ConfigError as exc:
+        fail("ablate", str(exc))
+    report["output"] = str(out_dir)
+    _emit(
+        report, args.json, markdown_table(report) + f"\nwritten to {out_dir}/ (results.md, results.json, ablation.png)"
+    )
+    return 0
+
+
 def method_names() -> list[str]:
     """Every method ``reproduce`` knows, in the order of its table."""
     from algorithm.experiments import METHODS
@@ -208,6 +228,27 @@ def build_parser(router_only: bool = False) -> argparse.ArgumentParser:
     p.add_argument("--jobs", type=positive(int), default=1, help="learning processes run at once (default 1)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_reproduce)
+
+    from algorithm.experiments import METHODS
+
+    p = sub.add_parser(
+        "ablate", help="one method under parameter overrides (a sweep), K learning processes per variant, same tests"
+    )
+    p.add_argument("method", choices=list(METHODS), help="the learned method")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=V1[,V2...]",
+        help="override a field of the setup by dotted path (budget.phase2.alpha, budget.phase1.max_classes, "
+        "scenario.action_steps, lost_behaviour, ...); several values sweep it, several --set sweep their product",
+    )
+    p.add_argument("--processes", type=positive(int), default=3, help="learning processes per variant (default 3)")
+    p.add_argument("--jobs", type=positive(int), default=1, help="learning processes run at once (default 1)")
+    p.add_argument("--quick", action="store_true", help="reproduce's reduced budget as the base")
+    p.add_argument("--out", help="output folder (default runs/ablate-METHOD)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=cmd_ablate)
 
     p = sub.add_parser("bench", help="measure performance figures")
     p.add_argument(

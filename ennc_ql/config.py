@@ -184,6 +184,33 @@ def load_config(
     return typing.cast(T, _build(cls, values, "", None))
 
 
+def parse_setting(cls: type, path: str, text: str) -> Any:
+    """The value ``text`` gives field ``path`` of ``cls`` (``phase1.max_patterns``), parsed as its flag would be.
+    Raises ``ConfigError`` on an unknown path (naming the closest one) or a value of the wrong kind."""
+    leaves = {leaf.path: leaf for leaf in _leaves(cls)}
+    if path not in leaves:
+        raise ConfigError(f"unknown key {path!r}{_suggest(path, leaves)}")
+    try:
+        return _flag_type(leaves[path])(text)
+    except argparse.ArgumentTypeError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+
+
+def replace_setting(config: T, path: str, value: Any) -> T:
+    """``config`` with field ``path`` (dotted through nested dataclasses) set to ``value``; the dataclasses'
+    ``__post_init__`` checks run, and their ``ValueError`` comes out as a ``ConfigError`` naming ``path``."""
+    names = path.split(".")
+    chain: list[Any] = [config]
+    for name in names[:-1]:
+        chain.append(getattr(chain[-1], name))
+    try:
+        for parent, name in zip(reversed(chain), reversed(names), strict=True):
+            value = dataclasses.replace(parent, **{name: value})
+    except ValueError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+    return typing.cast(T, value)
+
+
 def dump_config(config: Any) -> str:
     """``config`` as TOML, nested dataclasses as tables; ``load_config(type(config), file=...)`` gives it back.
 

@@ -12,12 +12,14 @@ import json
 import logging
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from algorithm.experiments import METHODS, Budget, Outcome, train
+from algorithm.experiments import METHODS, Budget, Outcome, Progress, train
+from algorithm.policy import LostBehaviour
 from algorithm.policy_file import save_policy
 from ennc_ql.progress import ProgressBar
 from sim import HAND_MADE, EvalResult, ScenarioConfig, evaluate, scenario
@@ -57,17 +59,37 @@ def _row(name: str, per_run: Sequence[float], states: float | None, per_trial: l
     }
 
 
-def _train_job(job: tuple[str, Budget, int]) -> Outcome:
+@dataclass(frozen=True, slots=True)
+class Job:
+    """One learning process to run: a method under a budget and scenario, tested with a lost-robot behaviour."""
+
+    method: str
+    budget: Budget
+    seed: int
+    scenario: ScenarioConfig
+    lost_behaviour: LostBehaviour = "wander"
+    variant: int = 0
+    """Which of a sweep's variants this process belongs to (``ennc-ql ablate``)."""
+
+    @property
+    def label(self) -> str:
+        return f"{self.method}[{self.seed}]" if not self.variant else f"{self.method} v{self.variant}[{self.seed}]"
+
+    def run(self, progress: Progress | None = None) -> Outcome:
+        spec = METHODS[self.method]
+        return train(spec, self.budget, self.seed, self.scenario, progress, lost_behaviour=self.lost_behaviour)
+
+
+def _train_job(job: Job) -> tuple[Job, Outcome]:
     """One learning process in a worker: one torch thread each, so jobs share the cores instead of fighting."""
     import torch
 
     torch.set_num_threads(1)
-    name, budget, seed = job
-    return train(METHODS[name], budget, seed, scenario())
+    return job, job.run()
 
 
-class _Jobs:
-    """The reproduce bar's state: jobs finished, the running job's stage and the latest coverage measured."""
+class JobsBar:
+    """The bar's state: jobs finished, the running job's stage and the latest coverage measured."""
 
     def __init__(self, bar: ProgressBar) -> None:
         self.bar = bar
@@ -83,27 +105,27 @@ class _Jobs:
         self.bar.mark(message, n=self.done)
 
 
-def _learn(todo: list[tuple[str, Budget, int]], cfg: ScenarioConfig, jobs: int, progress: _Jobs) -> list[Outcome]:
+def learn(todo: Sequence[Job], jobs: int, progress: JobsBar) -> list[tuple[Job, Outcome]]:
     """Every learning process of ``todo``, ``jobs`` at a time (in worker processes when more than one)."""
-    outcomes: list[Outcome] = []
+    outcomes: list[tuple[Job, Outcome]] = []
     if jobs > 1 and todo:
         import multiprocessing
 
         progress.running(f"{len(todo)} learning processes on {jobs} workers")
         with multiprocessing.get_context("spawn").Pool(jobs) as pool:
-            for outcome in pool.imap_unordered(_train_job, todo):
-                outcomes.append(outcome)
-                progress.finished(f"{outcome.method}[{outcome.seed}]: {outcome.coverage_mean:.2f}%")
+            for job, outcome in pool.imap_unordered(_train_job, todo):
+                outcomes.append((job, outcome))
+                progress.finished(f"{job.label}: {outcome.coverage_mean:.2f}%")
                 # Workers report nothing until a process ends: the bar can only count what is left.
                 progress.running(f"{len(todo) - len(outcomes)} learning processes left")
         return outcomes
-    for name, budget, seed in todo:
+    for job in todo:
 
-        def stage(message: str, method: str = name, process: int = seed) -> None:
-            progress.running(f"{method}[{process}]: {message}")
+        def stage(message: str, label: str = job.label) -> None:
+            progress.running(f"{label}: {message}")
 
-        outcomes.append(train(METHODS[name], budget, seed, cfg, progress=stage))
-        progress.finished(f"{name}[{seed}]: {outcomes[-1].coverage_mean:.2f}%")
+        outcomes.append((job, job.run(stage)))
+        progress.finished(f"{job.label}: {outcomes[-1][1].coverage_mean:.2f}%")
     return outcomes
 
 
@@ -126,13 +148,13 @@ def reproduce(
         raise ValueError(f"unknown methods {unknown}; known: {', '.join(PAPER)}")
     out_dir.mkdir(parents=True, exist_ok=True)
     cfg = scenario()
-    todo = [(n, budget, seed) for n in names if n not in HAND_MADE for seed in range(processes)]
+    todo = [Job(n, budget, seed, cfg) for n in names if n not in HAND_MADE for seed in range(processes)]
     hand_made = [n for n in names if n in HAND_MADE]
-    outcomes: dict[str, list[Outcome]] = {n: [] for n, _, _ in todo}
+    outcomes: dict[str, list[Outcome]] = {job.method: [] for job in todo}
     hand_made_results: dict[str, EvalResult] = {}
     with ProgressBar("reproduce", total=len(todo) + len(hand_made), unit="jobs") as bar:
-        progress = _Jobs(bar)
-        for outcome in _learn(todo, cfg, jobs, progress):
+        progress = JobsBar(bar)
+        for _, outcome in learn(todo, jobs, progress):
             outcomes[outcome.method].append(outcome)
         for name in hand_made:
             progress.running(f"{name}: evaluating")

@@ -1,0 +1,188 @@
+"""``ennc-ql ablate``: one method under parameter overrides, K learning processes per variant, every policy scored on
+the same seeded test trials; a table (mean ± std over processes) and a chart.
+
+Each ``--set KEY=V1[,V2...]`` names a field of :class:`Setup` by its dotted path (``budget.phase2.alpha``,
+``budget.phase1.max_classes``, ``scenario.action_steps``, ``scenario.learning_steps``, ``lost_behaviour``); several
+values sweep it, and several ``--set`` sweep their product. Usage::
+
+    ennc-ql ablate ennc-ql-collab-option2 --set budget.phase2.alpha=0.05,0.2 --set scenario.action_steps=3,5 \\
+        --processes 3 --jobs 2 --quick
+    report = ablate("ennc-ql-collab-option2", [("budget.phase2.alpha", [0.05, 0.2])], Setup(), 3, Path("runs/a"))
+    report["variants"][0]["coverage_mean"], report["variants"][0]["a_cmommt"]
+
+Every variant's row carries A-CMOMMT's coverage on the same test trials of its scenario, and the paper's figure
+for the method, so a result is read beside what the hand-made controller and the paper reach.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from algorithm.experiments import METHODS, Budget
+from algorithm.policy import LostBehaviour
+from algorithm.policy_file import save_policy
+from ennc_ql.config import ConfigError, parse_setting, replace_setting
+from ennc_ql.progress import ProgressBar
+from ennc_ql.reproduce import PAPER, Job, JobsBar, learn
+from sim import HAND_MADE, ScenarioConfig, evaluate
+
+Sweep = list[tuple[str, list[Any]]]
+
+
+@dataclass(frozen=True, slots=True)
+class Setup:
+    """Everything a variant may change: the learning budget, the scenario and the test-time acting rule."""
+
+    budget: Budget = field(default_factory=Budget)
+    scenario: ScenarioConfig = field(default_factory=ScenarioConfig)
+    lost_behaviour: LostBehaviour = "wander"
+    """What a robot that sees no target does in the test trials: wander, stay, or follow the policy."""
+
+
+def parse_sets(texts: Sequence[str]) -> Sweep:
+    """``KEY=V1,V2`` strings as (key, typed values); ``ConfigError`` names the bad one."""
+    sweep: Sweep = []
+    for text in texts:
+        key, sep, values = text.partition("=")
+        key = key.strip()
+        if not sep or not key or not values.strip():
+            raise ConfigError(f"--set {text!r}: expected KEY=VALUE[,VALUE...]")
+        if key in (k for k, _ in sweep):
+            raise ConfigError(f"--set {key}: given twice (list every value in one --set)")
+        sweep.append((key, [parse_setting(Setup, key, v.strip()) for v in values.split(",")]))
+    return sweep
+
+
+def variants(base: Setup, sweep: Sweep) -> list[tuple[dict[str, Any], Setup]]:
+    """Every combination of the swept values, as (overrides, the setup they give); the base alone if none."""
+    keys = [k for k, _ in sweep]
+    out: list[tuple[dict[str, Any], Setup]] = []
+    for combo in itertools.product(*(values for _, values in sweep)):
+        overrides = dict(zip(keys, combo, strict=True))
+        setup = base
+        for key, value in overrides.items():
+            setup = replace_setting(setup, key, value)
+        out.append((overrides, setup))
+    return out
+
+
+def _label(overrides: dict[str, Any]) -> str:
+    return ", ".join(f"{k}={v}" for k, v in overrides.items()) or "as configured"
+
+
+def ablate(method: str, sweep: Sweep, base: Setup, processes: int, out_dir: Path, jobs: int = 1) -> dict[str, Any]:
+    """Run every variant ``processes`` times; write ``results.json``, ``results.md``, ``ablation.png`` and each
+    policy under ``out_dir``; return the report."""
+    if method not in METHODS:
+        raise ConfigError(f"unknown method {method!r}; learned methods: {', '.join(METHODS)}")
+    start = time.perf_counter()
+    setups = variants(base, sweep)
+    todo = [
+        Job(method, setup.budget, seed, setup.scenario, setup.lost_behaviour, variant=i + 1)
+        for i, (_, setup) in enumerate(setups)
+        for seed in range(processes)
+    ]
+    references: dict[tuple[ScenarioConfig, int, int, int], float] = {}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with ProgressBar("ablate", total=len(todo) + len(setups), unit="jobs") as bar:
+        progress = JobsBar(bar)
+        results = learn(todo, jobs, progress)
+        for _, setup in setups:
+            b = setup.budget
+            key = (setup.scenario, b.test_trials, b.test_steps, b.test_seed)
+            if key not in references:
+                progress.running("a-cmommt on the variant's test trials")
+                result = evaluate(setup.scenario, HAND_MADE["a-cmommt"], b.test_trials, b.test_steps, seed=b.test_seed)
+                references[key] = round(result.coverage_mean, 3)
+            progress.finished(f"a-cmommt: {references[key]:.2f}%")
+    rows: list[dict[str, Any]] = []
+    for i, (overrides, setup) in enumerate(setups, start=1):
+        runs = sorted((o for job, o in results if job.variant == i), key=lambda o: o.seed)
+        for outcome in runs:
+            save_policy(outcome.policy, setup.scenario, out_dir / "policies" / f"v{i}-{outcome.seed}.npz")
+        coverage = np.array([o.coverage_mean for o in runs])
+        b = setup.budget
+        rows.append(
+            {
+                "variant": i,
+                "overrides": {k: v for k, v in overrides.items()},
+                "label": _label(overrides),
+                "coverage_mean": round(float(coverage.mean()), 3),
+                "coverage_std": round(float(coverage.std()), 3),
+                "coverage_per_run": [round(float(c), 3) for c in coverage],
+                "states_per_run": [round(o.states, 2) for o in runs],
+                "tuples_per_run": [o.tuples for o in runs],
+                "seconds_per_run": [round(o.seconds, 1) for o in runs],
+                "a_cmommt": references[(setup.scenario, b.test_trials, b.test_steps, b.test_seed)],
+            }
+        )
+    report = {
+        "method": method,
+        "processes": processes,
+        "test_trials": base.budget.test_trials,
+        "test_steps": base.budget.test_steps,
+        "test_seed": base.budget.test_seed,
+        "paper_coverage": PAPER[method]["coverage"],
+        "paper_states": PAPER[method]["states"],
+        "sweep": [[k, vs] for k, vs in sweep],
+        "variants": rows,
+        "seconds": round(time.perf_counter() - start, 1),
+    }
+    (out_dir / "results.json").write_text(json.dumps(report, indent=2))
+    (out_dir / "results.md").write_text(markdown_table(report))
+    chart(report, out_dir / "ablation.png")
+    return report
+
+
+def markdown_table(report: dict[str, Any]) -> str:
+    paper = report["paper_coverage"]
+    lines = [
+        f"`{report['method']}`, {report['processes']} learning process(es) per variant, each tested on "
+        f"{report['test_trials']} trials of {report['test_steps']} steps (seed {report['test_seed']})"
+        + (f"; the paper reports {paper:g} %." if paper is not None else "."),
+        "",
+        "| variant | coverage % (mean ± std) | per process | prototypes per action | A-CMOMMT % (same trials) |",
+        "|---|---|---|---|---|",
+    ]
+    for row in report["variants"]:
+        per_run = ", ".join(f"{c:.1f}" for c in row["coverage_per_run"])
+        states = float(np.mean(row["states_per_run"])) if row["states_per_run"] else float("nan")
+        lines.append(
+            f"| {row['label']} | {row['coverage_mean']:.2f} ± {row['coverage_std']:.2f} | {per_run} | {states:.0f} | "
+            f"{row['a_cmommt']:.2f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def chart(report: dict[str, Any], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = report["variants"]
+    x = np.arange(len(rows))
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.2 * len(rows) + 3), 5))
+    ax.bar(x, [r["coverage_mean"] for r in rows], 0.6, yerr=[r["coverage_std"] for r in rows], color="#3b7dd8")
+    references = sorted({r["a_cmommt"] for r in rows})
+    for value in references:
+        ax.axhline(value, color="#d8763b", linestyle="--", linewidth=1)
+    ax.plot([], [], color="#d8763b", linestyle="--", label="A-CMOMMT, same trials")
+    if report["paper_coverage"] is not None:
+        ax.axhline(report["paper_coverage"], color="#555555", linestyle=":", label="paper")
+    ax.set_xticks(x, [r["label"] for r in rows], rotation=30, ha="right")
+    ax.set_ylabel("% of targets under observation")
+    ax.set_ylim(0, 100)
+    ax.set_title(f"{report['method']}: {report['processes']} learning process(es) per variant")
+    ax.legend(loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
