@@ -8,10 +8,10 @@ values sweep it, and several ``--set`` sweep their product. Usage::
     ennc-ql ablate ennc-ql-collab-option2 --set budget.phase2.alpha=0.05,0.2 --set scenario.action_steps=3,5 \\
         --processes 3 --jobs 2 --quick
     report = ablate("ennc-ql-collab-option2", [("budget.phase2.alpha", [0.05, 0.2])], Setup(), 3, Path("runs/a"))
-    report["variants"][0]["coverage_mean"], report["variants"][0]["a_cmommt"]
+    report["variants"][0]["coverage_mean"], report["variants"][0]["references"]["a-cmommt"]
 
-Every variant's row carries A-CMOMMT's coverage on the same test trials of its scenario, and the paper's figure
-for the method, so a result is read beside what the hand-made controller and the paper reach.
+Every variant's row carries the coverage of :data:`REFERENCES` on the same test trials of its scenario, and the
+paper's figure for the method, so a result is read beside what the hand-made controllers and the paper reach.
 """
 
 from __future__ import annotations
@@ -32,9 +32,13 @@ from algorithm.policy_file import save_policy
 from ennc_ql.config import ConfigError, parse_setting, replace_setting
 from ennc_ql.progress import ProgressBar
 from ennc_ql.reproduce import PAPER, Job, JobsBar, learn
+from monitor.style import REFERENCES as STYLES
 from sim import HAND_MADE, ScenarioConfig, evaluate
 
 Sweep = list[tuple[str, list[Any]]]
+REFERENCES = ("a-cmommt", "force-6d", "force-6d-shared")
+"""Hand-made controllers scored beside every variant: A-CMOMMT, and its force law limited to the 6-D state (without
+and with the shared-observation flags), i.e. what the learned policy's own state allows a hand-made law."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -90,7 +94,7 @@ def ablate(method: str, sweep: Sweep, base: Setup, processes: int, out_dir: Path
         for i, (_, setup) in enumerate(setups)
         for seed in range(processes)
     ]
-    references: dict[tuple[ScenarioConfig, int, int, int], float] = {}
+    references: dict[tuple[ScenarioConfig, int, int, int], dict[str, float]] = {}
     out_dir.mkdir(parents=True, exist_ok=True)
     with ProgressBar("ablate", total=len(todo) + len(setups), unit="jobs") as bar:
         progress = JobsBar(bar)
@@ -99,10 +103,17 @@ def ablate(method: str, sweep: Sweep, base: Setup, processes: int, out_dir: Path
             b = setup.budget
             key = (setup.scenario, b.test_trials, b.test_steps, b.test_seed)
             if key not in references:
-                progress.running("a-cmommt on the variant's test trials")
-                result = evaluate(setup.scenario, HAND_MADE["a-cmommt"], b.test_trials, b.test_steps, seed=b.test_seed)
-                references[key] = round(result.coverage_mean, 3)
-            progress.finished(f"a-cmommt: {references[key]:.2f}%")
+                progress.running("the references on the variant's test trials")
+                references[key] = {
+                    name: round(
+                        evaluate(
+                            setup.scenario, HAND_MADE[name], b.test_trials, b.test_steps, b.test_seed
+                        ).coverage_mean,
+                        3,
+                    )
+                    for name in REFERENCES
+                }
+            progress.finished(", ".join(f"{name} {value:.2f}%" for name, value in references[key].items()))
     rows: list[dict[str, Any]] = []
     for i, (overrides, setup) in enumerate(setups, start=1):
         runs = sorted((o for job, o in results if job.variant == i), key=lambda o: o.seed)
@@ -121,7 +132,7 @@ def ablate(method: str, sweep: Sweep, base: Setup, processes: int, out_dir: Path
                 "states_per_run": [round(o.states, 2) for o in runs],
                 "tuples_per_run": [o.tuples for o in runs],
                 "seconds_per_run": [round(o.seconds, 1) for o in runs],
-                "a_cmommt": references[(setup.scenario, b.test_trials, b.test_steps, b.test_seed)],
+                "references": references[(setup.scenario, b.test_trials, b.test_steps, b.test_seed)],
             }
         )
     report = {
@@ -149,15 +160,18 @@ def markdown_table(report: dict[str, Any]) -> str:
         f"{report['test_trials']} trials of {report['test_steps']} steps (seed {report['test_seed']})"
         + (f"; the paper reports {paper:g} %." if paper is not None else "."),
         "",
-        "| variant | coverage % (mean ± std) | per process | prototypes per action | A-CMOMMT % (same trials) |",
-        "|---|---|---|---|---|",
+        "| variant | coverage % (mean ± std) | per process | prototypes per action | "
+        + " | ".join(f"{name} %" for name in REFERENCES)
+        + " |",
+        "|---|---|---|---|" + "---|" * len(REFERENCES),
     ]
     for row in report["variants"]:
         per_run = ", ".join(f"{c:.1f}" for c in row["coverage_per_run"])
         states = float(np.mean(row["states_per_run"])) if row["states_per_run"] else float("nan")
         lines.append(
             f"| {row['label']} | {row['coverage_mean']:.2f} ± {row['coverage_std']:.2f} | {per_run} | {states:.0f} | "
-            f"{row['a_cmommt']:.2f} |"
+            + " | ".join(f"{row['references'][name]:.2f}" for name in REFERENCES)
+            + " |"
         )
     return "\n".join(lines) + "\n"
 
@@ -170,19 +184,27 @@ def chart(report: dict[str, Any], path: Path) -> None:
 
     rows = report["variants"]
     x = np.arange(len(rows))
-    fig, ax = plt.subplots(figsize=(max(6.0, 1.2 * len(rows) + 3), 5))
-    ax.bar(x, [r["coverage_mean"] for r in rows], 0.6, yerr=[r["coverage_std"] for r in rows], color="#3b7dd8")
-    references = sorted({r["a_cmommt"] for r in rows})
-    for value in references:
-        ax.axhline(value, color="#d8763b", linestyle="--", linewidth=1)
-    ax.plot([], [], color="#d8763b", linestyle="--", label="A-CMOMMT, same trials")
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.6 * len(rows) + 2), 5))
+    means = [r["coverage_mean"] for r in rows]
+    ax.bar(x, means, 0.6, yerr=[r["coverage_std"] for r in rows], color="#3b7dd8", capsize=4)
+    for i, row in enumerate(rows):
+        ax.text(i, row["coverage_mean"] + row["coverage_std"] + 1.5, f"{row['coverage_mean']:.1f}", ha="center")
+    for name, style in zip(REFERENCES, ("--", "-.", ":"), strict=True):
+        color = tuple(c / 255 for c in STYLES[name][1])
+        for value in sorted({r["references"][name] for r in rows}):
+            ax.axhline(value, color=color, linestyle=style, linewidth=1)
+        ax.plot([], [], color=color, linestyle=style, label=f"{STYLES[name][0]}, same trials")
     if report["paper_coverage"] is not None:
-        ax.axhline(report["paper_coverage"], color="#555555", linestyle=":", label="paper")
-    ax.set_xticks(x, [r["label"] for r in rows], rotation=30, ha="right")
+        ax.axhline(report["paper_coverage"], color="#555555", linestyle=(0, (1, 4)), label="paper")
+    # One override per line under its bar, by its last key part: the full keys are in the table.
+    ticks = [
+        "\n".join(f"{k.rsplit('.', 1)[-1]}={v}" for k, v in r["overrides"].items()) or "as configured" for r in rows
+    ]
+    ax.set_xticks(x, ticks, fontsize="small")
     ax.set_ylabel("% of targets under observation")
     ax.set_ylim(0, 100)
     ax.set_title(f"{report['method']}: {report['processes']} learning process(es) per variant")
-    ax.legend(loc="lower right")
+    ax.legend(loc="upper left", fontsize="small")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -26,11 +26,13 @@ from sim import HAND_MADE, EvalResult, ScenarioConfig, evaluate, scenario
 
 log = logging.getLogger(__name__)
 
-HAND_MADE_ORDER = ("random", "local", "a-cmommt")
+HAND_MADE_ORDER = ("random", "local", "a-cmommt", "force-6d", "force-6d-shared")
 PAPER: dict[str, dict[str, float | None]] = {
     "random": {"coverage": None, "states": None},
     "local": {"coverage": None, "states": None},
     "a-cmommt": {"coverage": 71.0, "states": None},
+    "force-6d": {"coverage": None, "states": None},
+    "force-6d-shared": {"coverage": None, "states": None},
     "vqql-local-16": {"coverage": 59.0, "states": 16},
     "vqql-collab-64": {"coverage": 40.0, "states": 64},
     "vqql-collab-256": {"coverage": 50.0, "states": 256},
@@ -41,7 +43,8 @@ PAPER: dict[str, dict[str, float | None]] = {
     "ennc-ql-collab-option2": {"coverage": 66.53, "states": 183.72},
 }
 """Figure 5 / Figure 6 of the paper (% of targets observed; states or mean prototypes per action). The paper
-gives random and local only as bars below 50%, approximate VQQL values, and no exact A-CMOMMT decimals."""
+gives random and local only as bars below 50%, approximate VQQL values, and no exact A-CMOMMT decimals; the
+state-limited force laws (``force-6d``, ``force-6d-shared``) are this project's references, not the paper's."""
 
 
 def _row(name: str, per_run: Sequence[float], states: float | None, per_trial: list[list[float]]) -> dict[str, Any]:

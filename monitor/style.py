@@ -34,6 +34,8 @@ REFERENCES: dict[str, tuple[str, Rgb]] = {
     "random": ("random", MID_GREY),
     "local": ("local", SKY_BLUE),
     "a-cmommt": ("A-CMOMMT", REDDISH_PURPLE),
+    "force-6d": ("force law on the 6-D state", BLUISH_GREEN),
+    "force-6d-shared": ("force law, 6-D state + shared flags", VERMILLION),
 }
 """Legend name and colour of each hand-made controller (by its ``sim.HAND_MADE`` name) drawn as a reference level
 on the learning curve."""

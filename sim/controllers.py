@@ -115,12 +115,96 @@ class ForceController:
         return cfg.robot_speed * heading, heading
 
 
+def _f_target(cfg: ScenarioConfig, d: np.ndarray) -> np.ndarray:
+    """A-CMOMMT's attraction profile of a target at distance ``d`` (the kernel's, vectorized)."""
+    f = cfg.force
+    return np.select(
+        [d <= f.do1, d <= f.do2, d <= f.do3, d <= f.do4],
+        [-1.0 + d / f.do1, (d - f.do1) / (f.do2 - f.do1), np.ones_like(d), 1.0 - (d - f.do3) / (f.do4 - f.do3)],
+        0.0,
+    )
+
+
+def _g_robot(cfg: ScenarioConfig, d: np.ndarray) -> np.ndarray:
+    """A-CMOMMT's repulsion profile of a robot at distance ``d`` (the kernel's, vectorized)."""
+    f = cfg.force
+    return np.select([d <= f.dr1, d <= f.dr2], [-np.ones_like(d), -1.0 + (d - f.dr1) / (f.dr2 - f.dr1)], 0.0)
+
+
+def _pull(cfg: ScenarioConfig, offset: np.ndarray, present: np.ndarray, weight: np.ndarray, profile: Any) -> np.ndarray:
+    """(E, m, 2) force of one feature pair: ``weight`` × profile(d) along the offset, where the pair is present."""
+    d = np.linalg.norm(offset, axis=-1)
+    safe = np.maximum(d, 1e-12)
+    return np.where((present & (d > 1e-12))[..., None], (weight * profile(cfg, safe) / safe)[..., None] * offset, 0.0)
+
+
+@dataclass(frozen=True, slots=True)
+class StateForceController:
+    """A-CMOMMT's force law fed only what the ``collab6d`` state holds: the nearest and the furthest target in view
+    and the nearest robot in view, read from the observation's features [choice: the state-limited reference of
+    the learning-quality issue, so that a learned policy is shown beside what its own state allows a hand-made law].
+
+    ``shared=True`` adds, for those two targets, whether another robot observes them, and weighs such a target
+    ``shared_target_weight`` as A-CMOMMT does: the communication A-CMOMMT assumes, which the 6-D state lacks. Unlike
+    A-CMOMMT it sees no target beyond sensing range and no robot but the nearest. With no force the heading is kept
+    and reflected off the wall, as A-CMOMMT's is.
+    """
+
+    shared: bool = False
+    name: str = "force-6d"
+
+    def init(self, cfg: ScenarioConfig, world: WorldState, rng: np.random.Generator) -> np.ndarray:
+        angle = rng.uniform(0.0, 2.0 * np.pi, (world.n_arenas, cfg.n_robots))
+        return np.stack([np.cos(angle), np.sin(angle)], axis=-1)
+
+    def act(
+        self,
+        cfg: ScenarioConfig,
+        world: WorldState,
+        obs: Observation,
+        memory: np.ndarray,
+        rng: np.random.Generator,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        features = obs.features.astype(np.float64)
+        nearest, furthest, robot = features[..., 0:2], features[..., 2:4], features[..., 4:6]
+        w_nearest = w_furthest = np.ones(obs.n_seen.shape)
+        if self.shared:
+            w_nearest, w_furthest = (
+                np.where(flag, cfg.force.shared_target_weight, 1.0) for flag in _observed_by_another(cfg, world)
+            )
+        # With one target in view the nearest and the furthest are the same target: it pulls once.
+        force = _pull(cfg, nearest, obs.n_seen >= 1, w_nearest, _f_target)
+        force += _pull(cfg, furthest, obs.n_seen >= 2, w_furthest, _f_target)
+        force += _pull(cfg, robot, obs.sees_robot, np.ones(obs.n_seen.shape), _g_robot)
+        norm = np.linalg.norm(force, axis=-1, keepdims=True)
+        heading = np.where(norm > 1e-12, force / np.maximum(norm, 1e-300), wander(cfg, world, memory))
+        return cfg.robot_speed * heading, heading
+
+
+def _observed_by_another(cfg: ScenarioConfig, world: WorldState) -> tuple[np.ndarray, np.ndarray]:
+    """(E, m) bool each: whether another robot also observes this robot's nearest / furthest target in view."""
+    offset = world.target_pos[:, None, :, :] - world.robot_pos[:, :, None, :]  # (E, m, n, 2)
+    d = np.linalg.norm(offset, axis=-1)
+    in_view = d <= cfg.sensing_range
+    others = in_view.sum(axis=1, keepdims=True) - in_view  # (E, m, n): watchers of each target besides the robot
+    nearest = np.where(in_view, d, np.inf).argmin(axis=-1)
+    furthest = np.where(in_view, d, -np.inf).argmax(axis=-1)
+    pick = np.take_along_axis
+    return (
+        pick(others, nearest[..., None], axis=-1)[..., 0] > 0,
+        pick(others, furthest[..., None], axis=-1)[..., 0] > 0,
+    )
+
+
 HAND_MADE: dict[str, Controller] = {
     "random": RandomController(),
     "local": ForceController(cooperative=False, name="local"),
     "a-cmommt": ForceController(cooperative=True, name="a-cmommt"),
+    "force-6d": StateForceController(shared=False, name="force-6d"),
+    "force-6d-shared": StateForceController(shared=True, name="force-6d-shared"),
 }
-"""The paper's hand-made baselines by their CLI names."""
+"""The hand-made controllers by their CLI names: the paper's baselines, and the state-limited references (A-CMOMMT's
+force law on what the learned ``collab6d`` state holds, without and with the shared-observation flags)."""
 
 
 def wander(cfg: ScenarioConfig, world: WorldState, heading: np.ndarray) -> np.ndarray:

@@ -1,5 +1,5 @@
 """``ennc-ql ablate``: settings by dotted path, the swept product of variants, and a tiny real sweep whose saved
-policies carry the overrides and whose rows are scored on the same seeded test trials."""
+policies carry the overrides and whose rows are scored, with the hand-made references, on the same seeded trials."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import pytest
 from algorithm.experiments import Budget
 from algorithm.phase1 import Phase1Config
 from algorithm.policy_file import load_policy
-from ennc_ql.ablate import Setup, ablate, parse_sets, variants
+from ennc_ql.ablate import REFERENCES, Setup, ablate, parse_sets, variants
 from ennc_ql.cli import main
 from ennc_ql.config import ConfigError
 from sim import HAND_MADE, evaluate, scenario
@@ -83,11 +83,12 @@ def test_a_tiny_sweep_scores_every_variant_on_the_same_trials_and_saves_the_over
         "lost_behaviour=wander, scenario.action_steps=3",
         "lost_behaviour=stay, scenario.action_steps=3",
     ]
-    reference = evaluate(scenario(action_steps=3), HAND_MADE["a-cmommt"], 2, 60, seed=0).coverage_mean
+    cfg = scenario(action_steps=3)
+    references = {name: evaluate(cfg, HAND_MADE[name], 2, 60, seed=0).coverage_mean for name in REFERENCES}
     for row in rows:
         assert len(row["coverage_per_run"]) == 2
         assert row["coverage_mean"] == pytest.approx(np.mean(row["coverage_per_run"]), abs=1e-3)
-        assert row["a_cmommt"] == pytest.approx(reference, abs=1e-3)
+        assert row["references"] == pytest.approx(references, abs=1e-3)
     for variant, behaviour in ((1, "wander"), (2, "stay")):
         for seed in (0, 1):
             policy = load_policy(tmp_path / "policies" / f"v{variant}-{seed}.npz")[0]
