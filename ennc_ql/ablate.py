@@ -124,7 +124,7 @@ def ablate(method: str, sweep: Sweep, base: Setup, processes: int, out_dir: Path
         rows.append(
             {
                 "variant": i,
-                "overrides": {k: v for k, v in overrides.items()},
+                "overrides": dict(overrides),
                 "label": _label(overrides),
                 "coverage_mean": round(float(coverage.mean()), 3),
                 "coverage_std": round(float(coverage.std()), 3),

@@ -11,6 +11,7 @@ anew, never modified in place.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -31,6 +32,12 @@ N_ACTIONS = len(COMPASS_NAMES)
 def compass_velocity(cfg: ScenarioConfig, actions: np.ndarray) -> np.ndarray:
     """(…, 2) full-speed displacement for compass action indices (…)."""
     return cfg.robot_speed * COMPASS[actions]
+
+
+def random_headings(cfg: ScenarioConfig, world: WorldState, rng: np.random.Generator) -> np.ndarray:
+    """(E, m, 2) unit headings at uniform angles: the first heading of a force-law robot."""
+    angle = rng.uniform(0.0, 2.0 * np.pi, (world.n_arenas, cfg.n_robots))
+    return np.stack([np.cos(angle), np.sin(angle)], axis=-1)
 
 
 class Controller(Protocol):
@@ -83,8 +90,7 @@ class ForceController:
     name: str = "a-cmommt"
 
     def init(self, cfg: ScenarioConfig, world: WorldState, rng: np.random.Generator) -> np.ndarray:
-        angle = rng.uniform(0.0, 2.0 * np.pi, (world.n_arenas, cfg.n_robots))
-        return np.stack([np.cos(angle), np.sin(angle)], axis=-1)
+        return random_headings(cfg, world, rng)
 
     def act(
         self,
@@ -131,7 +137,12 @@ def _g_robot(cfg: ScenarioConfig, d: np.ndarray) -> np.ndarray:
     return np.select([d <= f.dr1, d <= f.dr2], [-np.ones_like(d), -1.0 + (d - f.dr1) / (f.dr2 - f.dr1)], 0.0)
 
 
-def _pull(cfg: ScenarioConfig, offset: np.ndarray, present: np.ndarray, weight: np.ndarray, profile: Any) -> np.ndarray:
+Profile = Callable[[ScenarioConfig, np.ndarray], np.ndarray]
+
+
+def _pull(
+    cfg: ScenarioConfig, offset: np.ndarray, present: np.ndarray, weight: np.ndarray, profile: Profile
+) -> np.ndarray:
     """(E, m, 2) force of one feature pair: ``weight`` × profile(d) along the offset, where the pair is present."""
     d = np.linalg.norm(offset, axis=-1)
     safe = np.maximum(d, 1e-12)
@@ -154,8 +165,7 @@ class StateForceController:
     name: str = "force-6d"
 
     def init(self, cfg: ScenarioConfig, world: WorldState, rng: np.random.Generator) -> np.ndarray:
-        angle = rng.uniform(0.0, 2.0 * np.pi, (world.n_arenas, cfg.n_robots))
-        return np.stack([np.cos(angle), np.sin(angle)], axis=-1)
+        return random_headings(cfg, world, rng)
 
     def act(
         self,
