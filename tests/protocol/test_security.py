@@ -172,7 +172,8 @@ def test_only_its_own_liveliness_token_reaches_the_learner(
     declarer: str, forged: str, own: str, cluster: dict[str, zenoh.Session]
 ) -> None:
     """A token on another's key is declared first, then the declarer's own: once the own one has arrived, the forged
-    one, sent earlier on the same link, would have too (a set: history and live delivery may both report a token)."""
+    one, sent earlier on the same link, would have too. Only the forged key is checked for: the router may still
+    report a token of the previous case while its undeclaration is on the way."""
     seen: list[str] = []
     watch = (
         cluster["learner"]
@@ -185,7 +186,7 @@ def test_only_its_own_liveliness_token_reaches_the_learner(
     finally:
         for handle in [*tokens, watch]:
             handle.undeclare()
-    assert set(seen) == {own}
+    assert forged not in seen and own in seen
 
 
 @pytest.mark.parametrize(
