@@ -56,6 +56,8 @@ class ActorStatus:
     trials: int = 0
     """Learning trials run (each in every arena)."""
     policies_applied: int = 0
+    policies_refused: int = 0
+    """Broadcasts over another featurizer than this actor's (a misconfigured run), ignored."""
     outbox_waits: int = 0
     """Times the actor waited for acks because its outbox was full."""
     outbox: int = 0
@@ -88,7 +90,12 @@ class RobotActor:
         seed = np.random.SeedSequence([config.seed, zlib.crc32(config.actor_id.encode())])
         self.slice = ExperienceSlice(
             self.scenario,
-            SliceConfig(n_arenas=config.arenas, featurizer=config.featurizer, learning_robots=self.learn),
+            SliceConfig(
+                n_arenas=config.arenas,
+                featurizer=config.featurizer,
+                reward=config.reward,
+                learning_robots=self.learn,
+            ),
             seed,
         )
         self.outbox = Outbox(
@@ -100,7 +107,7 @@ class RobotActor:
             on_acked=self._count_acked,
         )
         self.tracker = IncrementTracker(self.learn)
-        self.policy = PolicyClient(self.scenario.n_robots, config.phase2, self.tracker)
+        self.policy = PolicyClient(self.scenario.n_robots, config.phase2, self.tracker, config.featurizer)
         self.agent: TabularAgent | None = None
         self._tuples = self._batches = self._increments = self._trials = 0
         self._tuples_acked = self._visits_acked = 0
@@ -122,6 +129,7 @@ class RobotActor:
             resent=self.outbox.resent,
             trials=self._trials,
             policies_applied=self.policy.adopted,
+            policies_refused=self.policy.refused,
             outbox_waits=self.outbox.waits,
             outbox=len(self.outbox),
             tuples_acked=self._tuples_acked,

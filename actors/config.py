@@ -15,6 +15,7 @@ from algorithm.agent import Phase2Config
 from algorithm.checks import require_at_least, require_id, require_known, require_positive
 from protocol import FEATURIZER_DIMS
 from sim import SCENARIOS
+from sim.features import REWARD_NAMES
 
 
 def parse_robots(text: str) -> tuple[int, ...]:
@@ -57,7 +58,12 @@ class ActorConfig:
     scenario: str = "cmommt-v1"
     """Scenario the actor simulates."""
     featurizer: str = "collab6d"
-    """State definition of the experience: local2d or collab6d."""
+    """State definition of the experience: local2d, collab6d or shared8d (collab6d and whether another robot
+    observes its nearest / furthest target)."""
+    reward: str = "paper"
+    """Reward of the learning robots: paper (the featurizer's own: observed for local2d, Eq. 2 otherwise), observed,
+    eq2, difference (targets only this robot observes, at the trial's end) or difference-decision (the same, per
+    action). The learner's must be the same: its experience is the actors'."""
     learn: tuple[int, ...] | None = field(default=None, metadata={"parse": parse_robots})
     """Robot ids whose tables this actor learns (and whose tuples it streams), e.g. 0-4,7; None = every robot."""
     arenas: int = 256
@@ -85,6 +91,7 @@ class ActorConfig:
         require_id("actor_id", self.actor_id)
         require_known("scenario", self.scenario, SCENARIOS)
         require_known("featurizer", self.featurizer, FEATURIZER_DIMS)
+        require_known("reward", self.reward, REWARD_NAMES)
         require_at_least(
             1,
             arenas=self.arenas,

@@ -2,8 +2,8 @@
 
 Usage (``offer`` from the transport's thread, ``adopt`` from the actor's loop)::
 
-    client = PolicyClient(n_robots=10, phase2=Phase2Config(), tracker=IncrementTracker(learn))
-    client.offer(update)                   # newest version wins; older ones are ignored
+    client = PolicyClient(n_robots=10, phase2=Phase2Config(), tracker=IncrementTracker(learn), featurizer="collab6d")
+    client.offer(update)                   # newest version wins; older ones, and other states, are ignored
     update = client.take()                 # None while nothing newer than the adopted version has come
     agent = client.adopt(update, agent)    # the agent over the new tables
 """
@@ -25,8 +25,12 @@ log = logging.getLogger(__name__)
 
 
 class PolicyClient:
-    def __init__(self, n_robots: int, phase2: Phase2Config, tracker: IncrementTracker) -> None:
+    def __init__(self, n_robots: int, phase2: Phase2Config, tracker: IncrementTracker, featurizer: str) -> None:
         self.n_robots = n_robots
+        self.featurizer = featurizer
+        """The actor's own state definition: a broadcast over another one cannot be acted on."""
+        self.refused = 0
+        """Broadcasts refused because they name another featurizer than the actor's."""
         self.phase2 = phase2
         self.tracker = tracker
         self._lock = threading.Lock()
@@ -36,6 +40,20 @@ class PolicyClient:
         self.adopted = 0
 
     def offer(self, update: PolicyUpdate) -> None:
+        if update.featurizer != self.featurizer:
+            with self._lock:
+                self.refused += 1
+                first = self.refused == 1
+            # Every broadcast would say it again: the first is logged, all are counted (status: policies_refused).
+            if first:
+                log.error(
+                    "policy version %d is over the %s state, this actor's is %s: it is refused (is the learner "
+                    "started with the same --featurizer?)",
+                    update.version,
+                    update.featurizer,
+                    self.featurizer,
+                )
+            return
         with self._lock:
             if update.version > max(self.version, 0 if self._newest is None else self._newest.version):
                 self._newest = update

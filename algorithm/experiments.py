@@ -27,6 +27,7 @@ from algorithm.transitions import Transitions
 from algorithm.trials import ExperienceSlice, SliceConfig
 from algorithm.vqql import lbg
 from sim import N_ACTIONS, ScenarioConfig, evaluate, scenario
+from sim.features import resolve_reward
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +47,8 @@ class MethodSpec:
     """Option 2: every robot learns its own table [paper]; otherwise robot 0 learns and all use its table."""
     codebook: int = 0
     """VQQL codebook size."""
+    reward: str = "paper"
+    """Reward function of the learners (:data:`sim.features.REWARDS`); ``paper``: the featurizer's own."""
 
 
 METHODS: dict[str, MethodSpec] = {
@@ -138,7 +141,9 @@ def train(
     say = progress or (lambda message: log.info("%s[%d]: %s", spec.name, seed, message))
     learn_cfg = base.replace(n_robots=spec.learning_robots)
     seeds = np.random.SeedSequence([seed, sum(spec.name.encode())]).spawn(2)
-    explorer = ExperienceSlice(learn_cfg, SliceConfig(n_arenas=budget.arenas, featurizer=spec.featurizer), seeds[0])
+    explorer = ExperienceSlice(
+        learn_cfg, SliceConfig(n_arenas=budget.arenas, featurizer=spec.featurizer, reward=spec.reward), seeds[0]
+    )
     data = Transitions.concat([explorer.run_trial() for _ in range(budget.explore_trials)])
     say(f"explored {len(data)} tuples")
     disc, action_mode = _discretize(spec, data, budget, seed)
@@ -146,6 +151,7 @@ def train(
     rows = spec.learning_robots if spec.per_robot_tables else 1
     template = Policy(
         featurizer=spec.featurizer,
+        reward=resolve_reward(spec.featurizer, spec.reward),
         discretization=disc,
         tables=np.tile(disc.labels, (rows, 1)),
         robot_table=np.arange(spec.learning_robots) % rows,
@@ -158,7 +164,11 @@ def train(
     learner_slice = ExperienceSlice(
         learn_cfg,
         SliceConfig(
-            n_arenas=budget.arenas, featurizer=spec.featurizer, learning_robots=learners, action_mode=action_mode
+            n_arenas=budget.arenas,
+            featurizer=spec.featurizer,
+            reward=spec.reward,
+            learning_robots=learners,
+            action_mode=action_mode,
         ),
         seeds[1],
     )

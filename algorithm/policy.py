@@ -18,7 +18,7 @@ from algorithm.discretization import Discretization
 from algorithm.qtable import greedy
 from sim import FEATURIZERS, ScenarioConfig
 from sim.controllers import compass_velocity, wander
-from sim.features import featurize, lost
+from sim.features import REWARDS, featurize, lost
 from sim.world import Observation, WorldState
 
 LostBehaviour = Literal["wander", "stay", "policy"]
@@ -30,7 +30,7 @@ class Policy:
     """Everything needed to act: state definition, discretization, Q tables and the acting rules."""
 
     featurizer: str
-    """``local2d`` or ``collab6d`` (see :mod:`sim.features`)."""
+    """State definition, a name of :data:`sim.features.FEATURIZER_REGISTRY`."""
     discretization: Discretization
     tables: np.ndarray
     """(R, Σ P_a) float32 Q tables; option 2 has one row per robot, option 1 and VQQL one row."""
@@ -54,10 +54,15 @@ class Policy:
     """Name of the method that learned it, e.g. ``ennc-ql-collab-option2``."""
     meta: dict[str, Any] = field(default_factory=dict)
     """Free-form provenance (seeds, configs) kept in the policy file header."""
+    reward: str = "eq2"
+    """The reward function it was learned with, a name of :data:`sim.features.REWARDS` (provenance: acting does
+    not read it)."""
 
     def __post_init__(self) -> None:
         if self.featurizer not in FEATURIZERS:
             raise ValueError(f"unknown featurizer {self.featurizer!r}")
+        if self.reward not in REWARDS:
+            raise ValueError(f"unknown reward {self.reward!r}; known: {', '.join(REWARDS)}")
         if FEATURIZERS[self.featurizer] != self.discretization.dim:
             raise ValueError("featurizer dimension and discretization dimension differ")
         if self.tables.ndim != 2 or self.tables.shape[1] != self.discretization.size:

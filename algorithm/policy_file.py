@@ -36,20 +36,10 @@ from algorithm.files import save_npz_atomic
 from algorithm.policy import Policy
 from sim import COMPASS, FEATURIZERS, ScenarioConfig
 from sim.controllers import COMPASS_NAMES
+from sim.features import FEATURIZER_REGISTRY, REWARDS, resolve_reward
 
 FORMAT = "ennc-ql-policy"
 FORMAT_VERSION = 1
-STATE_NAMES = {
-    "local2d": ["target_dx", "target_dy"],
-    "collab6d": [
-        "nearest_target_dx",
-        "nearest_target_dy",
-        "furthest_target_dx",
-        "furthest_target_dy",
-        "nearest_robot_dx",
-        "nearest_robot_dy",
-    ],
-}
 
 
 class PolicyFileError(ValueError):
@@ -66,7 +56,7 @@ def header_for(policy: Policy, cfg: ScenarioConfig) -> dict[str, Any]:
         "featurizer": {
             "name": policy.featurizer,
             "dim": FEATURIZERS[policy.featurizer],
-            "state": STATE_NAMES[policy.featurizer],
+            "state": list(FEATURIZER_REGISTRY[policy.featurizer].state),
             "frame": "world (x east, y north), target/robot position minus own position",
             "mask_value": cfg.mask_value,
             "local_target": cfg.local_target,
@@ -75,6 +65,7 @@ def header_for(policy: Policy, cfg: ScenarioConfig) -> dict[str, Any]:
             {"index": i, "name": name, "direction": [float(v) for v in COMPASS[i]]}
             for i, name in enumerate(COMPASS_NAMES)
         ],
+        "reward": {"name": policy.reward, "per_decision": REWARDS[policy.reward].per_decision},
         "action_steps": policy.action_steps,
         "action_mode": policy.action_mode,
         "max_action_steps": policy.max_action_steps,
@@ -139,6 +130,10 @@ def load_policy(path: str | os.PathLike[str]) -> tuple[Policy, dict[str, Any]]:
             version=int(header["version"]),
             method=str(header["method"]),
             meta=dict(header.get("meta", {})),
+            # Files written before rewards were named were all learned with their featurizer's paper reward.
+            reward=header["reward"]["name"]
+            if "reward" in header
+            else resolve_reward(header["featurizer"]["name"], "paper"),
         )
     except (KeyError, TypeError, ValueError) as exc:
         raise PolicyFileError(f"{path}: inconsistent policy file ({exc})") from exc

@@ -24,6 +24,7 @@ from algorithm.agent import TabularAgent
 from algorithm.policy import ActionMode
 from algorithm.transitions import Transitions
 from sim import FEATURIZERS, ScenarioConfig
+from sim.features import resolve_reward
 from sim.rollout import StepHook
 from sim.trial import TrialState, TrialStep, random_actions, reset_trial, step_trial
 
@@ -33,6 +34,8 @@ class SliceConfig:
     n_arenas: int = 256
     """E, arenas simulated side by side."""
     featurizer: str = "collab6d"
+    reward: str = "paper"
+    """Reward function of the learners (:data:`sim.features.REWARDS`, or ``paper``: the featurizer's own)."""
     learning_robots: tuple[int, ...] | None = None
     """Robot ids that learn and emit tuples; None = every robot (option 2)."""
     action_mode: ActionMode = "fixed"
@@ -45,6 +48,7 @@ class SliceConfig:
             raise ValueError("n_arenas must be at least 1")
         if self.featurizer not in FEATURIZERS:
             raise ValueError(f"unknown featurizer {self.featurizer!r}")
+        resolve_reward(self.featurizer, self.reward)
         if self.action_mode not in ("fixed", "until_change"):
             raise ValueError(f"action_mode must be 'fixed' or 'until_change', got {self.action_mode!r}")
 
@@ -68,7 +72,7 @@ class ExperienceSlice:
         ``on_step`` (optional) sees the world and observation after every step, e.g. to draw an arena.
         """
         cfg, sc, rng = self.cfg, self.config, self.rng
-        state = reset_trial(cfg, sc.n_arenas, self.learner_mask, sc.featurizer, rng)
+        state = reset_trial(cfg, sc.n_arenas, self.learner_mask, sc.featurizer, rng, sc.reward)
         # VQQL actions last until the held action's cell changes, so they need the agent's discretization.
         until_change = sc.action_mode == "until_change" and agent is not None
         hold = sc.max_action_steps if until_change else cfg.action_steps

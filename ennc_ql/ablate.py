@@ -2,7 +2,8 @@
 the same seeded test trials; a table (mean ± std over processes) and a chart.
 
 Each ``--set KEY=V1[,V2...]`` names a field of :class:`Setup` by its dotted path (``budget.phase2.alpha``,
-``budget.phase1.max_classes``, ``scenario.action_steps``, ``scenario.learning_steps``, ``lost_behaviour``); several
+``budget.phase1.max_classes``, ``scenario.action_steps``, ``scenario.learning_steps``, ``lost_behaviour``, and the
+formulation: ``featurizer``, ``reward``); several
 values sweep it, and several ``--set`` sweep their product. Usage::
 
     ennc-ql ablate ennc-ql-collab-option2 --set budget.phase2.alpha=0.05,0.2 --set scenario.action_steps=3,5 \\
@@ -33,7 +34,8 @@ from ennc_ql.config import ConfigError, parse_setting, replace_setting
 from ennc_ql.progress import ProgressBar
 from ennc_ql.reproduce import PAPER, Job, JobsBar, learn
 from monitor.style import REFERENCES as STYLES
-from sim import HAND_MADE, ScenarioConfig, evaluate
+from sim import FEATURIZERS, HAND_MADE, ScenarioConfig, evaluate
+from sim.features import REWARD_NAMES
 
 Sweep = list[tuple[str, list[Any]]]
 REFERENCES = ("a-cmommt", "force-6d", "force-6d-shared")
@@ -49,6 +51,16 @@ class Setup:
     scenario: ScenarioConfig = field(default_factory=ScenarioConfig)
     lost_behaviour: LostBehaviour = "wander"
     """What a robot that sees no target does in the test trials: wander, stay, or follow the policy."""
+    featurizer: str | None = None
+    """The learners' state (:data:`sim.features.FEATURIZER_REGISTRY`); None: the method's own."""
+    reward: str | None = None
+    """The learners' reward (:data:`sim.features.REWARDS`, or ``paper``); None: the method's own."""
+
+    def __post_init__(self) -> None:
+        if self.featurizer is not None and self.featurizer not in FEATURIZERS:
+            raise ConfigError(f"featurizer {self.featurizer!r}: known: {', '.join(FEATURIZERS)}")
+        if self.reward is not None and self.reward not in REWARD_NAMES:
+            raise ConfigError(f"reward {self.reward!r}: known: {', '.join(REWARD_NAMES)}")
 
 
 def parse_sets(texts: Sequence[str]) -> Sweep:
@@ -90,7 +102,16 @@ def ablate(method: str, sweep: Sweep, base: Setup, processes: int, out_dir: Path
     start = time.perf_counter()
     setups = variants(base, sweep)
     todo = [
-        Job(method, setup.budget, seed, setup.scenario, setup.lost_behaviour, variant=i + 1)
+        Job(
+            method,
+            setup.budget,
+            seed,
+            setup.scenario,
+            setup.lost_behaviour,
+            variant=i + 1,
+            featurizer=setup.featurizer,
+            reward=setup.reward,
+        )
         for i, (_, setup) in enumerate(setups)
         for seed in range(processes)
     ]

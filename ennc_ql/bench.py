@@ -55,7 +55,7 @@ def _sim_rate(
         velocity, memory = controller.act(cfg, world, obs, memory, rng)
         world = step(cfg, world, velocity, rng)
         obs = sense(cfg, world, rng)
-        trial_reward(cfg, obs, "collab6d")
+        trial_reward(cfg, obs, "eq2")
         steps += 1
         if steps % DRAW_EVERY == 0:
             monitor.arena(

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from actors.config import ActorConfig
-from algorithm.checks import require_at_least, require_positive
+from algorithm.checks import require_at_least, require_known, require_positive
 from ennc_ql.config import dump_config
 from ennc_ql.progress import ProgressBar
 from ennc_ql.system import free_port
@@ -42,6 +42,7 @@ from monitor import (
 from monitor.recordings import rerun_cli
 from protocol import Status
 from protocol.security import OBSERVER, ROUTER
+from sim.features import FORMULATIONS
 
 log = logging.getLogger(__name__)
 
@@ -58,6 +59,9 @@ class UpConfig:
     """Seconds of training."""
     seed: int = 0
     """Run seed, given to the learner and to every actor (each derives its own stream from it and its id)."""
+    formulation: str = "shared-difference"
+    """State and reward of every process, by name: shared-difference (the shared8d state, the difference reward:
+    the best formulation of the README's ablations) or paper (the paper's collab6d state and Eq. 2 reward)."""
     learner: LearnerConfig = field(default_factory=LearnerConfig)
     """The learner process."""
     actor: ActorConfig = field(default_factory=ActorConfig)
@@ -66,6 +70,7 @@ class UpConfig:
     def __post_init__(self) -> None:
         require_at_least(1, actors=self.actors)
         require_positive(duration=self.duration)
+        require_known("formulation", self.formulation, FORMULATIONS)
 
 
 UP_PRESETS: dict[str, Any] = {
@@ -80,14 +85,34 @@ UP_PRESETS: dict[str, Any] = {
 }
 """What ``ennc-ql up`` sets differently from the processes' own defaults, named once."""
 
-SET_BY_UP = ("learner.duration", "learner.seed", "actor.actor_id", "actor.seed", "actor.duration")
+SET_BY_UP = (
+    "learner.duration",
+    "learner.seed",
+    "learner.featurizer",
+    "learner.reward",
+    "actor.actor_id",
+    "actor.seed",
+    "actor.duration",
+    "actor.featurizer",
+    "actor.reward",
+)
 """Fields ``up`` fills in itself from its own settings (no flags for them)."""
 
 
 def child_configs(config: UpConfig) -> tuple[LearnerConfig, list[ActorConfig]]:
-    learner = dataclasses.replace(config.learner, duration=config.duration, seed=config.seed)
+    featurizer, reward = FORMULATIONS[config.formulation]
+    learner = dataclasses.replace(
+        config.learner, duration=config.duration, seed=config.seed, featurizer=featurizer, reward=reward
+    )
     actors = [
-        dataclasses.replace(config.actor, actor_id=f"actor-{i}", seed=config.seed, duration=None)
+        dataclasses.replace(
+            config.actor,
+            actor_id=f"actor-{i}",
+            seed=config.seed,
+            duration=None,
+            featurizer=featurizer,
+            reward=reward,
+        )
         for i in range(config.actors)
     ]
     return learner, actors

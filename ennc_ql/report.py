@@ -15,6 +15,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from sim.features import FORMULATIONS
+
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
@@ -34,7 +36,7 @@ def _coverage(value: float | None) -> str:
 def result_rows(report: Mapping[str, Any]) -> list[tuple[str, str]]:
     """The figures of a run as (name, value) pairs, the rows of both the terminal table and ``report.md``."""
     curve = report.get("coverage_curve") or []
-    return [
+    rows = [
         ("run folder", str(report.get("run_dir", "–"))),
         ("actors", ", ".join(report["actors"]) or "–"),
         ("tuples received", f"{report['tuples_received']:,}"),
@@ -46,6 +48,11 @@ def result_rows(report: Mapping[str, Any]) -> list[tuple[str, str]]:
         ("coverage curve", ", ".join(f"{t:.0f}s: {c:.1f}%" for t, c in curve)),
         ("policy file", str(report["policy_file"])),
     ]
+    formulation = report.get("config", {}).get("formulation")
+    if formulation in FORMULATIONS:
+        featurizer, reward = FORMULATIONS[formulation]
+        rows.insert(1, ("formulation", f"{formulation} ({featurizer} state, {reward} reward)"))
+    return rows
 
 
 def results_table(report: Mapping[str, Any]) -> str:

@@ -8,6 +8,7 @@ Usage::
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import time
@@ -73,6 +74,10 @@ class Job:
     lost_behaviour: LostBehaviour = "wander"
     variant: int = 0
     """Which of a sweep's variants this process belongs to (``ennc-ql ablate``)."""
+    featurizer: str | None = None
+    """The learners' state instead of the method's own, if given."""
+    reward: str | None = None
+    """The learners' reward instead of the method's own, if given."""
 
     @property
     def label(self) -> str:
@@ -80,6 +85,10 @@ class Job:
 
     def run(self, progress: Progress | None = None) -> Outcome:
         spec = METHODS[self.method]
+        if self.featurizer is not None:
+            spec = dataclasses.replace(spec, featurizer=self.featurizer)
+        if self.reward is not None:
+            spec = dataclasses.replace(spec, reward=self.reward)
         return train(spec, self.budget, self.seed, self.scenario, progress, lost_behaviour=self.lost_behaviour)
 
 

@@ -101,6 +101,7 @@ def cmd_up(args: argparse.Namespace) -> int:
             "actors": config.actors,
             "duration": config.duration,
             "seed": config.seed,
+            "formulation": config.formulation,
             "serial": args.serial,
             "secure": args.secure,
         },

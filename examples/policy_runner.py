@@ -85,6 +85,7 @@ class Observation:
     """What every robot senses at one instant (sections "Sensing" and "The state")."""
 
     full_state: NDArray[np.float32]  # (E, m, 6): nearest target, furthest target, nearest robot (dx, dy)
+    shared: NDArray[np.float32]  # (E, m, 2): another robot has the nearest / furthest target in view (1.0 / 0.0)
     lost: Bools  # (E, m): no target in view
     covered: Ints  # (E,): targets in view of at least one robot
 
@@ -122,15 +123,26 @@ def sense(sc: dict[str, Any], robots: Floats, targets: Floats, rng: np.random.Ge
         ],
         axis=-1,
     ).astype(np.float32)
-    return Observation(full_state=full, lost=~any_t[..., 0], covered=seen_t.any(axis=1).sum(axis=1))
+    others = seen_t.sum(axis=1, keepdims=True) - seen_t  # [e, i, j]: robots other than i with target j in view
+    pair = np.stack([nearest_t, furthest_t], axis=-1)  # (E, m, 2) target indices
+    shared = (np.take_along_axis(others, pair, axis=2) > 0) & any_t
+    return Observation(
+        full_state=full,
+        shared=shared.astype(np.float32),
+        lost=~any_t[..., 0],
+        covered=seen_t.any(axis=1).sum(axis=1),
+    )
 
 
 def featurize(policy: PolicyFile, obs: Observation) -> NDArray[np.float32]:
-    """(E·m, d) states: all six numbers (collab6d) or one target pair (local2d, by scenario.local_target)."""
+    """(E·m, d) states: all six numbers (collab6d), and the two shared flags (shared8d), or one target pair (local2d,
+    by scenario.local_target)."""
     full = obs.full_state.reshape(-1, 6)
     name = policy.header["featurizer"]["name"]
     if name == "collab6d":
         return full
+    if name == "shared8d":
+        return np.concatenate([full, obs.shared.reshape(-1, 2)], axis=1)
     if name == "local2d":
         return full[:, 2:4] if policy.scenario["local_target"] == "furthest" else full[:, 0:2]
     raise SystemExit(f"unknown featurizer {name!r}")

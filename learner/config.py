@@ -12,6 +12,7 @@ from algorithm.checks import require_at_least, require_id, require_known, requir
 from algorithm.phase1 import Phase1Config
 from protocol import FEATURIZER_DIMS
 from sim import SCENARIOS
+from sim.features import REWARD_NAMES
 
 
 def _phase1_default() -> Phase1Config:
@@ -26,7 +27,10 @@ class LearnerConfig:
     scenario: str = "cmommt-v1"
     """Scenario the policy is learned and evaluated on."""
     featurizer: str = "collab6d"
-    """State definition of the experience: local2d or collab6d."""
+    """State definition of the experience: local2d, collab6d or shared8d."""
+    reward: str = "paper"
+    """Reward the actors pay their robots (the actors' --reward): recorded in the policy; the learner's fits read
+    the rewards of the tuples."""
     store_capacity: int = 1_000_000
     """Tuples kept; the oldest are overwritten beyond it (counted)."""
     min_tuples: int = 150_000
@@ -63,6 +67,7 @@ class LearnerConfig:
         require_id("learner_id", self.learner_id)
         require_known("scenario", self.scenario, SCENARIOS)
         require_known("featurizer", self.featurizer, FEATURIZER_DIMS)
+        require_known("reward", self.reward, REWARD_NAMES)
         require_at_least(
             1,
             store_capacity=self.store_capacity,
@@ -85,4 +90,4 @@ class LearnerConfig:
     @property
     def method(self) -> str:
         """The name the learned policy carries (as in ``reproduce``'s table)."""
-        return "ennc-ql-collab-option2" if self.featurizer == "collab6d" else "ennc-ql-local"
+        return "ennc-ql-local" if self.featurizer == "local2d" else "ennc-ql-collab-option2"

@@ -36,6 +36,7 @@ class PolicyState:
         action_steps: int,
         method: str,
         on_version: Callable[[int], None] | None = None,
+        reward: str = "eq2",
     ) -> None:
         self.on_version = on_version
         """Called with each new version before anyone can see it (the learner persists its version mark there)."""
@@ -44,6 +45,8 @@ class PolicyState:
         self.scenario = scenario
         self.action_steps = action_steps
         self.method = method
+        self.reward = reward
+        """The reward function the actors learn with (a name of :data:`sim.features.REWARDS`), for the policy file."""
         self._lock = threading.Lock()
         self._disc: Discretization | None = None
         self._disc_id = 0
@@ -205,6 +208,7 @@ class PolicyState:
             visits=self._visits.copy(),
             version=self._version,
             method=self.method,
+            reward=self.reward,
         )
 
 

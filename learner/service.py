@@ -51,6 +51,7 @@ from protocol import (
 )
 from protocol.messages import MAX_NAME_LEN
 from sim import HAND_MADE, evaluate, scenario
+from sim.features import resolve_reward
 
 log = logging.getLogger(__name__)
 
@@ -81,6 +82,7 @@ class LearnerService:
             self.scenario.action_steps,
             config.method,
             on_version=self.version_mark.record,
+            reward=resolve_reward(config.featurizer, config.reward),
         )
         self.evaluator = Evaluator(self.scenario, config.eval_trials, config.eval_steps, config.final_eval_trials)
         self.checkpointer = Checkpointer(run_dir)
@@ -165,6 +167,7 @@ class LearnerService:
         c = self.config
         self._started = time.monotonic()
         if self.monitor.enabled:
+            self.monitor.formulation(c.featurizer, self.state.reward)
             self._monitor_references()
         next_broadcast = next_checkpoint = next_status = self._started
         next_eval = self._started + c.eval_interval

@@ -72,6 +72,9 @@ class Monitor:
     def q_stats(self, q_tables: Sequence[np.ndarray], *, policy_version: int, learner_step: int | None = None) -> None:
         """Mean, min and max over every finite entry of ``q_tables`` at ``learner/q/{mean,min,max}``."""
 
+    def formulation(self, featurizer: str, reward: str) -> None:
+        """The state and reward the policy is learned with: they name the learning curve (call before it starts)."""
+
     def eval_coverage(self, coverage: float, *, policy_version: int, learner_step: int | None = None) -> None:
         """Metric A (%) of the current policy on the test trials, at ``learner/coverage/eval`` (the learning curve);
         the reference levels are drawn again at the same time, so that they span the curve."""

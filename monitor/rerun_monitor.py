@@ -49,6 +49,7 @@ class RerunMonitor(Monitor):
         self._boundaries: dict[str, float] = {}
         self._flipped: set[str] = set()
         self._references: dict[str, float] = {}
+        self._learned = "learned policy"
         opened = time.monotonic()
         self._clock: Callable[[], float] = lambda: time.monotonic() - opened
         self._closed = False
@@ -183,11 +184,14 @@ class RerunMonitor(Monitor):
         stats = dict(zip(paths.Q_STATS, (entries.mean(), entries.min(), entries.max()), strict=True))
         self.scalars(paths.LEARNER_Q, stats, policy_version=policy_version, learner_step=learner_step)
 
+    def formulation(self, featurizer: str, reward: str) -> None:
+        self._learned = f"learned policy ({featurizer}, {reward} reward)"
+
     def eval_coverage(self, coverage: float, *, policy_version: int, learner_step: int | None = None) -> None:
         if self._closed:
             return
         self._at(None, policy_version, learner_step)
-        self._scalar(paths.LEARNER_COVERAGE_EVAL, "learned policy", coverage)
+        self._scalar(paths.LEARNER_COVERAGE_EVAL, self._learned, coverage)
         self._log_references()
 
     def reference_levels(self, levels: Mapping[str, float]) -> None:

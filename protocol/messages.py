@@ -33,7 +33,7 @@ SCHEMA_VERSION = 1
 N_ACTIONS = 8
 """L, the number of discrete actions of scenario ``cmommt-v1``; changing it is a schema change."""
 
-FEATURIZER_DIMS: Mapping[str, int] = MappingProxyType({"local2d": 2, "collab6d": 6})
+FEATURIZER_DIMS: Mapping[str, int] = MappingProxyType({"local2d": 2, "collab6d": 6, "shared8d": 8})
 """State dimension d of each featurizer a PolicyUpdate may name."""
 
 ROLES = ("learner", "actor", "evaluator")
@@ -332,7 +332,7 @@ class PolicyUpdate(_Validated):
     version: int = field(metadata=_u64(lo=1))
     # Versioned scenario name, e.g. "cmommt-v1".
     scenario: str = field(metadata=_spec("name"))
-    # "local2d" (d = 2) or "collab6d" (d = 6).
+    # "local2d" (d = 2), "collab6d" (d = 6) or "shared8d" (d = 8).
     featurizer: str = field(metadata=_spec("choice", choices=tuple(FEATURIZER_DIMS)))
     # Simulator steps an action is held, ≥ 1.
     action_steps: int = field(metadata=_spec("int", lo=1, hi=2**31 - 1))

@@ -32,13 +32,19 @@ def sense(
     n_seen: np.ndarray,  # out (E, m) int32: targets in view of each robot
     sees_robot: np.ndarray,  # out (E, m) bool: another robot in view
     covered: np.ndarray,  # out (E,) int32: targets in view of at least one robot
+    shared: np.ndarray,  # out (E, m, 2) bool: another robot also has the nearest / furthest target in view
+    n_only: np.ndarray,  # out (E, m) int32: targets in view of this robot and of no other
 ) -> None:
     n_arenas, m, _ = robot_pos.shape
     n = target_pos.shape[1]
     r2 = sensing_range * sensing_range
     noisy = noise_t.shape[0] > 0
+    in_view = np.zeros((m, n), dtype=np.bool_)
+    watchers = np.zeros(n, dtype=np.int32)
+    near_j = np.zeros(m, dtype=np.int64)
+    far_j = np.zeros(m, dtype=np.int64)
     for e in range(n_arenas):
-        seen_any = np.zeros(n, dtype=np.bool_)
+        watchers[:] = 0
         for i in range(m):
             rx = robot_pos[e, i, 0]
             ry = robot_pos[e, i, 1]
@@ -46,13 +52,15 @@ def sense(
             near_d2 = np.inf
             far_d2 = -1.0
             nx = ny = fx = fy = mask_value
+            near_j[i] = far_j[i] = -1
             for j in range(n):
                 dx = target_pos[e, j, 0] - rx
                 dy = target_pos[e, j, 1] - ry
                 d2 = dx * dx + dy * dy
+                in_view[i, j] = d2 <= r2
                 if d2 <= r2:
                     count += 1
-                    seen_any[j] = True
+                    watchers[j] += 1
                     if noisy:
                         dx += noise_t[e, i, j, 0]
                         dy += noise_t[e, i, j, 1]
@@ -61,10 +69,12 @@ def sense(
                         near_d2 = d2
                         nx = dx
                         ny = dy
+                        near_j[i] = j
                     if d2 > far_d2:
                         far_d2 = d2
                         fx = dx
                         fy = dy
+                        far_j[i] = j
             bot_d2 = np.inf
             bx = by = mask_value
             for k in range(m):
@@ -90,9 +100,18 @@ def sense(
             sees_robot[e, i] = bot_d2 < np.inf
         c = 0
         for j in range(n):
-            if seen_any[j]:
+            if watchers[j] > 0:
                 c += 1
         covered[e] = c
+        # Who else watches a target is known once every robot of the arena has been sensed.
+        for i in range(m):
+            shared[e, i, 0] = near_j[i] >= 0 and watchers[near_j[i]] > 1
+            shared[e, i, 1] = far_j[i] >= 0 and watchers[far_j[i]] > 1
+            alone = 0
+            for j in range(n):
+                if in_view[i, j] and watchers[j] == 1:
+                    alone += 1
+            n_only[e, i] = alone
 
 
 @njit(cache=True)

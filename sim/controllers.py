@@ -180,7 +180,7 @@ class StateForceController:
         w_nearest = w_furthest = np.ones(obs.n_seen.shape)
         if self.shared:
             w_nearest, w_furthest = (
-                np.where(flag, cfg.force.shared_target_weight, 1.0) for flag in _observed_by_another(cfg, world)
+                np.where(obs.shared[..., k], cfg.force.shared_target_weight, 1.0) for k in range(2)
             )
         # With one target in view the nearest and the furthest are the same target: it pulls once.
         force = _pull(cfg, nearest, obs.n_seen >= 1, w_nearest, _f_target)
@@ -189,21 +189,6 @@ class StateForceController:
         norm = np.linalg.norm(force, axis=-1, keepdims=True)
         heading = np.where(norm > 1e-12, force / np.maximum(norm, 1e-300), wander(cfg, world, memory))
         return cfg.robot_speed * heading, heading
-
-
-def _observed_by_another(cfg: ScenarioConfig, world: WorldState) -> tuple[np.ndarray, np.ndarray]:
-    """(E, m) bool each: whether another robot also observes this robot's nearest / furthest target in view."""
-    offset = world.target_pos[:, None, :, :] - world.robot_pos[:, :, None, :]  # (E, m, n, 2)
-    d = np.linalg.norm(offset, axis=-1)
-    in_view = d <= cfg.sensing_range
-    others = in_view.sum(axis=1, keepdims=True) - in_view  # (E, m, n): watchers of each target besides the robot
-    nearest = np.where(in_view, d, np.inf).argmin(axis=-1)
-    furthest = np.where(in_view, d, -np.inf).argmax(axis=-1)
-    pick = np.take_along_axis
-    return (
-        pick(others, nearest[..., None], axis=-1)[..., 0] > 0,
-        pick(others, furthest[..., None], axis=-1)[..., 0] > 0,
-    )
 
 
 HAND_MADE: dict[str, Controller] = {

@@ -1,37 +1,157 @@
-"""State featurizers, trial-end rewards and metric A, computed from an :class:`~sim.world.Observation`.
+"""State featurizers and rewards by name, and metric A, computed from an :class:`~sim.world.Observation`.
 
-Both RL formulations of the paper [paper §4, Fernández & Parker 2001]:
+Featurizers (:data:`FEATURIZER_REGISTRY`; :data:`FEATURIZERS` gives each one's dimension):
 
-* ``local2d``: (dx, dy) to the furthest (or nearest, by config) target in view; mask (1000, 1000) when none.
-* ``collab6d``: nearest target, furthest target, nearest robot in view; each pair masked when absent.
+* ``local2d``: (dx, dy) to the furthest (or nearest, by config) target in view; mask (1000, 1000) when none
+  [paper §4].
+* ``collab6d``: nearest target, furthest target, nearest robot in view; each pair masked when absent [paper §4].
+* ``shared8d``: ``collab6d`` and, for its nearest and its furthest target, 1 if another robot observes it too,
+  else 0 (0 when the target is masked) [beyond the paper: the communication A-CMOMMT assumes, the attribute choice
+  the paper names as future work].
 
-Rewards are delayed to the end of a trial: ``local`` gives Σ_j b_ij(T); ``collab`` gives Σ_j b_ij(T) − k(T) with
-k(T) = 2 when another robot is in view [paper Eq. 2]. A robot that sees no target gets ``lost_reward`` instead.
+Rewards (:data:`REWARDS`), each given with the trial rules of :mod:`sim.trial`; a learning robot that loses every
+target always gets ``lost_reward`` instead and its trial ends:
+
+* ``observed``: Σ_j b_ij(T) at the end of the trial [paper, local experiments].
+* ``eq2``: Σ_j b_ij(T) − k(T), k(T) = ``robot_in_view_penalty`` when another robot is in view [paper Eq. 2].
+* ``difference``: D_i(T) = G(z) − G(z without robot i) of metric A's summand at the end of the trial, i.e. the
+  targets robot i observes and no other robot does [beyond the paper: Agogino & Tumer's difference reward].
+* ``difference-decision``: the same D_i, earned at every step and paid at the end of each action as its mean over
+  the action's steps (a reward per decision, so that credit need not travel back a whole trial) [beyond the paper].
+
+``paper`` names the featurizer's own reward of the paper (:func:`resolve_reward`): ``observed`` for ``local2d``,
+``eq2`` for the collaborative states.
 """
 
 from __future__ import annotations
 
-from typing import Literal
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
 from sim.config import ScenarioConfig
 from sim.world import Observation
 
-Featurizer = Literal["local2d", "collab6d"]
-FEATURIZERS: dict[str, int] = {"local2d": 2, "collab6d": 6}
+_LOCAL_COLUMNS = {"furthest": slice(2, 4), "nearest": slice(0, 2)}
+_COLLAB_STATE = (
+    "nearest_target_dx",
+    "nearest_target_dy",
+    "furthest_target_dx",
+    "furthest_target_dy",
+    "nearest_robot_dx",
+    "nearest_robot_dy",
+)
+
+
+@dataclass(frozen=True, slots=True)
+class Featurizer:
+    """A state definition: the columns of a robot's state and how they are computed from an observation."""
+
+    name: str
+    state: tuple[str, ...]
+    """Column names, in order (the policy file's header lists them)."""
+    compute: Callable[[ScenarioConfig, Observation], np.ndarray]
+    """(E, m, d) float32 states of every robot."""
+    paper_reward: str
+    """The reward ``paper`` stands for with this state."""
+
+    @property
+    def dim(self) -> int:
+        return len(self.state)
+
+
+def _local2d(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
+    return np.ascontiguousarray(obs.features[..., _LOCAL_COLUMNS[cfg.local_target]])
+
+
+def _collab6d(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
+    return obs.features
+
+
+def _shared8d(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
+    return np.concatenate([obs.features, obs.shared.astype(np.float32)], axis=-1)
+
+
+FEATURIZER_REGISTRY: dict[str, Featurizer] = {
+    f.name: f
+    for f in (
+        Featurizer("local2d", ("target_dx", "target_dy"), _local2d, "observed"),
+        Featurizer("collab6d", _COLLAB_STATE, _collab6d, "eq2"),
+        Featurizer("shared8d", (*_COLLAB_STATE, "nearest_target_shared", "furthest_target_shared"), _shared8d, "eq2"),
+    )
+}
+"""Every featurizer by name."""
+FEATURIZERS: dict[str, int] = {name: f.dim for name, f in FEATURIZER_REGISTRY.items()}
 """State dimension of each featurizer."""
 
-_LOCAL_COLUMNS = {"furthest": slice(2, 4), "nearest": slice(0, 2)}
+
+@dataclass(frozen=True, slots=True)
+class Reward:
+    """A reward function: what a learning robot is paid at the end of its trial, or after each of its actions."""
+
+    name: str
+    value: Callable[[ScenarioConfig, Observation], np.ndarray]
+    """(E, m) float32 value of the observation for every robot."""
+    per_decision: bool
+    """False: ``value`` at the last step of the trial, 0 before. True: ``value`` summed over an action's steps and
+    paid as their mean when the action ends."""
+
+
+def _observed(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
+    return obs.n_seen.astype(np.float32)
+
+
+def _eq2(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
+    penalty = np.float32(cfg.robot_in_view_penalty) * obs.sees_robot.astype(np.float32)
+    return obs.n_seen.astype(np.float32) - penalty
+
+
+def _difference(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
+    return obs.n_only.astype(np.float32)
+
+
+REWARDS: dict[str, Reward] = {
+    r.name: r
+    for r in (
+        Reward("observed", _observed, per_decision=False),
+        Reward("eq2", _eq2, per_decision=False),
+        Reward("difference", _difference, per_decision=False),
+        Reward("difference-decision", _difference, per_decision=True),
+    )
+}
+"""Every reward function by name; ``paper`` is accepted wherever a reward is named (:func:`resolve_reward`)."""
+REWARD_NAMES: tuple[str, ...] = ("paper", *REWARDS)
+"""What a configuration may name as its reward."""
+
+
+FORMULATIONS: dict[str, tuple[str, str]] = {
+    "paper": ("collab6d", "eq2"),
+    "shared-difference": ("shared8d", "difference"),
+}
+"""Named (featurizer, reward) pairs, what ``ennc-ql up --formulation`` picks: ``paper`` is the paper's collaborative
+formulation [paper §4, Eq. 2]; ``shared-difference`` the best one the ablations of the README found."""
+
+
+def _featurizer(name: str) -> Featurizer:
+    try:
+        return FEATURIZER_REGISTRY[name]
+    except KeyError:
+        raise ValueError(f"unknown featurizer {name!r}; known: {', '.join(FEATURIZER_REGISTRY)}") from None
+
+
+def resolve_reward(featurizer: str, reward: str) -> str:
+    """The reward function's name: ``reward`` itself, or the featurizer's paper reward for ``paper``."""
+    if reward == "paper":
+        return _featurizer(featurizer).paper_reward
+    if reward not in REWARDS:
+        raise ValueError(f"unknown reward {reward!r}; known: {', '.join(REWARD_NAMES)}")
+    return reward
 
 
 def featurize(cfg: ScenarioConfig, obs: Observation, featurizer: str) -> np.ndarray:
     """(E, m, d) float32 states of every robot under ``featurizer``."""
-    if featurizer == "collab6d":
-        return obs.features
-    if featurizer == "local2d":
-        return np.ascontiguousarray(obs.features[..., _LOCAL_COLUMNS[cfg.local_target]])
-    raise ValueError(f"unknown featurizer {featurizer!r}; known: {', '.join(FEATURIZERS)}")
+    return _featurizer(featurizer).compute(cfg, obs)
 
 
 def lost(obs: Observation) -> np.ndarray:
@@ -39,16 +159,17 @@ def lost(obs: Observation) -> np.ndarray:
     return obs.n_seen == 0
 
 
-def trial_reward(cfg: ScenarioConfig, obs: Observation, featurizer: str) -> np.ndarray:
-    """(E, m) float32 reward at the end of a trial (or when the robot loses all targets)."""
-    seen = obs.n_seen.astype(np.float32)
-    if featurizer == "collab6d":
-        reward = seen - np.float32(cfg.robot_in_view_penalty) * obs.sees_robot.astype(np.float32)
-    elif featurizer == "local2d":
-        reward = seen
-    else:
-        raise ValueError(f"unknown featurizer {featurizer!r}; known: {', '.join(FEATURIZERS)}")
-    return np.where(lost(obs), np.float32(cfg.lost_reward), reward).astype(np.float32)
+def reward_value(cfg: ScenarioConfig, obs: Observation, reward: str) -> np.ndarray:
+    """(E, m) float32 value of ``reward`` (a name of :data:`REWARDS`) in this observation, lost robots included."""
+    try:
+        return REWARDS[reward].value(cfg, obs)
+    except KeyError:
+        raise ValueError(f"unknown reward {reward!r}; known: {', '.join(REWARDS)}") from None
+
+
+def trial_reward(cfg: ScenarioConfig, obs: Observation, reward: str) -> np.ndarray:
+    """(E, m) float32 reward of a trial-end ``reward`` at this observation, ``lost_reward`` for a lost robot."""
+    return np.where(lost(obs), np.float32(cfg.lost_reward), reward_value(cfg, obs, reward)).astype(np.float32)
 
 
 def coverage(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:

@@ -5,7 +5,8 @@ The rules [paper §4; choices as tagged]:
 * a trial lasts ``learning_steps`` steps; learning robots start within sensing range of a random target [choice];
 * a compass action is held for ``action_steps`` steps; a caller may end actions on its own boundary as well
   (VQQL: "the discretized state changed", with a cap [paper]) through :meth:`TrialStep.with_boundary`;
-* the reward is delayed to the end of the trial: 0 before it, paper Eq. 2 at it (:func:`sim.features.trial_reward`);
+* the reward is one of :data:`sim.features.REWARDS`: by default delayed to the end of the trial, 0 before it and
+  paper Eq. 2 at it; a per-decision reward is paid at the end of every action instead;
 * a learning robot that loses every target gets ``lost_reward``, its trial ends [choice] and it stays motionless
   [paper];
 * robots that do not learn follow the caller's actions, or a controller's velocity, and when lost search by keeping
@@ -38,7 +39,7 @@ import numpy as np
 
 from sim.config import ScenarioConfig
 from sim.controllers import N_ACTIONS, compass_velocity, wander
-from sim.features import FEATURIZERS, featurize, lost, trial_reward
+from sim.features import FEATURIZERS, REWARDS, featurize, lost, resolve_reward, reward_value, trial_reward
 from sim.world import Observation, WorldState, place_near_targets, reset, sense, step
 
 
@@ -51,6 +52,8 @@ class TrialState:
     """What every robot perceives in ``world``."""
     featurizer: str
     """State definition of ``features`` (a key of :data:`sim.features.FEATURIZERS`)."""
+    reward: str
+    """Reward function of the learners (a key of :data:`sim.features.REWARDS`)."""
     features: np.ndarray
     """(E, m, d) float32: every robot's state now."""
     action: np.ndarray
@@ -65,6 +68,8 @@ class TrialState:
     """(E, m) bool: learners whose trial goes on."""
     heading: np.ndarray
     """(E, m, 2) float64 unit vectors: the search heading of robots that do not learn, used while they are lost."""
+    earned: np.ndarray
+    """(E, m) float32: a per-decision reward's value summed over the held action's steps so far (0 otherwise)."""
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -84,7 +89,8 @@ class TrialStep:
     next_features: np.ndarray
     """(E, m, d) float32: s′, the state after this step."""
     reward: np.ndarray
-    """(E, m) float32: the delayed reward, paper Eq. 2 or ``lost_reward`` where ``done``, 0 elsewhere."""
+    """(E, m) float32: r of the tuples that end here (``lost_reward`` for a robot that lost every target), 0 elsewhere:
+    a trial-end reward's value where ``done``, a per-decision reward's mean over the action where it ends."""
     done: np.ndarray
     """(E, m) bool: learners whose trial ended on this step (they lost every target, or it was the last step)."""
     boundary: np.ndarray
@@ -95,6 +101,8 @@ class TrialStep:
     """(E, m) bool: robots that learn."""
     trial_over: bool
     """This was the last step of the trial."""
+    action_mean: np.ndarray | None = None
+    """(E, m) float32: a per-decision reward's mean value over the held action's steps; None for trial-end rewards."""
 
     @property
     def transition(self) -> np.ndarray:
@@ -114,18 +122,28 @@ class TrialStep:
             state, out = step_trial(cfg, state, action, decide, rng, hold=max_action_steps)
             out = out.with_boundary(cell_now != cell_at_decision)
         """
-        return dataclasses.replace(self, boundary=self.boundary | np.asarray(extra, dtype=bool))
+        out = dataclasses.replace(self, boundary=self.boundary | np.asarray(extra, dtype=bool))
+        if out.action_mean is None:
+            return out
+        return dataclasses.replace(out, reward=np.where(out.transition & ~out.done, out.action_mean, out.reward))
 
 
 def reset_trial(
-    cfg: ScenarioConfig, n_arenas: int, learners: np.ndarray, featurizer: str, rng: np.random.Generator
+    cfg: ScenarioConfig,
+    n_arenas: int,
+    learners: np.ndarray,
+    featurizer: str,
+    rng: np.random.Generator,
+    reward: str = "paper",
 ) -> TrialState:
     """E fresh arenas whose ``learners`` (bool, broadcastable to (E, m)) start within sensing range of a target.
 
-    No robot holds an action yet: the first :func:`step_trial` must let every robot decide.
+    ``reward`` names the learners' reward (a key of :data:`sim.features.REWARDS`, or ``paper``). No robot holds an
+    action yet: the first :func:`step_trial` must let every robot decide.
     """
     if featurizer not in FEATURIZERS:
         raise ValueError(f"unknown featurizer {featurizer!r}; known: {', '.join(FEATURIZERS)}")
+    reward = resolve_reward(featurizer, reward)
     learner = np.broadcast_to(np.asarray(learners, dtype=bool), (n_arenas, cfg.n_robots)).copy()
     world = place_near_targets(cfg, reset(cfg, n_arenas, rng), learner, rng)
     obs = sense(cfg, world, rng)
@@ -135,6 +153,7 @@ def reset_trial(
         world=world,
         obs=obs,
         featurizer=featurizer,
+        reward=reward,
         features=features,
         action=np.zeros(learner.shape, np.int64),
         held=np.zeros(learner.shape, np.int64),
@@ -142,6 +161,7 @@ def reset_trial(
         learner=learner,
         active=learner.copy(),
         heading=np.stack([np.cos(angle), np.sin(angle)], axis=-1),
+        earned=np.zeros(learner.shape, np.float32),
     )
 
 
@@ -198,26 +218,35 @@ def step_trial(
     held = held + 1
     trial_over = world.t >= cfg.learning_steps
     done = state.active & (lost(obs) | trial_over)
-    if done.any():
-        reward = np.where(done, trial_reward(cfg, obs, state.featurizer), 0.0).astype(np.float32)
+    active = state.active & ~done
+    boundary = held >= (cfg.action_steps if hold is None else hold)
+    earned, action_mean = state.earned, None
+    if REWARDS[state.reward].per_decision:
+        earned = np.where(decide, np.float32(0.0), earned) + reward_value(cfg, obs, state.reward)
+        action_mean = (earned / held).astype(np.float32)
+        pay = np.where(done & lost(obs), np.float32(cfg.lost_reward), action_mean)
+        reward = np.where(done | (active & boundary), pay, np.float32(0.0)).astype(np.float32)
+    elif done.any():
+        reward = np.where(done, trial_reward(cfg, obs, state.reward), 0.0).astype(np.float32)
     else:
         reward = np.zeros(state.shape, np.float32)
-    active = state.active & ~done
     out = TrialStep(
         start_features=start,
         action=held_action,
         next_features=features,
         reward=reward,
         done=done,
-        boundary=held >= (cfg.action_steps if hold is None else hold),
+        boundary=boundary,
         active=active,
         learner=state.learner,
         trial_over=trial_over,
+        action_mean=action_mean,
     )
     new_state = TrialState(
         world=world,
         obs=obs,
         featurizer=state.featurizer,
+        reward=state.reward,
         features=features,
         action=held_action,
         held=held,
@@ -225,5 +254,6 @@ def step_trial(
         learner=state.learner,
         active=active,
         heading=heading,
+        earned=earned,
     )
     return new_state, out

@@ -56,6 +56,12 @@ class Observation:
     """(E, m) bool: another robot is within sensing range."""
     covered: np.ndarray
     """(E,) int32: Σ_j g(B, j), the number of targets observed by at least one robot."""
+    shared: np.ndarray
+    """(E, m, 2) bool: another robot also observes the nearest / the furthest target in view (False when none is in
+    view): the communication A-CMOMMT assumes [paper §3]."""
+    n_only: np.ndarray
+    """(E, m) int32: targets this robot observes and no other does, i.e. G(z) − G(z without robot i) of metric A's
+    summand, the robot's difference [Agogino & Tumer]."""
 
 
 def uniform_in_disk(rng: np.random.Generator, radius: float, shape: tuple[int, ...]) -> np.ndarray:
@@ -94,6 +100,8 @@ def sense(cfg: ScenarioConfig, state: WorldState, rng: np.random.Generator | Non
     n_seen = np.empty((n_arenas, m), dtype=np.int32)
     sees_robot = np.empty((n_arenas, m), dtype=np.bool_)
     covered = np.empty(n_arenas, dtype=np.int32)
+    shared = np.empty((n_arenas, m, 2), dtype=np.bool_)
+    n_only = np.empty((n_arenas, m), dtype=np.int32)
     _kernels.sense(
         state.robot_pos,
         state.target_pos,
@@ -105,8 +113,12 @@ def sense(cfg: ScenarioConfig, state: WorldState, rng: np.random.Generator | Non
         n_seen,
         sees_robot,
         covered,
+        shared,
+        n_only,
     )
-    return Observation(features=features, n_seen=n_seen, sees_robot=sees_robot, covered=covered)
+    return Observation(
+        features=features, n_seen=n_seen, sees_robot=sees_robot, covered=covered, shared=shared, n_only=n_only
+    )
 
 
 def step(cfg: ScenarioConfig, state: WorldState, velocity: np.ndarray, rng: np.random.Generator) -> WorldState:

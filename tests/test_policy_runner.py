@@ -1,8 +1,9 @@
 """docs/policy-file.md is complete: a runner written from it alone (examples/policy_runner.py, plain numpy) gives the
 coverage `ennc-ql eval` gives on the same policy file, trials and seed, and breaking one documented rule does not.
 
-Two small policies cover both decision modes: ENNC-QL option 2 (collab6d, per-robot tables, a `scale`, `fixed`
-shared clock) and VQQL local (local2d, one table, no `scale`, `until_change` per-robot clocks).
+Two small policies cover both decision modes: ENNC-QL option 2 on the shared8d state (collab6d's six numbers and the
+two shared flags; per-robot tables, a `scale`, `fixed` shared clock) and VQQL local (local2d, one table, no `scale`,
+`until_change` per-robot clocks).
 """
 
 from __future__ import annotations
@@ -29,9 +30,14 @@ TRIALS, STEPS, SEED = 20, 1000, 0
 TINY = dataclasses.replace(TINY_REPRODUCE, test_trials=1, test_steps=10)
 
 
+SHARED = dataclasses.replace(METHODS["ennc-ql-collab-option2"], featurizer="shared8d", reward="difference")
+
+
 @pytest.fixture(scope="module", params=["ennc-ql-collab-option2", "vqql-local-16"])
 def policy_file(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    outcome = train(METHODS[request.param], TINY, seed=0)
+    spec = SHARED if request.param == "ennc-ql-collab-option2" else METHODS[request.param]
+    outcome = train(spec, TINY, seed=0)
+    assert outcome.policy.featurizer == spec.featurizer
     return save_policy(outcome.policy, scenario(), tmp_path_factory.mktemp("policy") / f"{request.param}.npz")
 
 

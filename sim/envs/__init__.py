@@ -1,8 +1,9 @@
 """Gymnasium and PettingZoo adapters of the learning trial (optional extra ``ennc-ql[envs]``), converting at the edge.
 
 Both wrap :mod:`sim.trial`, so they follow the rules of the experience slice: learners start within sensing range
-of a target; one env step is one compass action held for ``action_steps`` simulation steps; the reward is delayed
-to the end of the learning trial (``learning_steps`` simulation steps), or is ``lost_reward`` when a robot loses
+of a target; one env step is one compass action held for ``action_steps`` simulation steps; the reward (``reward=``, a
+name of :data:`sim.features.REWARDS`) is by default delayed to the end of the learning trial (``learning_steps``
+simulation steps), or is ``lost_reward`` when a robot loses
 every target, which ends its episode and leaves it motionless [paper; choice]. ``info["coverage"]`` is the
 percentage of targets observed at that moment (the summand of metric A).
 

@@ -21,7 +21,7 @@ from gymnasium import spaces
 
 from sim.config import scenario
 from sim.controllers import HAND_MADE, N_ACTIONS, Controller
-from sim.features import FEATURIZERS, coverage
+from sim.features import FEATURIZERS, coverage, resolve_reward
 from sim.trial import TrialState, random_actions, reset_trial, step_trial
 
 
@@ -43,11 +43,13 @@ class CmommtSingleRobotEnv(gym.Env[np.ndarray, np.int64]):
         scenario_name: str = "cmommt-v1",
         featurizer: str = "collab6d",
         others: str | Controller = "random",
+        reward: str = "paper",
     ) -> None:
         if featurizer not in FEATURIZERS:
             raise ValueError(f"unknown featurizer {featurizer!r}; known: {', '.join(FEATURIZERS)}")
         self.cfg = scenario(scenario_name)
         self.featurizer = featurizer
+        self.reward = resolve_reward(featurizer, reward)
         self.others: Controller | None = None
         if others != "random":
             self.others = HAND_MADE[others] if isinstance(others, str) else others
@@ -67,7 +69,7 @@ class CmommtSingleRobotEnv(gym.Env[np.ndarray, np.int64]):
     ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
         rng = self.np_random
-        self._state = reset_trial(self.cfg, 1, self._learner, self.featurizer, rng)
+        self._state = reset_trial(self.cfg, 1, self._learner, self.featurizer, rng, self.reward)
         if self.others is not None:
             self._memory = self.others.init(self.cfg, self._state.world, rng)
         self._decide = np.ones(self._state.shape, dtype=bool)

@@ -24,7 +24,7 @@ from pettingzoo.utils.conversions import parallel_to_aec
 
 from sim.config import scenario
 from sim.controllers import N_ACTIONS
-from sim.features import FEATURIZERS, coverage
+from sim.features import FEATURIZERS, coverage, resolve_reward
 from sim.trial import TrialState, reset_trial, step_trial
 
 
@@ -33,16 +33,19 @@ class CmommtParallelEnv(ParallelEnv[str, np.ndarray, np.int64]):
 
     Robots start within sensing range of a target. A robot that loses every target gets ``lost_reward`` at that
     simulation step, leaves the episode and stays motionless in the arena [paper]; at the end of the learning trial
-    every remaining robot gets its delayed reward (paper Eq. 2) and the episode ends.
+    every remaining robot gets its delayed reward (``reward``, a name of :data:`sim.features.REWARDS`; by default the
+    featurizer's paper reward, Eq. 2 for the collaborative states) and the episode ends; a per-decision reward is
+    paid after every action instead.
     """
 
     metadata: dict[str, Any] = {"name": "cmommt_v1", "render_modes": [], "is_parallelizable": True}  # noqa: RUF012
 
-    def __init__(self, scenario_name: str = "cmommt-v1", featurizer: str = "collab6d") -> None:
+    def __init__(self, scenario_name: str = "cmommt-v1", featurizer: str = "collab6d", reward: str = "paper") -> None:
         if featurizer not in FEATURIZERS:
             raise ValueError(f"unknown featurizer {featurizer!r}; known: {', '.join(FEATURIZERS)}")
         self.cfg = scenario(scenario_name)
         self.featurizer = featurizer
+        self.reward = resolve_reward(featurizer, reward)
         self.possible_agents = [f"robot_{i}" for i in range(self.cfg.n_robots)]
         self.agents: list[str] = []
         self._index = {name: i for i, name in enumerate(self.possible_agents)}
@@ -66,7 +69,7 @@ class CmommtParallelEnv(ParallelEnv[str, np.ndarray, np.int64]):
         if seed is not None:
             self._rng = np.random.default_rng(seed)
         learners = np.ones(self.cfg.n_robots, dtype=bool)
-        state = reset_trial(self.cfg, 1, learners, self.featurizer, self._rng)
+        state = reset_trial(self.cfg, 1, learners, self.featurizer, self._rng, self.reward)
         self._state, self._decide = state, np.ones(state.shape, dtype=bool)
         self.agents = list(self.possible_agents)
         share = float(coverage(self.cfg, state.obs)[0])
@@ -125,11 +128,15 @@ class CmommtParallelEnv(ParallelEnv[str, np.ndarray, np.int64]):
         return observations, rewards, terminations, truncations, infos
 
 
-def parallel_env(scenario_name: str = "cmommt-v1", featurizer: str = "collab6d") -> CmommtParallelEnv:
+def parallel_env(
+    scenario_name: str = "cmommt-v1", featurizer: str = "collab6d", reward: str = "paper"
+) -> CmommtParallelEnv:
     """PettingZoo's ``parallel_env()`` constructor."""
-    return CmommtParallelEnv(scenario_name, featurizer)
+    return CmommtParallelEnv(scenario_name, featurizer, reward)
 
 
-def env(scenario_name: str = "cmommt-v1", featurizer: str = "collab6d") -> AECEnv[str, np.ndarray, np.int64 | None]:
+def env(
+    scenario_name: str = "cmommt-v1", featurizer: str = "collab6d", reward: str = "paper"
+) -> AECEnv[str, np.ndarray, np.int64 | None]:
     """PettingZoo's ``env()`` constructor: the parallel game as an AEC env, agents taking turns."""
-    return parallel_to_aec(parallel_env(scenario_name, featurizer))
+    return parallel_to_aec(parallel_env(scenario_name, featurizer, reward))

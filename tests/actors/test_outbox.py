@@ -72,7 +72,7 @@ def one_cell_policy(version: int, q: float) -> Policy:
 
 def test_policy_client_keeps_the_newest_and_the_learning_not_handed_in() -> None:
     tracker = IncrementTracker(learn=(0, 1))
-    client = PolicyClient(n_robots=3, phase2=Phase2Config(), tracker=tracker)
+    client = PolicyClient(n_robots=3, phase2=Phase2Config(), tracker=tracker, featurizer="local2d")
     client.offer(policy_update(one_cell_policy(2, 0.0), "cmommt-v1"))
     client.offer(policy_update(one_cell_policy(1, 9.0), "cmommt-v1"))  # older: ignored
     update = client.take()
@@ -93,6 +93,15 @@ def test_policy_client_keeps_the_newest_and_the_learning_not_handed_in() -> None
     adopted: TabularAgent = client.adopt(newer, agent)
     assert adopted.tables[0, 0] == 1.5 and adopted.tables[2, 0] == 1.0  # robot 2 is not learned here
     assert [(r, c[0], v[0]) for r, c, v in tracker.take(adopted)] == [(0, 0.5, 1)]
+
+
+def test_policy_client_refuses_a_broadcast_over_another_state_and_counts_it() -> None:
+    client = PolicyClient(
+        n_robots=3, phase2=Phase2Config(), tracker=IncrementTracker(learn=(0,)), featurizer="collab6d"
+    )
+    client.offer(policy_update(one_cell_policy(2, 0.0), "cmommt-v1"))  # a local2d policy: 2-D prototypes
+    client.offer(policy_update(one_cell_policy(3, 0.0), "cmommt-v1"))
+    assert client.take() is None and client.refused == 2 and client.version == 0
 
 
 def test_a_rejected_message_leaves_the_outbox_and_the_rest_flows_on() -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import zipfile
 from pathlib import Path
@@ -55,6 +56,22 @@ def test_round_trip_keeps_every_array_and_field(tmp_path: Path) -> None:
     states = np.random.default_rng(1).normal(0, 100, (50, 6))
     robots = np.arange(50) % 10
     np.testing.assert_array_equal(loaded.greedy(states, robots), policy.greedy(states, robots))
+
+
+def test_the_header_names_the_reward_and_a_file_without_one_had_its_featurizers_paper_reward(tmp_path: Path) -> None:
+    policy = dataclasses.replace(make_policy(np.random.default_rng(0)), reward="difference")
+    path = save_policy(policy, scenario(), tmp_path / "p.npz")
+    loaded, header = load_policy(path)
+    assert header["reward"] == {"name": "difference", "per_decision": False} and loaded.reward == "difference"
+    with np.load(path) as data:
+        arrays = {name: data[name] for name in data.files}
+    old = json.loads(arrays["header"].tobytes())
+    del old["reward"]
+    arrays["header"] = np.frombuffer(json.dumps(old).encode(), np.uint8)
+    np.savez(tmp_path / "old.npz", **arrays)
+    assert load_policy(tmp_path / "old.npz")[0].reward == "eq2"
+    with pytest.raises(ValueError, match="unknown reward"):
+        dataclasses.replace(policy, reward="money")
 
 
 def test_the_file_is_a_plain_npz_with_a_json_header(tmp_path: Path) -> None:

@@ -27,6 +27,8 @@ from sim import HAND_MADE, evaluate, scenario
         (["--set", "budget.phase2.alpha=2"], "budget.phase2.alpha: alpha must lie in (0, 1], got 2.0"),
         (["--set", "lost_behaviour=fly"], "invalid choice: 'fly'"),
         (["--set", "scenario.action_steps=3", "--set", "scenario.action_steps=5"], "given twice"),
+        (["--set", "featurizer=pixels"], "featurizer 'pixels': known: local2d, collab6d, shared8d"),
+        (["--set", "reward=money"], "reward 'money': known: paper, observed, eq2, difference"),
     ],
 )
 def test_bad_settings_are_one_line_errors(
@@ -76,12 +78,14 @@ def test_a_tiny_sweep_scores_every_variant_on_the_same_trials_and_saves_the_over
         test_trials=2,
         test_steps=60,
     )
-    sweep = parse_sets(["lost_behaviour=wander,stay", "scenario.action_steps=3"])
+    sweep = parse_sets(
+        ["lost_behaviour=wander,stay", "scenario.action_steps=3", "featurizer=shared8d", "reward=difference"]
+    )
     report = ablate("ennc-ql-collab-option2", sweep, Setup(budget=budget), processes=2, out_dir=tmp_path)
     rows = report["variants"]
     assert [r["label"] for r in rows] == [
-        "lost_behaviour=wander, scenario.action_steps=3",
-        "lost_behaviour=stay, scenario.action_steps=3",
+        "lost_behaviour=wander, scenario.action_steps=3, featurizer=shared8d, reward=difference",
+        "lost_behaviour=stay, scenario.action_steps=3, featurizer=shared8d, reward=difference",
     ]
     cfg = scenario(action_steps=3)
     references = {name: evaluate(cfg, HAND_MADE[name], 2, 60, seed=0).coverage_mean for name in REFERENCES}
@@ -93,6 +97,7 @@ def test_a_tiny_sweep_scores_every_variant_on_the_same_trials_and_saves_the_over
         for seed in (0, 1):
             policy = load_policy(tmp_path / "policies" / f"v{variant}-{seed}.npz")[0]
             assert (policy.action_steps, policy.lost_behaviour) == (3, behaviour)
+            assert (policy.featurizer, policy.reward, policy.discretization.dim) == ("shared8d", "difference", 8)
     # The test-time rule changes no learning: the same seed learns the same tables in both variants.
     for seed in (0, 1):
         a = load_policy(tmp_path / "policies" / f"v1-{seed}.npz")[0]

@@ -7,14 +7,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 from matplotlib.image import imread
 
 from actors.config import ActorConfig
 from ennc_ql.cli import build_parser
-from ennc_ql.config import load_config
+from ennc_ql.config import ConfigError, load_config
 from ennc_ql.launch import UP_PRESETS, UpConfig, child_configs, write_configs
 from ennc_ql.report import HAND_MADE_COVERAGE, learning_curve_figure, results_table, write_run_report
 from learner.config import LearnerConfig
+from sim.features import FORMULATIONS
 
 CURVE_BLUE = (0x3B / 255, 0x7D / 255, 0xD8 / 255)
 
@@ -163,3 +165,11 @@ def test_up_writes_every_process_configuration_and_they_load_back(tmp_path: Path
     # The children's own command lines read the same files; a flag given there still wins.
     child = build_parser().parse_args(["actor", "--config", str(tmp_path / "actor-1.toml"), "--arenas", "7"])
     assert load_config(ActorConfig, file=child.config, args=child) == dataclasses.replace(actors[1], arenas=7)
+    # The formulation sets the state and the reward of every process at once: the paper's, or the default one.
+    assert (learner.featurizer, learner.reward) == FORMULATIONS[UpConfig().formulation] == ("shared8d", "difference")
+    assert {(a.featurizer, a.reward) for a in actors} == {("shared8d", "difference")}
+    paper = load_config(UpConfig, args=build_parser().parse_args(["up", "--formulation", "paper"]), defaults=UP_PRESETS)
+    learner, actors = child_configs(paper)
+    assert {(p.featurizer, p.reward) for p in (learner, *actors)} == {("collab6d", "eq2")}
+    with pytest.raises(ConfigError, match="formulation: unknown 'best'"):
+        load_config(UpConfig, args=build_parser().parse_args(["up", "--formulation", "best"]), defaults=UP_PRESETS)

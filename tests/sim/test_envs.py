@@ -31,6 +31,7 @@ def observed_share(cfg: ScenarioConfig, world: WorldState) -> float:
 def test_gymnasium_env_passes_the_checker() -> None:
     check_env(CmommtSingleRobotEnv(), skip_render_check=True)
     check_env(CmommtSingleRobotEnv(featurizer="local2d", others="a-cmommt"), skip_render_check=True)
+    check_env(CmommtSingleRobotEnv(featurizer="shared8d", reward="difference-decision"), skip_render_check=True)
 
 
 def test_the_registered_gymnasium_id_makes_the_env() -> None:
@@ -45,6 +46,7 @@ def test_the_registered_gymnasium_id_makes_the_env() -> None:
 
 def test_pettingzoo_env_passes_the_api_and_seed_tests() -> None:
     parallel_api_test(pettingzoo_env.parallel_env(), num_cycles=300)
+    parallel_api_test(pettingzoo_env.parallel_env(featurizer="shared8d", reward="difference"), num_cycles=300)
     parallel_seed_test(pettingzoo_env.parallel_env)
     api_test(pettingzoo_env.env(), num_cycles=300)
     assert isinstance(pettingzoo_env.parallel_env(featurizer="local2d"), CmommtParallelEnv)

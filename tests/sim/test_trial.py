@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sim import ScenarioConfig, TrialState, WorldState, featurize, reset_trial, scenario, sense, step_trial
-from sim.features import trial_reward
+from sim.features import resolve_reward, trial_reward
 
 N, E, W = 0, 2, 6  # compass action indices
 MASK = 1000.0
@@ -21,6 +21,7 @@ def situation(
     target_vel: list[tuple[float, float]] | None = None,
     heading: list[tuple[float, float]] | None = None,
     featurizer: str = "collab6d",
+    reward: str = "paper",
 ) -> TrialState:
     """One arena at the start of a trial, robots and targets where given (targets still unless ``target_vel``)."""
     vel = np.zeros((1, len(targets), 2)) if target_vel is None else np.array([target_vel], dtype=np.float64)
@@ -38,6 +39,7 @@ def situation(
         world=world,
         obs=obs,
         featurizer=featurizer,
+        reward=resolve_reward(featurizer, reward),
         features=features,
         action=np.zeros((1, m), np.int64),
         held=np.zeros((1, m), np.int64),
@@ -45,6 +47,7 @@ def situation(
         learner=mask,
         active=mask.copy(),
         heading=np.array([heading or [(1.0, 0.0)] * m], dtype=np.float64),
+        earned=np.zeros((1, m), np.float32),
     )
 
 
@@ -114,7 +117,7 @@ def test_the_reward_is_zero_before_the_end_and_eq2_at_the_end(featurizer: str, e
             np.testing.assert_array_equal(out.reward, 0.0)
     assert out.trial_over and out.done.all() and out.transition.all()
     np.testing.assert_array_equal(out.reward[0], expected)
-    np.testing.assert_array_equal(out.reward, trial_reward(cfg, state.obs, featurizer))
+    np.testing.assert_array_equal(out.reward, trial_reward(cfg, state.obs, resolve_reward(featurizer, "paper")))
     np.testing.assert_array_equal(state.obs.n_seen[0], [3, 3, 2])
     with pytest.raises(ValueError, match="trial is over"):
         step_trial(cfg, state, action, decide, rng)

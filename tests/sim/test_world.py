@@ -79,11 +79,11 @@ def test_rewards_follow_equation_2_and_the_lost_rule() -> None:
     )
     obs = sense(cfg, w)
     # r_i(T) = Σ_j b_ij(T) − k(T), k = 2 when another robot is in view [paper Eq. 2]; lost robots get −1.
-    np.testing.assert_allclose(trial_reward(cfg, obs, "collab6d")[0], [2 - 2, 1 - 2, -1])
-    np.testing.assert_allclose(trial_reward(cfg, obs, "local2d")[0], [2, 1, -1])
+    np.testing.assert_allclose(trial_reward(cfg, obs, "eq2")[0], [2 - 2, 1 - 2, -1])
+    np.testing.assert_allclose(trial_reward(cfg, obs, "observed")[0], [2, 1, -1])
     np.testing.assert_array_equal(lost(obs)[0], [False, False, True])
     custom = cfg.replace(lost_reward=-5.0, robot_in_view_penalty=0.5)
-    np.testing.assert_allclose(trial_reward(custom, obs, "collab6d")[0], [1.5, 0.5, -5])
+    np.testing.assert_allclose(trial_reward(custom, obs, "eq2")[0], [1.5, 0.5, -5])
 
 
 def brute_force_coverage(cfg, w: WorldState) -> np.ndarray:

@@ -1,0 +1,118 @@
+"""The featurizer and reward registries on hand-built arenas whose values are known by hand."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sim import WorldState, featurize, scenario, sense, step_trial
+from sim.features import FEATURIZER_REGISTRY, FEATURIZERS, REWARDS, resolve_reward, reward_value, trial_reward
+from tests.sim.test_trial import situation
+
+MASK = 1000.0
+N, W = 0, 6  # compass action indices
+
+
+def arena() -> WorldState:
+    """Robot 0 sees targets 0 (50 away) and 1 (100 away); robot 1, 120 east of robot 0, sees target 0 only (130
+    away); target 2 is in nobody's view; robot 2 sees nothing."""
+    return WorldState(
+        robot_pos=np.array([[(0.0, 0.0), (120.0, 0.0), (-600.0, -600.0)]]),
+        target_pos=np.array([[(0.0, 50.0), (-60.0, -80.0), (400.0, 0.0)]]),
+        target_vel=np.zeros((1, 3, 2)),
+        target_speed=np.zeros((1, 3)),
+    )
+
+
+def test_the_shared_state_flags_the_targets_another_robot_observes() -> None:
+    cfg = scenario(n_robots=3, n_targets=3)
+    obs = sense(cfg, arena())
+    # Robot 0: its nearest target (0) is also robot 1's, its furthest (1) is its own alone.
+    np.testing.assert_array_equal(obs.shared[0], [[True, False], [True, True], [False, False]])
+    np.testing.assert_array_equal(obs.n_only[0], [1, 0, 0])
+    state = featurize(cfg, obs, "shared8d")[0]
+    np.testing.assert_allclose(state[0], [0, 50, -60, -80, 120, 0, 1, 0])
+    np.testing.assert_allclose(state[1], [-120, 50, -120, 50, -120, 0, 1, 1])
+    np.testing.assert_allclose(state[2], [MASK] * 6 + [0, 0])
+    np.testing.assert_array_equal(state[:, :6], featurize(cfg, obs, "collab6d")[0])
+    assert FEATURIZERS["shared8d"] == len(FEATURIZER_REGISTRY["shared8d"].state) == 8
+
+
+def test_the_difference_reward_counts_the_targets_only_this_robot_observes() -> None:
+    cfg = scenario(n_robots=3, n_targets=3)
+    obs = sense(cfg, arena())
+    # D_i = G(z) − G(z without i): without robot 0 target 1 goes unobserved; without robot 1 nothing changes.
+    np.testing.assert_allclose(reward_value(cfg, obs, "difference")[0], [1, 0, 0])
+    np.testing.assert_allclose(trial_reward(cfg, obs, "difference")[0], [1, 0, cfg.lost_reward])
+    covered_without = [sense(cfg.replace(n_robots=2), _without(arena(), i)).covered[0] for i in range(cfg.n_robots)]
+    np.testing.assert_allclose(reward_value(cfg, obs, "difference")[0], obs.covered[0] - np.array(covered_without))
+
+
+def _without(world: WorldState, robot: int) -> WorldState:
+    keep = np.arange(world.robot_pos.shape[1]) != robot
+    return WorldState(world.robot_pos[:, keep], world.target_pos, world.target_vel, world.target_speed)
+
+
+def test_paper_names_each_featurizers_own_reward_and_unknown_names_are_refused() -> None:
+    assert resolve_reward("local2d", "paper") == "observed"
+    assert resolve_reward("collab6d", "paper") == resolve_reward("shared8d", "paper") == "eq2"
+    assert resolve_reward("collab6d", "difference") == "difference"
+    with pytest.raises(ValueError, match="unknown reward 'nope'"):
+        resolve_reward("collab6d", "nope")
+    with pytest.raises(ValueError, match="unknown featurizer 'pixels'"):
+        featurize(scenario(), sense(scenario(), arena()), "pixels")
+    assert {name for name, r in REWARDS.items() if r.per_decision} == {"difference-decision"}
+
+
+def _two_robots() -> tuple[list[tuple[float, float]], list[tuple[float, float]]]:
+    """Robot 0 goes north with targets A (0, 30) and B (−100, 0) in view all along; robot 1 goes west from
+    (200, 30): it sees only target C (300, 30) for steps 1–6 and only A from step 7 (at 147.5), so A is shared."""
+    return [(0.0, 0.0), (200.0, 30.0)], [(0.0, 30.0), (-100.0, 0.0), (300.0, 30.0)]
+
+
+def test_a_per_decision_reward_pays_the_mean_difference_over_each_action() -> None:
+    cfg = scenario(n_robots=2, n_targets=3, learning_steps=10, action_steps=5)
+    robots, targets = _two_robots()
+    state = situation(cfg, robots, targets, [True, True], reward="difference-decision")
+    rng = np.random.default_rng(0)
+    action, decide = np.array([[N, W]]), np.ones((1, 2), bool)
+    paid = []
+    for _ in range(cfg.learning_steps):
+        state, out = step_trial(cfg, state, action, decide, rng)
+        paid.append(out.reward[0].copy())
+        decide = out.decide
+    # D per step: robot 0 has 2 for steps 1–6, then 1; robot 1 has 1 for steps 1–6, then 0.
+    np.testing.assert_allclose(paid[4], [2.0, 1.0])
+    np.testing.assert_allclose(paid[9], [(2 + 4 * 1) / 5, (1 + 4 * 0) / 5], rtol=1e-6)
+    assert out.done.all()
+    for t in (0, 1, 2, 3, 5, 6, 7, 8):
+        np.testing.assert_array_equal(paid[t], 0.0)
+
+
+def test_a_caller_boundary_pays_a_per_decision_reward_for_the_steps_held() -> None:
+    cfg = scenario(n_robots=2, n_targets=3, learning_steps=10, action_steps=5)
+    robots, targets = _two_robots()
+    state = situation(cfg, robots, targets, [True, True], reward="difference-decision")
+    rng = np.random.default_rng(0)
+    action, decide = np.array([[N, W]]), np.ones((1, 2), bool)
+    for _ in range(3):
+        state, out = step_trial(cfg, state, action, decide, rng, hold=20)
+        decide = out.decide
+    out = out.with_boundary(np.array([[True, False]]))
+    np.testing.assert_allclose(out.reward[0], [2.0, 0.0])
+    assert out.transition[0].tolist() == [True, False]
+
+
+def test_a_trial_end_difference_reward_is_paid_once_at_the_end() -> None:
+    cfg = scenario(n_robots=2, n_targets=3, learning_steps=10, action_steps=5)
+    robots, targets = _two_robots()
+    state = situation(cfg, robots, targets, [True, True], reward="difference")
+    rng = np.random.default_rng(0)
+    action, decide = np.array([[N, W]]), np.ones((1, 2), bool)
+    total = np.zeros(2)
+    for _ in range(cfg.learning_steps):
+        state, out = step_trial(cfg, state, action, decide, rng)
+        total += out.reward[0]
+        decide = out.decide
+    np.testing.assert_allclose(out.reward[0], [1.0, 0.0])
+    np.testing.assert_allclose(total, [1.0, 0.0])
