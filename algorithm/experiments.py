@@ -133,9 +133,11 @@ def train(
     base: ScenarioConfig | None = None,
     progress: Progress | None = None,
     lost_behaviour: LostBehaviour = "wander",
+    act_every: int | None = None,
 ) -> Outcome:
     """One independent learning process of ``spec``, tested on the paper's protocol; ``lost_behaviour`` is what a
-    robot that sees no target does in the test trials."""
+    robot that sees no target does in the test trials, ``act_every`` the steps between its decisions there (None:
+    ``action_steps``, as it learned)."""
     start = time.perf_counter()
     base = base or scenario()
     say = progress or (lambda message: log.info("%s[%d]: %s", spec.name, seed, message))
@@ -180,7 +182,9 @@ def train(
     test_robots = base.n_robots
     robot_table = np.arange(test_robots) % rows
     policy = dataclasses.replace(
-        agent.policy(robot_table=robot_table, meta={"seed": seed, "tuples": tuples}), lost_behaviour=lost_behaviour
+        agent.policy(robot_table=robot_table, meta={"seed": seed, "tuples": tuples}),
+        lost_behaviour=lost_behaviour,
+        action_steps=act_every or base.action_steps,
     )
     result = evaluate(base, PolicyController(policy), budget.test_trials, budget.test_steps, seed=budget.test_seed)
     say(f"test coverage {result.coverage_mean:.2f}%")

@@ -3,7 +3,7 @@ the same seeded test trials; a table (mean ± std over processes) and a chart.
 
 Each ``--set KEY=V1[,V2...]`` names a field of :class:`Setup` by its dotted path (``budget.phase2.alpha``,
 ``budget.phase1.max_classes``, ``scenario.action_steps``, ``scenario.learning_steps``, ``lost_behaviour``, and the
-formulation: ``featurizer``, ``reward``); several
+formulation: ``featurizer``, ``reward``, ``act_every``); several
 values sweep it, and several ``--set`` sweep their product. Usage::
 
     ennc-ql ablate ennc-ql-collab-option2 --set budget.phase2.alpha=0.05,0.2 --set scenario.action_steps=3,5 \\
@@ -55,12 +55,16 @@ class Setup:
     """The learners' state (:data:`sim.features.FEATURIZER_REGISTRY`); None: the method's own."""
     reward: str | None = None
     """The learners' reward (:data:`sim.features.REWARDS`, or ``paper``); None: the method's own."""
+    act_every: int | None = None
+    """Steps between a robot's decisions in the test trials; None: ``action_steps``, as it learned."""
 
     def __post_init__(self) -> None:
         if self.featurizer is not None and self.featurizer not in FEATURIZERS:
             raise ConfigError(f"featurizer {self.featurizer!r}: known: {', '.join(FEATURIZERS)}")
         if self.reward is not None and self.reward not in REWARD_NAMES:
             raise ConfigError(f"reward {self.reward!r}: known: {', '.join(REWARD_NAMES)}")
+        if self.act_every is not None and self.act_every < 1:
+            raise ConfigError(f"act_every must be at least 1, got {self.act_every}")
 
 
 def parse_sets(texts: Sequence[str]) -> Sweep:
@@ -111,6 +115,7 @@ def ablate(method: str, sweep: Sweep, base: Setup, processes: int, out_dir: Path
             variant=i + 1,
             featurizer=setup.featurizer,
             reward=setup.reward,
+            act_every=setup.act_every,
         )
         for i, (_, setup) in enumerate(setups)
         for seed in range(processes)

@@ -22,11 +22,15 @@ if TYPE_CHECKING:
 
 REPORT_MD = "report.md"
 LEARNING_CURVE_PNG = "learning_curve.png"
-HAND_MADE_COVERAGE = {"random": 16.60, "local": 56.32, "A-CMOMMT": 72.14}
+HAND_MADE_COVERAGE = {"random": 16.60, "local": 56.32, "force-6d-shared": 69.09, "A-CMOMMT": 72.14}
 """Coverage (%) of the hand-made controllers from ``ennc-ql eval --policy NAME --trials 10 --steps 1000 --seed 0``
 (README): the protocol of the learner's own evaluations (10 seeded trials of 1000 steps), so the levels compare
-directly with the learning curve. A test re-measures them."""
-_REFERENCE_COLOURS = {"random": "#999999", "local": "#e69f00", "A-CMOMMT": "#009e73"}
+directly with the learning curve; force-6d-shared is the force law on what the shared8d state holds. A test
+re-measures them."""
+FINAL_REFERENCE = ("A-CMOMMT", 50, 74.97)
+"""A-CMOMMT on the final figure's protocol, ``ennc-ql eval --policy a-cmommt --trials 50 --seed 0``: drawn beside
+the final policy's figure when that is measured on as many trials (a test re-measures it)."""
+_REFERENCE_COLOURS = {"random": "#999999", "local": "#e69f00", "force-6d-shared": "#cc79a7", "A-CMOMMT": "#009e73"}
 
 
 def _coverage(value: float | None) -> str:
@@ -50,8 +54,7 @@ def result_rows(report: Mapping[str, Any]) -> list[tuple[str, str]]:
     ]
     formulation = report.get("config", {}).get("formulation")
     if formulation in FORMULATIONS:
-        featurizer, reward = FORMULATIONS[formulation]
-        rows.insert(1, ("formulation", f"{formulation} ({featurizer} state, {reward} reward)"))
+        rows.insert(1, ("formulation", f"{formulation} ({FORMULATIONS[formulation].describe()})"))
     return rows
 
 
@@ -143,8 +146,10 @@ def markdown_report(report: Mapping[str, Any], curve_png: str = LEARNING_CURVE_P
     else:
         lines += ["No evaluation: no policy was learned in this run.", ""]
     references = ", ".join(f"{name} {value:.2f} %" for name, value in HAND_MADE_COVERAGE.items())
+    name, trials, level = FINAL_REFERENCE
     lines += [
-        f"Hand-made controllers on the same test protocol (10 trials of 1000 steps, seed 0): {references}.",
+        f"Hand-made controllers on the same test protocol (10 trials of 1000 steps, seed 0): {references}; "
+        f"on the final figure's {trials} trials {name} scores {level:.2f} %.",
         "",
     ]
     lines += _throughput(report) + _integrity(report) + _policy(report)
@@ -169,6 +174,16 @@ def learning_curve_figure(report: Mapping[str, Any]) -> Figure:
     if final is not None:
         trials = report.get("final_eval_trials", report.get("eval_trials", 10))
         ax.plot([report["seconds"]], [final], "*", ms=14, color="#d84b3b", label=f"final policy ({trials} test trials)")
+        name, reference_trials, level = FINAL_REFERENCE
+        if trials == reference_trials:
+            ax.plot(
+                [report["seconds"]],
+                [level],
+                "*",
+                ms=14,
+                color=_REFERENCE_COLOURS[name],
+                label=f"{name}, hand-made ({reference_trials} test trials, {level:.2f} %)",
+            )
     else:
         ax.text(0.5, 0.5, "no evaluation: no policy was learned", transform=ax.transAxes, ha="center")
     ax.set_xlim(0, max([float(duration), *(t for t, _ in curve)]) * 1.02)

@@ -78,6 +78,8 @@ class Job:
     """The learners' state instead of the method's own, if given."""
     reward: str | None = None
     """The learners' reward instead of the method's own, if given."""
+    act_every: int | None = None
+    """Steps between decisions in the test trials (None: ``action_steps``)."""
 
     @property
     def label(self) -> str:
@@ -89,7 +91,15 @@ class Job:
             spec = dataclasses.replace(spec, featurizer=self.featurizer)
         if self.reward is not None:
             spec = dataclasses.replace(spec, reward=self.reward)
-        return train(spec, self.budget, self.seed, self.scenario, progress, lost_behaviour=self.lost_behaviour)
+        return train(
+            spec,
+            self.budget,
+            self.seed,
+            self.scenario,
+            progress,
+            lost_behaviour=self.lost_behaviour,
+            act_every=self.act_every,
+        )
 
 
 def _train_job(job: Job) -> tuple[Job, Outcome]:

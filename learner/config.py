@@ -31,6 +31,9 @@ class LearnerConfig:
     reward: str = "paper"
     """Reward the actors pay their robots (the actors' --reward): recorded in the policy; the learner's fits read
     the rewards of the tuples."""
+    act_every: int | None = None
+    """Steps between a robot's decisions when the learned policy is evaluated and in the policy file (None: the
+    scenario's action_steps, as the actors learn); the broadcast keeps the actors' action_steps."""
     store_capacity: int = 1_000_000
     """Tuples kept; the oldest are overwritten beyond it (counted)."""
     min_tuples: int = 150_000
@@ -84,6 +87,8 @@ class LearnerConfig:
             duration=self.duration,
         )
         require_at_least(0, threads=self.threads)
+        if self.act_every is not None:
+            require_at_least(1, act_every=self.act_every)
         if self.refit_growth != 0 and not self.refit_growth > 1:
             raise ValueError(f"refit_growth must be 0 (never) or above 1, got {self.refit_growth}")
 

@@ -14,6 +14,7 @@ Usage (thread-safe: every method takes the state's own lock)::
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -37,6 +38,7 @@ class PolicyState:
         method: str,
         on_version: Callable[[int], None] | None = None,
         reward: str = "eq2",
+        act_every: int | None = None,
     ) -> None:
         self.on_version = on_version
         """Called with each new version before anyone can see it (the learner persists its version mark there)."""
@@ -46,6 +48,8 @@ class PolicyState:
         self.action_steps = action_steps
         self.method = method
         self.reward = reward
+        self.act_every = act_every
+        """Steps between decisions of the evaluated and saved policy (None: ``action_steps``)."""
         """The reward function the actors learn with (a name of :data:`sim.features.REWARDS`), for the policy file."""
         self._lock = threading.Lock()
         self._disc: Discretization | None = None
@@ -125,8 +129,12 @@ class PolicyState:
             return self._current
 
     def policy(self) -> Policy | None:
+        """The acting policy, for evaluation and the policy file: robots decide every ``act_every`` steps."""
         with self._lock:
-            return None if self._disc is None else self._policy()
+            if self._disc is None:
+                return None
+            policy = self._policy()
+        return policy if self.act_every is None else dataclasses.replace(policy, action_steps=self.act_every)
 
     def lag(self, latest_version: dict[str, int]) -> dict[str, int]:
         """Versions each actor's newest experience is behind the current policy."""

@@ -83,6 +83,7 @@ class LearnerService:
             config.method,
             on_version=self.version_mark.record,
             reward=resolve_reward(config.featurizer, config.reward),
+            act_every=config.act_every,
         )
         self.evaluator = Evaluator(self.scenario, config.eval_trials, config.eval_steps, config.final_eval_trials)
         self.checkpointer = Checkpointer(run_dir)

@@ -125,12 +125,28 @@ REWARD_NAMES: tuple[str, ...] = ("paper", *REWARDS)
 """What a configuration may name as its reward."""
 
 
-FORMULATIONS: dict[str, tuple[str, str]] = {
-    "paper": ("collab6d", "eq2"),
-    "shared-difference": ("shared8d", "difference"),
+@dataclass(frozen=True, slots=True)
+class Formulation:
+    """What a learning problem is made of besides the algorithm: the state, the reward, and how often a robot of
+    the learned policy decides in test trials."""
+
+    featurizer: str
+    reward: str
+    act_every: int | None = None
+    """Steps between a robot's decisions in test trials; None: ``action_steps``, as it learned [paper]. Learning
+    always holds an action ``action_steps`` steps."""
+
+    def describe(self) -> str:
+        every = "every action" if self.act_every is None else f"every {self.act_every} step(s)"
+        return f"{self.featurizer} state, {self.reward} reward, deciding {every} in tests"
+
+
+FORMULATIONS: dict[str, Formulation] = {
+    "paper": Formulation("collab6d", "eq2"),
+    "shared-difference": Formulation("shared8d", "difference", act_every=1),
 }
-"""Named (featurizer, reward) pairs, what ``ennc-ql up --formulation`` picks: ``paper`` is the paper's collaborative
-formulation [paper §4, Eq. 2]; ``shared-difference`` the best one the ablations of the README found."""
+"""What ``ennc-ql up --formulation`` picks: ``paper`` is the paper's collaborative formulation [paper §4, Eq. 2];
+``shared-difference`` the best one the ablations of the README found [beyond the paper]."""
 
 
 def _featurizer(name: str) -> Featurizer:

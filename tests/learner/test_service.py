@@ -6,6 +6,7 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -133,6 +134,18 @@ def test_increments_over_an_old_discretization_are_dropped() -> None:
     assert state.stale_increments == 1 and state.increments == 2
     update = state.publish()
     assert update.q_tables[2].tolist() == [1.0] * 8  # only the current discretization's increment was merged
+
+
+def test_the_evaluated_policy_decides_every_act_every_steps_while_the_broadcast_keeps_the_actors_hold() -> None:
+    kw: dict[str, Any] = {"n_robots": 10, "featurizer": "collab6d", "scenario": "cmommt-v1", "method": "m"}
+    state = PolicyState(action_steps=5, reward="difference", act_every=1, **kw)
+    state.adopt(one_cell_per_action())
+    assert state.publish().action_steps == 5
+    policy = state.policy()
+    assert policy is not None and (policy.action_steps, policy.reward) == (1, "difference")
+    plain = PolicyState(action_steps=5, **kw)
+    plain.adopt(one_cell_per_action())
+    assert plain.policy() is not None and plain.policy().action_steps == 5  # type: ignore[union-attr]
 
 
 def experience(seq: int, dim: int, n: int = 3) -> ExperienceBatch:
