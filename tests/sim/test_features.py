@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim import WorldState, featurize, scenario, sense, step_trial
+from sim import TrialStep, WorldState, featurize, scenario, sense, step_trial
 from sim.features import FEATURIZER_REGISTRY, FEATURIZERS, REWARDS, resolve_reward, reward_value, trial_reward
 from tests.sim.test_trial import situation
 
@@ -64,55 +64,41 @@ def test_paper_names_each_featurizers_own_reward_and_unknown_names_are_refused()
     assert {name for name, r in REWARDS.items() if r.per_decision} == {"difference-decision"}
 
 
-def _two_robots() -> tuple[list[tuple[float, float]], list[tuple[float, float]]]:
-    """Robot 0 goes north with targets A (0, 30) and B (−100, 0) in view all along; robot 1 goes west from
-    (200, 30): it sees only target C (300, 30) for steps 1–6 and only A from step 7 (at 147.5), so A is shared."""
-    return [(0.0, 0.0), (200.0, 30.0)], [(0.0, 30.0), (-100.0, 0.0), (300.0, 30.0)]
+def _two_robots(reward: str, steps: int, hold: int | None = None) -> list[TrialStep]:
+    """Every step of a 10-step trial of 5-step actions, cut after ``steps``: robot 0 goes north with targets
+    A (0, 30) and B (−100, 0) in view all along; robot 1 goes west from (200, 30): it sees only target C (300, 30)
+    for steps 1–6 and only A from step 7 (at 147.5), so A is shared from then on."""
+    cfg = scenario(n_robots=2, n_targets=3, learning_steps=10, action_steps=5)
+    robots, targets = [(0.0, 0.0), (200.0, 30.0)], [(0.0, 30.0), (-100.0, 0.0), (300.0, 30.0)]
+    state = situation(cfg, robots, targets, [True, True], reward=reward)
+    rng = np.random.default_rng(0)
+    action, decide = np.array([[N, W]]), np.ones((1, 2), bool)
+    outs = []
+    for _ in range(steps):
+        state, out = step_trial(cfg, state, action, decide, rng, hold=hold)
+        outs.append(out)
+        decide = out.decide
+    return outs
 
 
 def test_a_per_decision_reward_pays_the_mean_difference_over_each_action() -> None:
-    cfg = scenario(n_robots=2, n_targets=3, learning_steps=10, action_steps=5)
-    robots, targets = _two_robots()
-    state = situation(cfg, robots, targets, [True, True], reward="difference-decision")
-    rng = np.random.default_rng(0)
-    action, decide = np.array([[N, W]]), np.ones((1, 2), bool)
-    paid = []
-    for _ in range(cfg.learning_steps):
-        state, out = step_trial(cfg, state, action, decide, rng)
-        paid.append(out.reward[0].copy())
-        decide = out.decide
+    outs = _two_robots("difference-decision", 10)
+    paid = [out.reward[0] for out in outs]
     # D per step: robot 0 has 2 for steps 1–6, then 1; robot 1 has 1 for steps 1–6, then 0.
     np.testing.assert_allclose(paid[4], [2.0, 1.0])
     np.testing.assert_allclose(paid[9], [(2 + 4 * 1) / 5, (1 + 4 * 0) / 5], rtol=1e-6)
-    assert out.done.all()
+    assert outs[-1].done.all()
     for t in (0, 1, 2, 3, 5, 6, 7, 8):
         np.testing.assert_array_equal(paid[t], 0.0)
 
 
 def test_a_caller_boundary_pays_a_per_decision_reward_for_the_steps_held() -> None:
-    cfg = scenario(n_robots=2, n_targets=3, learning_steps=10, action_steps=5)
-    robots, targets = _two_robots()
-    state = situation(cfg, robots, targets, [True, True], reward="difference-decision")
-    rng = np.random.default_rng(0)
-    action, decide = np.array([[N, W]]), np.ones((1, 2), bool)
-    for _ in range(3):
-        state, out = step_trial(cfg, state, action, decide, rng, hold=20)
-        decide = out.decide
-    out = out.with_boundary(np.array([[True, False]]))
+    out = _two_robots("difference-decision", 3, hold=20)[-1].with_boundary(np.array([[True, False]]))
     np.testing.assert_allclose(out.reward[0], [2.0, 0.0])
     assert out.transition[0].tolist() == [True, False]
 
 
 def test_a_trial_end_difference_reward_is_paid_once_at_the_end() -> None:
-    cfg = scenario(n_robots=2, n_targets=3, learning_steps=10, action_steps=5)
-    robots, targets = _two_robots()
-    state = situation(cfg, robots, targets, [True, True], reward="difference")
-    rng = np.random.default_rng(0)
-    action, decide = np.array([[N, W]]), np.ones((1, 2), bool)
-    total = np.zeros(2)
-    for _ in range(cfg.learning_steps):
-        state, out = step_trial(cfg, state, action, decide, rng)
-        total += out.reward[0]
-        decide = out.decide
-    np.testing.assert_allclose(out.reward[0], [1.0, 0.0])
-    np.testing.assert_allclose(total, [1.0, 0.0])
+    outs = _two_robots("difference", 10)
+    np.testing.assert_allclose(outs[-1].reward[0], [1.0, 0.0])
+    np.testing.assert_allclose(np.sum([out.reward[0] for out in outs], axis=0), [1.0, 0.0])
