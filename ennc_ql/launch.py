@@ -104,13 +104,12 @@ SET_BY_UP = (
 
 def child_configs(config: UpConfig) -> tuple[LearnerConfig, list[ActorConfig]]:
     formulation = FORMULATIONS[config.formulation]
-    featurizer, reward = formulation.featurizer, formulation.reward
     learner = dataclasses.replace(
         config.learner,
         duration=config.duration,
         seed=config.seed,
-        featurizer=featurizer,
-        reward=reward,
+        featurizer=formulation.featurizer,
+        reward=formulation.reward,
         act_every=formulation.act_every,
     )
     actors = [
@@ -119,8 +118,8 @@ def child_configs(config: UpConfig) -> tuple[LearnerConfig, list[ActorConfig]]:
             actor_id=f"actor-{i}",
             seed=config.seed,
             duration=None,
-            featurizer=featurizer,
-            reward=reward,
+            featurizer=formulation.featurizer,
+            reward=formulation.reward,
         )
         for i in range(config.actors)
     ]

@@ -137,7 +137,7 @@ class Formulation:
     always holds an action ``action_steps`` steps."""
 
     def describe(self) -> str:
-        every = "every action" if self.act_every is None else f"every {self.act_every} step(s)"
+        every = {None: "every action", 1: "every step"}.get(self.act_every, f"every {self.act_every} steps")
         return f"{self.featurizer} state, {self.reward} reward, deciding {every} in tests"
 
 
@@ -177,10 +177,10 @@ def lost(obs: Observation) -> np.ndarray:
 
 def reward_value(cfg: ScenarioConfig, obs: Observation, reward: str) -> np.ndarray:
     """(E, m) float32 value of ``reward`` (a name of :data:`REWARDS`) in this observation, lost robots included."""
-    try:
-        return REWARDS[reward].value(cfg, obs)
-    except KeyError:
-        raise ValueError(f"unknown reward {reward!r}; known: {', '.join(REWARDS)}") from None
+    rule = REWARDS.get(reward)
+    if rule is None:
+        raise ValueError(f"unknown reward {reward!r}; known: {', '.join(REWARDS)}")
+    return rule.value(cfg, obs)
 
 
 def trial_reward(cfg: ScenarioConfig, obs: Observation, reward: str) -> np.ndarray:

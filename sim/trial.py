@@ -217,14 +217,15 @@ def step_trial(
     features = featurize(cfg, obs, state.featurizer)
     held = held + 1
     trial_over = world.t >= cfg.learning_steps
-    done = state.active & (lost(obs) | trial_over)
+    gone = lost(obs)
+    done = state.active & (gone | trial_over)
     active = state.active & ~done
     boundary = held >= (cfg.action_steps if hold is None else hold)
     earned, action_mean = state.earned, None
     if REWARDS[state.reward].per_decision:
         earned = np.where(decide, np.float32(0.0), earned) + reward_value(cfg, obs, state.reward)
         action_mean = (earned / held).astype(np.float32)
-        pay = np.where(done & lost(obs), np.float32(cfg.lost_reward), action_mean)
+        pay = np.where(done & gone, np.float32(cfg.lost_reward), action_mean)
         reward = np.where(done | (active & boundary), pay, np.float32(0.0)).astype(np.float32)
     elif done.any():
         reward = np.where(done, trial_reward(cfg, obs, state.reward), 0.0).astype(np.float32)
