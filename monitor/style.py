@@ -34,6 +34,7 @@ REFERENCES: dict[str, tuple[str, Rgb]] = {
     "random": ("random", MID_GREY),
     "local": ("local", SKY_BLUE),
     "a-cmommt": ("A-CMOMMT", REDDISH_PURPLE),
+    "a-cmommt-oracle": ("A-CMOMMT oracle (true positions)", BLUE),
     "force-6d": ("force law on the 6-D state", BLUISH_GREEN),
     "force-6d-shared": ("force law, 6-D state + shared flags", VERMILLION),
 }

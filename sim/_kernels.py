@@ -187,6 +187,51 @@ def _g_robot(d: float, dr1: float, dr2: float) -> float:
     return 0.0
 
 
+@njit(cache=True, inline="always")
+def _robot_push(
+    robot_pos: np.ndarray, e: int, i: int, dr1: float, dr2: float, fx: float, fy: float
+) -> tuple[float, float]:
+    """(fx, fy) plus the repulsions of robot i's teammates within dr2 (< sensing range: robots it senses), added
+    one by one onto the target forces (the order of the additions decides near-ties of the heading)."""
+    m = robot_pos.shape[1]
+    rx = robot_pos[e, i, 0]
+    ry = robot_pos[e, i, 1]
+    for k in range(m):
+        if k == i:
+            continue
+        dx = robot_pos[e, k, 0] - rx
+        dy = robot_pos[e, k, 1] - ry
+        d = math.sqrt(dx * dx + dy * dy)
+        if d > dr2 or d < _EPS:
+            continue
+        g = _g_robot(d, dr1, dr2) / d
+        fx += g * dx
+        fy += g * dy
+    return fx, fy
+
+
+@njit(cache=True, inline="always")
+def _unit_or_kept(
+    fx: float, fy: float, heading: np.ndarray, e: int, i: int, rx: float, ry: float, radius: float
+) -> tuple[float, float]:
+    """The force's direction, or with no force the kept heading reflected off the wall (so that a wandering robot
+    does not stick to the rim)."""
+    norm = math.sqrt(fx * fx + fy * fy)
+    if norm > _EPS:
+        return fx / norm, fy / norm
+    hx = heading[e, i, 0]
+    hy = heading[e, i, 1]
+    r = math.sqrt(rx * rx + ry * ry)
+    if r >= radius - _EPS:
+        ux = rx / r
+        uy = ry / r
+        vn = hx * ux + hy * uy
+        if vn > 0.0:
+            hx -= 2.0 * vn * ux
+            hy -= 2.0 * vn * uy
+    return hx, hy
+
+
 @njit(cache=True)
 def force_heading(
     robot_pos: np.ndarray,  # (E, m, 2) float64
@@ -204,6 +249,8 @@ def force_heading(
     radius: float,
     out_heading: np.ndarray,  # out (E, m, 2) float64 unit vectors
 ) -> None:
+    """The force law on the TRUE position of every target within do4, sensed or not: the oracle A-CMOMMT, which
+    reads positions beyond every robot's sensing range (kept as a labelled reference, ``a-cmommt-oracle``)."""
     n_arenas, m, _ = robot_pos.shape
     n = target_pos.shape[1]
     r2 = sensing_range * sensing_range
@@ -236,32 +283,123 @@ def force_heading(
                 fx += f * dx
                 fy += f * dy
             if repel_robots:
-                for k in range(m):
-                    if k == i:
-                        continue
-                    dx = robot_pos[e, k, 0] - rx
-                    dy = robot_pos[e, k, 1] - ry
+                fx, fy = _robot_push(robot_pos, e, i, dr1, dr2, fx, fy)
+            out_heading[e, i, 0], out_heading[e, i, 1] = _unit_or_kept(fx, fy, heading, e, i, rx, ry, radius)
+
+
+NEVER_SEEN = 1 << 40
+"""Track age of a target a robot has never observed."""
+
+
+@njit(cache=True)
+def tracked_force_heading(
+    robot_pos: np.ndarray,  # (E, m, 2) float64
+    target_pos: np.ndarray,  # (E, n, 2) float64, read only where some robot senses the target
+    heading: np.ndarray,  # (E, m, 2) float64 unit vectors kept when no force acts
+    track_pos: np.ndarray,  # (E, m, n, 2) float64: robot i's last sighting of target j
+    track_vel: np.ndarray,  # (E, m, n, 2) float64: its estimated displacement per step then
+    track_age: np.ndarray,  # (E, m, n) int64: steps since that sighting before this step (NEVER_SEEN: none)
+    do1: float,
+    do2: float,
+    do3: float,
+    do4: float,
+    dr1: float,
+    dr2: float,
+    sensing_range: float,
+    shared_weight: float,
+    cooperative: bool,
+    predict_steps: int,
+    reported_weight: float,
+    radius: float,
+    out_heading: np.ndarray,  # out (E, m, 2) float64 unit vectors
+    out_pos: np.ndarray,  # out (E, m, n, 2) the tracks after this step's sightings
+    out_vel: np.ndarray,  # out (E, m, n, 2)
+    out_age: np.ndarray,  # out (E, m, n) int64
+) -> None:
+    """A-CMOMMT's force law on what a robot can know [Parker 2002: do4 is the *predictive tracking* range].
+
+    A target's true position is read only where some robot senses it. Robot i is pulled by
+
+    * every target it senses (d <= do3), weighted ``shared_weight`` when another robot senses it too (the
+      teammates' reports A-CMOMMT assumes; ``cooperative`` only);
+    * in the band (do3, do4]: its own last sighting of a target, predicted forward linearly from the observed
+      position and velocity for at most ``predict_steps`` steps (a prediction that falls inside its sensing range
+      while it does not see the target is known to be wrong and dropped); and, ``cooperative`` with
+      ``reported_weight`` > 0, a target another robot senses now, at the reported position, weighted
+      ``reported_weight`` (it is being observed already).
+
+    ``cooperative`` also turns on the repulsion from robots within dr2 (< sensing range). A target first seen this
+    step has velocity 0 until it is seen again; one seen again after a gap of k steps gets its mean displacement.
+    """
+    n_arenas, m, _ = robot_pos.shape
+    n = target_pos.shape[1]
+    r2 = sensing_range * sensing_range
+    in_view = np.zeros((m, n), dtype=np.bool_)
+    watchers = np.zeros(n, dtype=np.int64)
+    for e in range(n_arenas):
+        watchers[:] = 0
+        for i in range(m):
+            for j in range(n):
+                dx = target_pos[e, j, 0] - robot_pos[e, i, 0]
+                dy = target_pos[e, j, 1] - robot_pos[e, i, 1]
+                in_view[i, j] = dx * dx + dy * dy <= r2
+                if in_view[i, j]:
+                    watchers[j] += 1
+        for i in range(m):
+            rx = robot_pos[e, i, 0]
+            ry = robot_pos[e, i, 1]
+            fx = 0.0
+            fy = 0.0
+            for j in range(n):
+                age = track_age[e, i, j]
+                if in_view[i, j]:
+                    px = target_pos[e, j, 0]
+                    py = target_pos[e, j, 1]
+                    if age < NEVER_SEEN:
+                        gap = float(age + 1)
+                        out_vel[e, i, j, 0] = (px - track_pos[e, i, j, 0]) / gap
+                        out_vel[e, i, j, 1] = (py - track_pos[e, i, j, 1]) / gap
+                    else:
+                        out_vel[e, i, j, 0] = 0.0
+                        out_vel[e, i, j, 1] = 0.0
+                    out_pos[e, i, j, 0] = px
+                    out_pos[e, i, j, 1] = py
+                    out_age[e, i, j] = 0
+                    dx = px - rx
+                    dy = py - ry
                     d = math.sqrt(dx * dx + dy * dy)
-                    if d > dr2 or d < _EPS:
+                    if d < _EPS:
                         continue
-                    g = _g_robot(d, dr1, dr2) / d
-                    fx += g * dx
-                    fy += g * dy
-            norm = math.sqrt(fx * fx + fy * fy)
-            if norm > _EPS:
-                hx = fx / norm
-                hy = fy / norm
-            else:
-                hx = heading[e, i, 0]
-                hy = heading[e, i, 1]
-                # Keep the heading, but reflect it off the wall so a wandering robot does not stick to the rim.
-                r = math.sqrt(rx * rx + ry * ry)
-                if r >= radius - _EPS:
-                    ux = rx / r
-                    uy = ry / r
-                    vn = hx * ux + hy * uy
-                    if vn > 0.0:
-                        hx -= 2.0 * vn * ux
-                        hy -= 2.0 * vn * uy
-            out_heading[e, i, 0] = hx
-            out_heading[e, i, 1] = hy
+                    w = shared_weight if cooperative and watchers[j] > 1 else 1.0
+                    f = w * _f_target(d, do1, do2, do3, do4) / d
+                    fx += f * dx
+                    fy += f * dy
+                    continue
+                out_pos[e, i, j, 0] = track_pos[e, i, j, 0]
+                out_pos[e, i, j, 1] = track_pos[e, i, j, 1]
+                out_vel[e, i, j, 0] = track_vel[e, i, j, 0]
+                out_vel[e, i, j, 1] = track_vel[e, i, j, 1]
+                age = age + 1 if age < NEVER_SEEN else NEVER_SEEN
+                out_age[e, i, j] = age
+                w = 0.0
+                if cooperative and watchers[j] > 0:
+                    # Another robot reports it now: the report replaces any prediction (with weight 0 the robot
+                    # leaves a target that is being observed to the teammate observing it).
+                    dx = target_pos[e, j, 0] - rx
+                    dy = target_pos[e, j, 1] - ry
+                    w = reported_weight
+                elif age <= predict_steps:
+                    dx = track_pos[e, i, j, 0] + age * track_vel[e, i, j, 0] - rx
+                    dy = track_pos[e, i, j, 1] + age * track_vel[e, i, j, 1] - ry
+                    w = 1.0
+                if w == 0.0:
+                    continue
+                d = math.sqrt(dx * dx + dy * dy)
+                if d <= do3 or d > do4:
+                    continue
+                f = w * _f_target(d, do1, do2, do3, do4) / d
+                fx += f * dx
+                fy += f * dy
+            if cooperative:
+                fx, fy = _robot_push(robot_pos, e, i, dr1, dr2, fx, fy)
+            out_heading[e, i, 0], out_heading[e, i, 1] = _unit_or_kept(fx, fy, heading, e, i, rx, ry, radius)

@@ -26,7 +26,8 @@ class ForceLawConfig:
     """Distances of the A-CMOMMT force law [paper: attraction to targets, repulsion from robots; shape: public].
 
     ``f_target(d)`` is -1 + d/do1 up to do1, rises to 1 at do2, stays 1 up to do3 (= sensing range), and falls to
-    0 at do4 (the predictive range). ``g_robot(d)`` is -1 up to dr1 and rises to 0 at dr2. Defaults are the public
+    0 at do4 (the predictive tracking range: beyond sensing, a robot knows only its own predicted sightings and its
+    teammates' reports). ``g_robot(d)`` is -1 up to dr1 and rises to 0 at dr2. Defaults are the public
     code's values scaled to this arena [public].
     """
 
@@ -38,6 +39,13 @@ class ForceLawConfig:
     dr2: float = 100.0
     shared_target_weight: float = 0.25
     """Weight of a target that another robot already observes [public]; the local controller uses 1."""
+    predict_steps: int = 60
+    """Steps a robot predicts a target forward (linearly, from its last observed position and velocity) after
+    losing sight of it; such a prediction in (do3, do4] attracts it [Parker 2002: do4 is the predictive tracking
+    range; the horizon is a choice]."""
+    reported_weight: float = 0.0
+    """Weight, in the (do3, do4] band, of a target another robot reports seeing now; 0 ignores reports there
+    [choice: measured below own predictions alone, README]."""
 
     def __post_init__(self) -> None:
         if not 0.0 < self.do1 < self.do2 <= self.do3 < self.do4:
@@ -46,6 +54,10 @@ class ForceLawConfig:
             raise ValueError(f"force law needs 0 <= dr1 < dr2, got {self}")
         if not 0.0 <= self.shared_target_weight <= 1.0:
             raise ValueError("shared_target_weight must lie in [0, 1]")
+        if not 0.0 <= self.reported_weight <= 1.0:
+            raise ValueError("reported_weight must lie in [0, 1]")
+        if self.predict_steps < 0:
+            raise ValueError("predict_steps must be non-negative")
 
 
 @dataclass(frozen=True, slots=True)

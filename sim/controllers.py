@@ -77,35 +77,91 @@ class RandomController:
 
 
 @dataclass(frozen=True, slots=True)
+class Tracks:
+    """A force-law robot's memory: its heading and its own last sighting of every target."""
+
+    heading: np.ndarray
+    """(E, m, 2) float64 unit vectors, kept when no force acts."""
+    position: np.ndarray
+    """(E, m, n, 2) float64: robot i's last observed position of target j."""
+    velocity: np.ndarray
+    """(E, m, n, 2) float64: the target's displacement per step estimated from robot i's sightings."""
+    age: np.ndarray
+    """(E, m, n) int64: steps since robot i last observed target j (``NEVER_SEEN`` if it never did)."""
+
+
+@dataclass(frozen=True, slots=True)
 class ForceController:
     """Weighted attraction to targets and repulsion from robots, moving at full speed [paper; shape: public].
 
-    ``cooperative=True`` is A-CMOMMT: targets that another robot already observes are down-weighted and nearby
-    robots repel. ``cooperative=False`` is the *local* controller: every target weighs 1 and robots ignore each
-    other [choice: the spec's "all weights 1 (no cooperation)"]. With no force the heading is kept (reflected at
-    the wall) [choice].
+    ``cooperative=True`` is A-CMOMMT: a target that another robot also observes is down-weighted (the teammates'
+    reports A-CMOMMT assumes) and robots within ``dr2`` repel. ``cooperative=False`` is the *local* controller:
+    every target weighs 1 and robots ignore each other [choice: the spec's "all weights 1 (no cooperation)"].
+    In the (do3, do4] band a robot is pulled only by what it can know [Parker 2002's *predictive tracking* range]:
+    its own sightings predicted forward (``ForceLawConfig.predict_steps``) and, cooperative, targets teammates report
+    (``reported_weight``). With no force the heading is kept (reflected at the wall) [choice].
+
+    ``oracle=True`` is the law as first written here: every target within do4 pulls at its TRUE position, sensed or
+    not, which no robot can know (``a-cmommt-oracle``: kept as a labelled reference, never as the baseline).
     """
 
     cooperative: bool = True
     name: str = "a-cmommt"
+    oracle: bool = False
 
-    def init(self, cfg: ScenarioConfig, world: WorldState, rng: np.random.Generator) -> np.ndarray:
-        return random_headings(cfg, world, rng)
+    def init(self, cfg: ScenarioConfig, world: WorldState, rng: np.random.Generator) -> Tracks | np.ndarray:
+        heading = random_headings(cfg, world, rng)
+        if self.oracle:
+            return heading
+        shape = (world.n_arenas, cfg.n_robots, cfg.n_targets)
+        return Tracks(
+            heading=heading,
+            position=np.zeros((*shape, 2)),
+            velocity=np.zeros((*shape, 2)),
+            age=np.full(shape, _kernels.NEVER_SEEN, np.int64),
+        )
 
     def act(
         self,
         cfg: ScenarioConfig,
         world: WorldState,
         obs: Observation,
-        memory: np.ndarray,
+        memory: Tracks | np.ndarray,
         rng: np.random.Generator,
-    ) -> tuple[np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, Tracks | np.ndarray]:
         f = cfg.force
         heading = np.empty_like(world.robot_pos)
-        _kernels.force_heading(
+        if isinstance(memory, np.ndarray):
+            _kernels.force_heading(
+                world.robot_pos,
+                world.target_pos,
+                memory,
+                f.do1,
+                f.do2,
+                f.do3,
+                f.do4,
+                f.dr1,
+                f.dr2,
+                cfg.sensing_range,
+                f.shared_target_weight if self.cooperative else 1.0,
+                self.cooperative,
+                cfg.arena_radius,
+                heading,
+            )
+            return cfg.robot_speed * heading, heading
+        tracks = Tracks(
+            heading=heading,
+            position=np.empty_like(memory.position),
+            velocity=np.empty_like(memory.velocity),
+            age=np.empty_like(memory.age),
+        )
+        _kernels.tracked_force_heading(
             world.robot_pos,
             world.target_pos,
-            memory,
+            memory.heading,
+            memory.position,
+            memory.velocity,
+            memory.age,
             f.do1,
             f.do2,
             f.do3,
@@ -113,12 +169,17 @@ class ForceController:
             f.dr1,
             f.dr2,
             cfg.sensing_range,
-            f.shared_target_weight if self.cooperative else 1.0,
+            f.shared_target_weight,
             self.cooperative,
+            f.predict_steps,
+            f.reported_weight,
             cfg.arena_radius,
-            heading,
+            tracks.heading,
+            tracks.position,
+            tracks.velocity,
+            tracks.age,
         )
-        return cfg.robot_speed * heading, heading
+        return cfg.robot_speed * heading, tracks
 
 
 def _f_target(cfg: ScenarioConfig, d: np.ndarray) -> np.ndarray:
@@ -195,11 +256,14 @@ HAND_MADE: dict[str, Controller] = {
     "random": RandomController(),
     "local": ForceController(cooperative=False, name="local"),
     "a-cmommt": ForceController(cooperative=True, name="a-cmommt"),
+    "a-cmommt-oracle": ForceController(cooperative=True, name="a-cmommt-oracle", oracle=True),
     "force-6d": StateForceController(shared=False, name="force-6d"),
     "force-6d-shared": StateForceController(shared=True, name="force-6d-shared"),
 }
-"""The hand-made controllers by their CLI names: the paper's baselines, and the state-limited references (A-CMOMMT's
-force law on what the learned ``collab6d`` state holds, without and with the shared-observation flags)."""
+"""The hand-made controllers by their CLI names: the paper's baselines (A-CMOMMT and local on what their robots can
+sense or be told), A-CMOMMT on true target positions no robot senses (``a-cmommt-oracle``, a labelled reference
+only), and the state-limited references (A-CMOMMT's force law on what the learned ``collab6d`` state holds, without
+and with the shared-observation flags)."""
 
 
 def wander(cfg: ScenarioConfig, world: WorldState, heading: np.ndarray) -> np.ndarray:

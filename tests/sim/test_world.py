@@ -176,9 +176,9 @@ def test_force_law_attracts_repels_and_cooperates() -> None:
 
     def heading(robots, targets, controller=a_cmommt):
         w = world(robots, targets)
-        v, h = controller.act(cfg, w, sense(cfg, w), controller.init(cfg, w, rng), rng)
+        v, _ = controller.act(cfg, w, sense(cfg, w), controller.init(cfg, w, rng), rng)
         np.testing.assert_allclose(np.linalg.norm(v, axis=-1), cfg.robot_speed)
-        return h[0]
+        return v[0] / cfg.robot_speed
 
     # A target at 100 attracts; one at 10 (inside do1 = 20) repels; robots 50 apart push each other away.
     np.testing.assert_allclose(heading([(0, 0), (-900, 0)], [(100, 0)])[0], [1, 0], atol=1e-12)
