@@ -28,12 +28,20 @@ class Phase2Config:
     """On-line Q-learning parameters [choice: α = 0.1, γ = 0.9, ε = 0.1]."""
 
     alpha: float = 0.1
+    """Step size of Eq. 1 [choice]; with ``alpha_floor``, the step of a cell's first visit."""
     gamma: float = 0.9
     epsilon: float = 0.1
+    alpha_floor: float | None = None
+    """None: constant ``alpha`` [paper Eq. 1]. A number: the n-th visit of a cell steps by
+    max(alpha_floor, 1 / (1/alpha − 1 + n)), a running mean of its targets in which the initial value weighs
+    1/alpha − 1 samples, so that a cell visited often averages over about 1/alpha_floor targets instead of 1/alpha
+    [beyond the paper: a decaying step size]."""
 
     def __post_init__(self) -> None:
         if not 0.0 < self.alpha <= 1.0:
             raise ValueError(f"alpha must lie in (0, 1], got {self.alpha}")
+        if self.alpha_floor is not None and not 0.0 < self.alpha_floor <= self.alpha:
+            raise ValueError(f"alpha_floor must lie in (0, alpha], got {self.alpha_floor}")
         if not 0.0 <= self.gamma < 1.0:
             raise ValueError(f"gamma must lie in [0, 1), got {self.gamma}")
         if not 0.0 <= self.epsilon <= 1.0:
@@ -84,7 +92,14 @@ class TabularAgent:
         targets = q_targets(self._lookup(robots, next_cells).max(axis=1), rewards, dones, self.config.gamma)
         rows = self.template.rows(robots)
         size = self.tables.shape[1]
-        q_update(self.tables.reshape(-1), self.visits.reshape(-1), rows * size + cell_sa, targets, self.config.alpha)
+        q_update(
+            self.tables.reshape(-1),
+            self.visits.reshape(-1),
+            rows * size + cell_sa,
+            targets,
+            self.config.alpha,
+            self.config.alpha_floor,
+        )
 
     def _lookup(self, robots: np.ndarray, cells: np.ndarray) -> np.ndarray:
         """(N, L) Q values of each robot's own table at ``cells`` (N, L), without copying whole table rows."""

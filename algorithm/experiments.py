@@ -49,6 +49,9 @@ class MethodSpec:
     """VQQL codebook size."""
     reward: str = "paper"
     """Reward function of the learners (:data:`sim.features.REWARDS`); ``paper``: the featurizer's own."""
+    actions: str = "compass"
+    """Action set (:data:`sim.actions.ACTION_SETS`): the paper's compass moves, or moves relative to the nearest
+    target."""
 
 
 METHODS: dict[str, MethodSpec] = {
@@ -144,7 +147,9 @@ def train(
     learn_cfg = base.replace(n_robots=spec.learning_robots)
     seeds = np.random.SeedSequence([seed, sum(spec.name.encode())]).spawn(2)
     explorer = ExperienceSlice(
-        learn_cfg, SliceConfig(n_arenas=budget.arenas, featurizer=spec.featurizer, reward=spec.reward), seeds[0]
+        learn_cfg,
+        SliceConfig(n_arenas=budget.arenas, featurizer=spec.featurizer, reward=spec.reward, actions=spec.actions),
+        seeds[0],
     )
     data = Transitions.concat([explorer.run_trial() for _ in range(budget.explore_trials)])
     say(f"explored {len(data)} tuples")
@@ -160,6 +165,7 @@ def train(
         action_steps=base.action_steps,
         action_mode=action_mode,
         method=spec.name,
+        actions=spec.actions,
     )
     agent = TabularAgent(template, budget.phase2)
     learners = None if spec.per_robot_tables else (0,)
@@ -169,6 +175,7 @@ def train(
             n_arenas=budget.arenas,
             featurizer=spec.featurizer,
             reward=spec.reward,
+            actions=spec.actions,
             learning_robots=learners,
             action_mode=action_mode,
         ),

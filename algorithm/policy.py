@@ -17,7 +17,8 @@ import numpy as np
 from algorithm.discretization import Discretization
 from algorithm.qtable import greedy
 from sim import FEATURIZERS, ScenarioConfig
-from sim.controllers import compass_velocity, wander
+from sim.actions import ACTION_SETS, action_set
+from sim.controllers import wander
 from sim.features import REWARDS, featurize, lost
 from sim.world import Observation, WorldState
 
@@ -57,10 +58,14 @@ class Policy:
     reward: str = "eq2"
     """The reward function it was learned with, a name of :data:`sim.features.REWARDS` (provenance: acting does
     not read it)."""
+    actions: str = "compass"
+    """What its action indices mean, a name of :data:`sim.actions.ACTION_SETS`."""
 
     def __post_init__(self) -> None:
         if self.featurizer not in FEATURIZERS:
             raise ValueError(f"unknown featurizer {self.featurizer!r}")
+        if self.actions not in ACTION_SETS:
+            raise ValueError(f"unknown action set {self.actions!r}; known: {', '.join(ACTION_SETS)}")
         if self.reward not in REWARDS:
             raise ValueError(f"unknown reward {self.reward!r}; known: {', '.join(REWARDS)}")
         if FEATURIZERS[self.featurizer] != self.discretization.dim:
@@ -100,6 +105,7 @@ class _Memory:
     heading: np.ndarray  # (E, m, 2) unit heading of wandering robots
     held: np.ndarray  # (E, m) int64 steps the current action has lasted
     cell: np.ndarray  # (E, m) int64 cell of the state the action started in (until_change mode)
+    frame: np.ndarray  # (E, m, 2, 2) float64 the frame the current action was chosen in (rows: x, y axes)
 
 
 @dataclass(frozen=True, slots=True)
@@ -117,6 +123,7 @@ class PolicyController:
             heading=np.stack([np.cos(angle), np.sin(angle)], axis=-1),
             held=np.full(shape, 1 << 30, np.int64),
             cell=np.full(shape, -1, np.int64),
+            frame=np.broadcast_to(np.eye(2), (*shape, 2, 2)),
         )
 
     def act(
@@ -137,16 +144,20 @@ class PolicyController:
             decide = (cell_now != memory.cell) | (held >= p.max_action_steps)
         action = memory.action
         cell = memory.cell
+        moves = action_set(p.actions)
+        frame = memory.frame
         if cells is not None and decide.any():
             chosen = p.greedy(states, robots, cells).reshape(n_arenas, m)
             action = np.where(decide, chosen, action)
             start_cell = cells[np.arange(n_arenas * m), action.reshape(-1)].reshape(n_arenas, m)
             cell = np.where(decide, start_cell, cell_now)
+            if moves.relative:
+                frame = np.where(decide[..., None, None], moves.frame(obs), frame)
         held = np.where(decide, 1, held + 1)
-        velocity = compass_velocity(cfg, action)
+        velocity = moves.velocity(cfg, action, frame)
         heading = wander(cfg, world, memory.heading)
         if p.lost_behaviour != "policy":
             gone = lost(obs)[..., None]
             search = cfg.robot_speed * heading if p.lost_behaviour == "wander" else 0.0
             velocity = np.where(gone, search, velocity)
-        return velocity, _Memory(action=action, heading=heading, held=held, cell=cell)
+        return velocity, _Memory(action=action, heading=heading, held=held, cell=cell, frame=frame)

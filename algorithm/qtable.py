@@ -26,10 +26,14 @@ def q_update(
     cells: np.ndarray,
     targets: np.ndarray,
     alpha: float,
+    alpha_floor: float | None = None,
 ) -> None:
     """Move ``table[cells]`` towards ``targets`` in place and count the visits.
 
     ``table`` (Σ P_a,) float, ``visits`` (Σ P_a,) integer, ``cells`` (N,) the cell of (s, a) for each tuple.
+    With ``alpha_floor`` the n-th visit of a cell steps by max(alpha_floor, 1 / (1/alpha − 1 + n)): a running mean
+    of the cell's targets in which the initial value weighs 1/alpha − 1 samples, until the step reaches the floor
+    (see :func:`step_sizes`).
     """
     if not 0.0 < alpha <= 1.0:
         raise ValueError(f"alpha must lie in (0, 1], got {alpha}")
@@ -39,9 +43,30 @@ def q_update(
         return
     sums = np.bincount(cells, weights=targets, minlength=table.size)
     mean_target = sums[hit] / counts[hit]
-    step = 1.0 - (1.0 - alpha) ** counts[hit]
+    step = step_sizes(visits[hit], counts[hit], alpha, alpha_floor)
     table[hit] += (step * (mean_target - table[hit])).astype(table.dtype)
     visits[hit] += counts[hit].astype(visits.dtype)
+
+
+def step_sizes(before: np.ndarray, count: np.ndarray, alpha: float, alpha_floor: float | None) -> np.ndarray:
+    """Combined step of ``count`` sequential updates of a cell visited ``before`` times, towards their mean target.
+
+    Constant α: 1 − (1 − α)^c, which equals Eq. 1 exactly when c = 1. Decaying (``alpha_floor``): the k-th step is
+    α_k = 1 / (w + k) with w = 1/α − 1 until it reaches the floor, and the product of the (1 − α_k) telescopes, so
+    the combined step is exact for the running-mean part and 1 − (1 − floor)^c′ for the c′ steps at the floor.
+
+    >>> step_sizes(np.array([0, 9, 10]), np.array([1, 1, 10]), 0.1, 0.01).round(4).tolist()
+    [0.1, 0.0526, 0.3448]
+    """
+    count = np.asarray(count, np.float64)
+    if alpha_floor is None:
+        return 1.0 - (1.0 - alpha) ** count
+    w = 1.0 / alpha - 1.0
+    before = np.asarray(before, np.float64)
+    last_decaying = np.floor(1.0 / alpha_floor - w)  # the last visit whose 1 / (w + k) is still above the floor
+    decaying = np.clip(last_decaying - before, 0.0, count)
+    kept = (w + before) / (w + before + decaying)
+    return 1.0 - kept * (1.0 - alpha_floor) ** (count - decaying)
 
 
 def greedy(table: np.ndarray, cells: np.ndarray) -> np.ndarray:

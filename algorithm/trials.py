@@ -36,6 +36,8 @@ class SliceConfig:
     featurizer: str = "collab6d"
     reward: str = "paper"
     """Reward function of the learners (:data:`sim.features.REWARDS`, or ``paper``: the featurizer's own)."""
+    actions: str = "compass"
+    """Action set of every robot (:data:`sim.actions.ACTION_SETS`)."""
     learning_robots: tuple[int, ...] | None = None
     """Robot ids that learn and emit tuples; None = every robot (option 2)."""
     action_mode: ActionMode = "fixed"
@@ -72,7 +74,7 @@ class ExperienceSlice:
         ``on_step`` (optional) sees the world and observation after every step, e.g. to draw an arena.
         """
         cfg, sc, rng = self.cfg, self.config, self.rng
-        state = reset_trial(cfg, sc.n_arenas, self.learner_mask, sc.featurizer, rng, sc.reward)
+        state = reset_trial(cfg, sc.n_arenas, self.learner_mask, sc.featurizer, rng, sc.reward, sc.actions)
         # VQQL actions last until the held action's cell changes, so they need the agent's discretization.
         until_change = sc.action_mode == "until_change" and agent is not None
         hold = sc.max_action_steps if until_change else cfg.action_steps

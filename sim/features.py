@@ -8,6 +8,13 @@ Featurizers (:data:`FEATURIZER_REGISTRY`; :data:`FEATURIZERS` gives each one's d
 * ``shared8d``: ``collab6d`` and, for its nearest and its furthest target, 1 if another robot observes it too,
   else 0 (0 when the target is masked) [beyond the paper: the communication A-CMOMMT assumes, the attribute choice
   the paper names as future work].
+* ``present10d``: ``shared8d`` with every absent pair at (0, 0) instead of the (1000, 1000) mask, and a presence bit
+  for the furthest target (a second target in view) and for the robot [beyond the paper: standardized, the mask
+  made the real offsets about 8x coarser than the distance between present and absent].
+* ``frame9d``: the same content in the target frame of :func:`sim.actions.target_frame` (x towards the nearest
+  target, mirrored so that the furthest target lies at y >= 0): the nearest target's distance, the furthest
+  target's and the robot's (x, y) with presence bits, the two shared flags [beyond the paper: one cell covers
+  every rotation and reflection of a situation; with the ``relative`` action set the moves are named in it too].
 
 Rewards (:data:`REWARDS`), each given with the trial rules of :mod:`sim.trial`; a learning robot that loses every
 target always gets ``lost_reward`` instead and its trial ends:
@@ -30,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim.actions import target_frame
 from sim.config import ScenarioConfig
 from sim.world import Observation
 
@@ -73,12 +81,75 @@ def _shared8d(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
     return np.concatenate([obs.features, obs.shared.astype(np.float32)], axis=-1)
 
 
+def _pairs(obs: Observation) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The three offsets of the features with absent pairs zeroed, and the presence of the furthest target (a second
+    target in view) and of a robot in view, as float64."""
+    f = obs.features.astype(np.float64)
+    has_target = (obs.n_seen >= 1)[..., None]
+    has_second = obs.n_seen >= 2
+    nearest = np.where(has_target, f[..., 0:2], 0.0)
+    furthest = np.where(has_second[..., None], f[..., 2:4], 0.0)
+    robot = np.where(obs.sees_robot[..., None], f[..., 4:6], 0.0)
+    return nearest, furthest, robot, has_second.astype(np.float64), obs.sees_robot.astype(np.float64)
+
+
+def _present10d(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
+    nearest, furthest, robot, has_second, has_robot = _pairs(obs)
+    columns = [nearest, furthest, has_second[..., None], robot, has_robot[..., None], obs.shared]
+    return np.concatenate(columns, axis=-1).astype(np.float32)
+
+
+def _frame9d(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
+    nearest, furthest, robot, has_second, has_robot = _pairs(obs)
+    frame = target_frame(obs)  # (E, m, 2, 2): rows x, y
+
+    def local(offset: np.ndarray) -> np.ndarray:
+        return np.einsum("...k,...dk->...d", offset, frame)
+
+    distance = np.linalg.norm(nearest, axis=-1, keepdims=True)
+    columns = [distance, local(furthest), has_second[..., None], local(robot), has_robot[..., None], obs.shared]
+    return np.concatenate(columns, axis=-1).astype(np.float32)
+
+
 FEATURIZER_REGISTRY: dict[str, Featurizer] = {
     f.name: f
     for f in (
         Featurizer("local2d", ("target_dx", "target_dy"), _local2d, "observed"),
         Featurizer("collab6d", _COLLAB_STATE, _collab6d, "eq2"),
         Featurizer("shared8d", (*_COLLAB_STATE, "nearest_target_shared", "furthest_target_shared"), _shared8d, "eq2"),
+        Featurizer(
+            "present10d",
+            (
+                "nearest_target_dx",
+                "nearest_target_dy",
+                "furthest_target_dx",
+                "furthest_target_dy",
+                "furthest_target_present",
+                "nearest_robot_dx",
+                "nearest_robot_dy",
+                "nearest_robot_present",
+                "nearest_target_shared",
+                "furthest_target_shared",
+            ),
+            _present10d,
+            "eq2",
+        ),
+        Featurizer(
+            "frame9d",
+            (
+                "nearest_target_distance",
+                "furthest_target_x",
+                "furthest_target_y",
+                "furthest_target_present",
+                "nearest_robot_x",
+                "nearest_robot_y",
+                "nearest_robot_present",
+                "nearest_target_shared",
+                "furthest_target_shared",
+            ),
+            _frame9d,
+            "eq2",
+        ),
     )
 }
 """Every featurizer by name."""

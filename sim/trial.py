@@ -3,7 +3,8 @@
 The rules [paper §4; choices as tagged]:
 
 * a trial lasts ``learning_steps`` steps; learning robots start within sensing range of a random target [choice];
-* a compass action is held for ``action_steps`` steps; a caller may end actions on its own boundary as well
+* an action (a move of an action set: compass, or relative to the nearest target, :mod:`sim.actions`) is held for
+  ``action_steps`` steps, in the frame it was chosen in; a caller may end actions on its own boundary as well
   (VQQL: "the discretized state changed", with a cap [paper]) through :meth:`TrialStep.with_boundary`;
 * the reward is one of :data:`sim.features.REWARDS`: by default delayed to the end of the trial, 0 before it and
   paper Eq. 2 at it; a per-decision reward is paid at the end of every action instead;
@@ -37,8 +38,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim.actions import action_set
 from sim.config import ScenarioConfig
-from sim.controllers import N_ACTIONS, compass_velocity, wander
+from sim.controllers import N_ACTIONS, wander
 from sim.features import FEATURIZERS, REWARDS, featurize, lost, resolve_reward, reward_value, trial_reward
 from sim.world import Observation, WorldState, place_near_targets, reset, sense, step
 
@@ -54,6 +56,8 @@ class TrialState:
     """State definition of ``features`` (a key of :data:`sim.features.FEATURIZERS`)."""
     reward: str
     """Reward function of the learners (a key of :data:`sim.features.REWARDS`)."""
+    actions: str
+    """Action set of the action indices (a key of :data:`sim.actions.ACTION_SETS`)."""
     features: np.ndarray
     """(E, m, d) float32: every robot's state now."""
     action: np.ndarray
@@ -62,6 +66,8 @@ class TrialState:
     """(E, m) int64: steps the held action has lasted."""
     start_features: np.ndarray
     """(E, m, d) float32: each robot's state when it chose the held action (the s of its next tuple)."""
+    frame: np.ndarray
+    """(E, m, 2, 2) float64: the frame the held action is named in, fixed when it was chosen (rows: x, y axes)."""
     learner: np.ndarray
     """(E, m) bool: robots that learn; their trial ends when they lose every target."""
     active: np.ndarray
@@ -135,15 +141,18 @@ def reset_trial(
     featurizer: str,
     rng: np.random.Generator,
     reward: str = "paper",
+    actions: str = "compass",
 ) -> TrialState:
     """E fresh arenas whose ``learners`` (bool, broadcastable to (E, m)) start within sensing range of a target.
 
-    ``reward`` names the learners' reward (a key of :data:`sim.features.REWARDS`, or ``paper``). No robot holds an
-    action yet: the first :func:`step_trial` must let every robot decide.
+    ``reward`` names the learners' reward (a key of :data:`sim.features.REWARDS`, or ``paper``), ``actions`` the
+    action set (:data:`sim.actions.ACTION_SETS`). No robot holds an action yet: the first :func:`step_trial` must
+    let every robot decide.
     """
     if featurizer not in FEATURIZERS:
         raise ValueError(f"unknown featurizer {featurizer!r}; known: {', '.join(FEATURIZERS)}")
     reward = resolve_reward(featurizer, reward)
+    frame = action_set(actions).frame
     learner = np.broadcast_to(np.asarray(learners, dtype=bool), (n_arenas, cfg.n_robots)).copy()
     world = place_near_targets(cfg, reset(cfg, n_arenas, rng), learner, rng)
     obs = sense(cfg, world, rng)
@@ -154,10 +163,12 @@ def reset_trial(
         obs=obs,
         featurizer=featurizer,
         reward=reward,
+        actions=actions,
         features=features,
         action=np.zeros(learner.shape, np.int64),
         held=np.zeros(learner.shape, np.int64),
         start_features=features,
+        frame=np.array(frame(obs), dtype=np.float64),
         learner=learner,
         active=learner.copy(),
         heading=np.stack([np.cos(angle), np.sin(angle)], axis=-1),
@@ -195,16 +206,19 @@ def step_trial(
     decide = np.asarray(decide, dtype=bool)
     if decide.shape != state.shape:
         raise ValueError(f"decide must have shape {state.shape}, got {decide.shape}")
-    held_action, start, held = state.action, state.start_features, state.held
+    moves = action_set(state.actions)
+    held_action, start, held, frame = state.action, state.start_features, state.held, state.frame
     if decide.any():
         held_action = np.where(decide, action, held_action)
         if held_action.min() < 0 or held_action.max() >= N_ACTIONS:
             raise ValueError(f"actions must be integers in [0, {N_ACTIONS})")
         start = np.where(decide[..., None], state.features, start)
         held = np.where(decide, 0, held)
+        if moves.relative:
+            frame = np.where(decide[..., None, None], moves.frame(state.obs), frame)
     # Only robots that do not learn search; with none in the batch the headings are never read.
     heading = state.heading if state.learner.all() else wander(cfg, state.world, state.heading)
-    move = compass_velocity(cfg, held_action)
+    move = moves.velocity(cfg, held_action, frame)
     if velocity is None:
         searching = ~state.learner & lost(state.obs)
         move = np.where(searching[..., None], cfg.robot_speed * heading, move)
@@ -248,10 +262,12 @@ def step_trial(
         obs=obs,
         featurizer=state.featurizer,
         reward=state.reward,
+        actions=state.actions,
         features=features,
         action=held_action,
         held=held,
         start_features=start,
+        frame=frame,
         learner=state.learner,
         active=active,
         heading=heading,

@@ -134,7 +134,13 @@ def policy_updates(draw: st.DrawFn) -> PolicyUpdate:
         q_tables=draw(hnp.arrays(np.float32, (robots.size, p), elements=f32)),
         visits=draw(hnp.arrays(np.uint32, (robots.size, p))),
         scale=np.array(
-            draw(st.lists(st.floats(0.125, 1024.0, width=32), min_size=FEATURIZER_DIMS[featurizer], max_size=8)),
+            draw(
+                st.lists(
+                    st.floats(0.125, 1024.0, width=32),
+                    min_size=FEATURIZER_DIMS[featurizer],
+                    max_size=max(FEATURIZER_DIMS.values()),
+                )
+            ),
             np.float32,
         )[: FEATURIZER_DIMS[featurizer]],
     )

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from sim import ScenarioConfig, TrialState, WorldState, featurize, reset_trial, scenario, sense, step_trial
+from sim.actions import action_set
 from sim.features import resolve_reward, trial_reward
 
 N, E, W = 0, 2, 6  # compass action indices
@@ -22,6 +23,7 @@ def situation(
     heading: list[tuple[float, float]] | None = None,
     featurizer: str = "collab6d",
     reward: str = "paper",
+    actions: str = "compass",
 ) -> TrialState:
     """One arena at the start of a trial, robots and targets where given (targets still unless ``target_vel``)."""
     vel = np.zeros((1, len(targets), 2)) if target_vel is None else np.array([target_vel], dtype=np.float64)
@@ -40,9 +42,11 @@ def situation(
         obs=obs,
         featurizer=featurizer,
         reward=resolve_reward(featurizer, reward),
+        actions=actions,
         features=features,
         action=np.zeros((1, m), np.int64),
         held=np.zeros((1, m), np.int64),
+        frame=np.array(action_set(actions).frame(obs), dtype=np.float64),
         start_features=features,
         learner=mask,
         active=mask.copy(),

@@ -1,0 +1,101 @@
+"""Action sets: what a discrete action index means as a move, by name.
+
+Every action set has 8 actions, each a full-speed move held for ``action_steps`` steps (or until the policy decides
+again). A set names its directions in a *frame*: the world's axes for ``compass`` [paper], or the frame of the
+nearest target in view for ``relative`` [beyond the paper], fixed when the robot decides::
+
+    actions = ACTION_SETS["relative"]
+    frame = actions.frame(obs)                        # (E, m, 2, 2) rows: the frame's x and y axes, world units
+    velocity = actions.velocity(cfg, chosen, frame)   # (E, m, 2) displacement of every robot this step
+
+The target frame (:func:`target_frame`): its x axis points from the robot to the nearest target in view; its y axis
+is the x axis turned a quarter turn counter-clockwise, then mirrored so that the furthest target in view lies on
+its +y side (or, with one target in view, the nearest robot in view; with neither, no mirror). A robot that sees no
+target has the world's frame (it does not act on a policy then: it searches). In that frame a state and the move
+chosen in it do not depend on the robot's heading in the world, nor on whether the scene is seen in a mirror, so
+one cell of a discretization covers every rotation and reflection of one situation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.config import ScenarioConfig
+from sim.world import Observation
+
+_EIGHTHS = np.arange(8) * np.pi / 4
+_COMPASS_ANGLES = np.pi / 2 - _EIGHTHS
+
+
+@dataclass(frozen=True, slots=True)
+class ActionSet:
+    """Eight moves named in a frame: the world's (``relative=False``) or the nearest target's."""
+
+    name: str
+    names: tuple[str, ...]
+    """Action names, in index order."""
+    directions: np.ndarray
+    """(8, 2) unit vectors of the moves in their frame."""
+    relative: bool
+    """Directions are in the target frame (:func:`target_frame`), fixed when the robot decides."""
+
+    def frame(self, obs: Observation) -> np.ndarray:
+        """(E, m, 2, 2) every robot's frame now: rows are its x and y axes in world coordinates."""
+        if self.relative:
+            return target_frame(obs)
+        return np.broadcast_to(np.eye(2), (*obs.n_seen.shape, 2, 2))
+
+    def velocity(self, cfg: ScenarioConfig, actions: np.ndarray, frame: np.ndarray) -> np.ndarray:
+        """(…, 2) full-speed world displacement of action indices (…) in frames (…, 2, 2)."""
+        local = self.directions[actions]
+        if not self.relative:
+            return cfg.robot_speed * local
+        return cfg.robot_speed * np.einsum("...k,...kd->...d", local, frame)
+
+
+COMPASS_NAMES = ("N", "NE", "E", "SE", "S", "SW", "W", "NW")
+RELATIVE_NAMES = ("toward", "toward-left", "left", "away-left", "away", "away-right", "right", "toward-right")
+
+ACTION_SETS: dict[str, ActionSet] = {
+    a.name: a
+    for a in (
+        ActionSet(
+            "compass",
+            COMPASS_NAMES,
+            np.stack([np.cos(_COMPASS_ANGLES), np.sin(_COMPASS_ANGLES)], axis=-1),
+            relative=False,
+        ),
+        ActionSet("relative", RELATIVE_NAMES, np.stack([np.cos(_EIGHTHS), np.sin(_EIGHTHS)], axis=-1), relative=True),
+    )
+}
+"""Every action set by name: ``compass``, the 8 compass moves, north = +y, clockwise [paper]; ``relative``, the 8
+moves at multiples of 45° counter-clockwise from the direction of the nearest target in view, "left" meaning the
+side of the furthest target (or of the nearest robot) [beyond the paper]."""
+
+
+def action_set(name: str) -> ActionSet:
+    try:
+        return ACTION_SETS[name]
+    except KeyError:
+        raise ValueError(f"unknown action set {name!r}; known: {', '.join(ACTION_SETS)}") from None
+
+
+def target_frame(obs: Observation) -> np.ndarray:
+    """(E, m, 2, 2) float64 the target frame of every robot (module docstring): rows are its x and y axes.
+
+    Read from the features' offsets (nearest target, furthest target, nearest robot in view), so it holds only what
+    the robot senses.
+    """
+    f = obs.features.astype(np.float64)
+    nearest, furthest, robot = f[..., 0:2], f[..., 2:4], f[..., 4:6]
+    n = np.linalg.norm(nearest, axis=-1, keepdims=True)
+    sees = (obs.n_seen >= 1)[..., None] & (n > 1e-9)
+    x = np.where(sees, nearest / np.maximum(n, 1e-300), np.array([1.0, 0.0]))
+    y = np.stack([-x[..., 1], x[..., 0]], axis=-1)
+    side_f = np.einsum("...k,...k->...", furthest, y)
+    side_r = np.einsum("...k,...k->...", robot, y)
+    side = np.where(obs.n_seen >= 2, side_f, np.where(obs.sees_robot & (obs.n_seen >= 1), side_r, 0.0))
+    mirror = np.where(side < 0.0, -1.0, 1.0)[..., None]
+    return np.stack([x, mirror * y], axis=-2)

@@ -1,0 +1,106 @@
+"""Action sets, the target frame and the featurizers built on it, on hand-built arenas with values known by hand."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from sim import WorldState, featurize, scenario, sense
+from sim.actions import ACTION_SETS, action_set, target_frame
+from sim.trial import reset_trial, step_trial
+
+SPEED = 7.5
+
+
+def _world(robots: list[tuple[float, float]], targets: list[tuple[float, float]], vel=None) -> WorldState:
+    v = np.zeros((1, len(targets), 2)) if vel is None else np.array([vel], dtype=np.float64)
+    return WorldState(
+        robot_pos=np.array([robots], dtype=np.float64),
+        target_pos=np.array([targets], dtype=np.float64),
+        target_vel=v,
+        target_speed=np.linalg.norm(v, axis=-1),
+    )
+
+
+def _observe(robots, targets):
+    cfg = scenario(n_robots=len(robots), n_targets=len(targets))
+    return cfg, sense(cfg, _world(robots, targets))
+
+
+# Robot 0 at the origin: nearest target (0, 100) due north, furthest (-120, 50) (d = 130), robot 1 at (60, 0). Robot 1
+# sees the nearest target too (d = 116.6), not the furthest (d = 186.8).
+ROBOTS = [(0.0, 0.0), (60.0, 0.0)]
+TARGETS = [(0.0, 100.0), (-120.0, 50.0)]
+MIRRORED = [(0.0, 100.0), (120.0, 50.0)]
+
+
+def test_the_target_frame_points_at_the_nearest_target_with_the_furthest_on_its_left() -> None:
+    _, obs = _observe(ROBOTS, TARGETS)
+    frame = target_frame(obs)[0, 0]
+    np.testing.assert_allclose(frame, [[0.0, 1.0], [-1.0, 0.0]], atol=1e-12)  # x north; y west, the furthest's side
+    _, obs = _observe(ROBOTS, MIRRORED)
+    np.testing.assert_allclose(target_frame(obs)[0, 0], [[0.0, 1.0], [1.0, 0.0]], atol=1e-12)  # mirrored: y east
+
+
+def test_frame9d_is_the_same_state_in_a_mirror_and_under_a_rotation() -> None:
+    cfg, obs = _observe(ROBOTS, TARGETS)
+    state = featurize(cfg, obs, "frame9d")[0, 0]
+    # distance 100; furthest at (50 along x, 120 along y), present; robot (0, -60), present; nearest shared.
+    np.testing.assert_allclose(state, [100.0, 50.0, 120.0, 1.0, 0.0, -60.0, 1.0, 1.0, 0.0], atol=1e-4)
+    # The scene seen in a mirror (x -> -x) gives the same state.
+    cfg, obs = _observe([(0.0, 0.0), (-60.0, 0.0)], MIRRORED)
+    np.testing.assert_allclose(featurize(cfg, obs, "frame9d")[0, 0], state, atol=1e-4)
+    # The whole scene turned by 90° about robot 0 gives robot 0 the same state.
+    turn = np.array([[0.0, -1.0], [1.0, 0.0]])
+    cfg, obs = _observe([tuple(turn @ p) for p in ROBOTS], [tuple(turn @ p) for p in TARGETS])
+    np.testing.assert_allclose(featurize(cfg, obs, "frame9d")[0, 0], state, atol=1e-4)
+
+
+def test_present10d_zeroes_absent_pairs_and_flags_them() -> None:
+    cfg, obs = _observe(ROBOTS, TARGETS)
+    np.testing.assert_allclose(
+        featurize(cfg, obs, "present10d")[0, 0], [0, 100, -120, 50, 1, 60, 0, 1, 1, 0], atol=1e-4
+    )
+    # One target in view and no robot: the furthest and the robot pairs are (0, 0) and flagged absent.
+    cfg, obs = _observe([(0.0, 0.0), (-900.0, 0.0)], [(30.0, 40.0)])
+    np.testing.assert_allclose(featurize(cfg, obs, "present10d")[0, 0], [30, 40, 0, 0, 0, 0, 0, 0, 0, 0], atol=1e-4)
+    np.testing.assert_allclose(featurize(cfg, obs, "frame9d")[0, 0], [50, 0, 0, 0, 0, 0, 0, 0, 0], atol=1e-4)
+
+
+def test_relative_moves_are_named_from_the_nearest_target_and_the_furthests_side() -> None:
+    cfg, obs = _observe(ROBOTS, TARGETS)
+    moves = action_set("relative")
+    frame = moves.frame(obs)
+    names = list(moves.names)
+    velocity = {name: moves.velocity(cfg, np.full((1, 2), names.index(name)), frame)[0, 0] for name in names}
+    np.testing.assert_allclose(velocity["toward"], [0.0, SPEED], atol=1e-12)
+    np.testing.assert_allclose(velocity["left"], [-SPEED, 0.0], atol=1e-12)  # towards the furthest target's side
+    np.testing.assert_allclose(velocity["away"], [0.0, -SPEED], atol=1e-12)
+    np.testing.assert_allclose(velocity["toward-left"], [-SPEED / np.sqrt(2), SPEED / np.sqrt(2)], atol=1e-12)
+    # Compass moves ignore the frame: N is +y whatever the robot sees.
+    compass = ACTION_SETS["compass"]
+    north = compass.velocity(cfg, np.zeros((1, 2), int), compass.frame(obs))[0, 0]
+    np.testing.assert_allclose(north, [0, SPEED], atol=1e-12)
+
+
+@pytest.mark.parametrize("actions", ["compass", "relative"])
+def test_a_relative_move_is_held_in_the_frame_it_was_chosen_in(actions: str) -> None:
+    # The learner at the origin sees one target at (0, 100) moving east at 5 per step. "toward" (index 0, like N)
+    # moves it due north for the whole 5-step action though the target drifts east: the frame is fixed when the
+    # robot decides. Robot 1 is far away and does not learn.
+    cfg = scenario(n_robots=2, n_targets=1)
+    rng = np.random.default_rng(0)
+    state = reset_trial(cfg, 1, np.array([True, False]), "frame9d", rng, "difference", actions)
+    world = _world([(0.0, 0.0), (-900.0, 0.0)], [(0.0, 100.0)], vel=[(5.0, 0.0)])
+    obs = sense(cfg, world)
+    frame = action_set(actions).frame(obs)
+    features = featurize(cfg, obs, "frame9d")
+    state = dataclasses.replace(state, world=world, obs=obs, features=features, start_features=features, frame=frame)
+    decide = np.ones((1, 2), bool)
+    for _ in range(cfg.action_steps):
+        state, out = step_trial(cfg, state, np.zeros((1, 2), np.int64), decide, rng)
+        decide = out.decide
+    np.testing.assert_allclose(state.world.robot_pos[0, 0], [0.0, cfg.action_steps * SPEED], atol=1e-9)
+    assert out.boundary[0, 0]
