@@ -4,8 +4,8 @@ Every function takes tensors and returns new tensors (inputs are never modified)
 checked on a hand-built case. Randomness is injected as tensors of uniform draws in [0, 1): the estimator in
 :mod:`algorithm.ennc` draws them from its seeded ``torch.Generator``, a test can pass the draw it wants.
 
-Shapes: N patterns of dimension d, P prototypes, C classes. Classes are indices ``0..C-1`` here; the mapping to
-the caller's numeric class values lives in the estimator. The per-cycle bookkeeping is the (prototype, class)
+Shapes: N patterns of dimension d, P prototypes, C classes. Classes are indices ``0..C-1`` here; the caller's class
+labels (``classes_``) live in the estimator. The per-cycle bookkeeping is the (prototype, class)
 contingency table ``V`` (P, C) int64, with ``V[i, j] = |R_i ∩ S_j|``, and the per-cell pattern sums ``sums``
 (P·C, d), row ``i·C + j`` holding the sum of the patterns of V_ij. Patterns are never looped over in Python.
 

@@ -5,16 +5,15 @@ ONE prototype and runs ``n_cycles`` cycles of six operators, in this order [pape
 → labeling → reproduction → fight → move → die (see :mod:`algorithm._ennc_ops` for each operator and its
 provenance tags). The number of prototypes is not given: it settles where the prototypes' quality does.
 
-Class values may be any labels scikit-learn accepts, and any finite numbers: in ENNC-QL they are Q values, and
-``labels_`` holds the values themselves. The prototypes also serve as a discretization of the input space
-(:meth:`ENNC.predict_index`).
+Targets are class labels, as for any scikit-learn classifier (integers, strings, integer-valued floats); a
+continuous target is refused. ENNC-QL's Q values are continuous: :func:`algorithm.phase1.phase1` turns them into
+at most ``max_classes`` classes, fits on the class indices and maps each prototype's class back to its Q value.
+The prototypes also serve as a discretization of the input space (:meth:`ENNC.predict_index`).
 
-:class:`ENNC` is a real scikit-learn estimator (``ClassifierMixin, BaseEstimator``, passing
+:class:`ENNC` is a real scikit-learn estimator (``ClassifierMixin, BaseEstimator``, passing every check of
 ``sklearn.utils.estimator_checks.check_estimator``) so that the tools built on that contract work on it
 unchanged: ``clone``, ``Pipeline`` (scaling the states before the fit), ``cross_val_score`` and
-``GridSearchCV`` over ``n_cycles`` or ``k_fight``. One check cannot pass, by design: a continuous target is
-not rejected, because Q values are exactly that; :data:`EXPECTED_FAILED_CHECKS` declares it with the reason,
-in the form ``check_estimator(ENNC(), expected_failed_checks=EXPECTED_FAILED_CHECKS)`` takes.
+``GridSearchCV`` over ``n_cycles`` or ``k_fight``.
 
 Cost: a cycle is dominated by region assignment, O(N·P·d). The first one is a full chunked GEMM pass; later
 cycles only re-examine patterns that the last move, die or reproduction can have re-assigned (centre–centre
@@ -28,12 +27,12 @@ Usage::
     >>> import numpy as np
     >>> rng = np.random.default_rng(0)
     >>> X = np.vstack([rng.normal(-3, 0.5, (50, 2)), rng.normal(3, 0.5, (50, 2))])
-    >>> y = np.repeat([0.0, -1.5], 50)
+    >>> y = np.repeat(["lost", "seen"], 50)
     >>> clf = ENNC(n_cycles=50, random_state=0).fit(X, y)
     >>> clf.score(X, y)
     1.0
     >>> sorted(set(clf.labels_.tolist()))
-    [-1.5, 0.0]
+    ['lost', 'seen']
     >>> clf.predict_index(X[:2]).shape
     (2,)
 
@@ -66,7 +65,8 @@ import torch
 from numpy.typing import ArrayLike, NDArray
 from sklearn.base import BaseEstimator, ClassifierMixin
 from sklearn.utils import Tags
-from sklearn.utils.validation import check_array, check_consistent_length, check_is_fitted, column_or_1d, validate_data
+from sklearn.utils.multiclass import check_classification_targets
+from sklearn.utils.validation import check_array, check_is_fitted, validate_data
 from torch import Tensor
 
 from algorithm import _ennc_ops as ops
@@ -74,15 +74,6 @@ from algorithm import _ennc_ops as ops
 logger = logging.getLogger(__name__)
 
 InitMode = Literal["random", "mean"]
-
-#: The scikit-learn estimator checks that ENNC fails by design, each with the reason, as the
-#: ``expected_failed_checks`` argument of ``sklearn.utils.estimator_checks.check_estimator`` takes them.
-EXPECTED_FAILED_CHECKS: dict[str, str] = {
-    "check_classifiers_regression_target": (
-        "fit does not reject a continuous target: class values may be any finite numbers, and in ENNC-QL they "
-        "are Q values, non-integer floats that scikit-learn's type_of_target calls 'continuous'"
-    ),
-}
 
 
 class ENNC(ClassifierMixin, BaseEstimator):
@@ -108,8 +99,8 @@ class ENNC(ClassifierMixin, BaseEstimator):
     init:
         The single starting prototype when no warm start is given [paper: "a random training pattern, or the
         data mean"]: ``"random"`` (default, as KEEL) takes a random training pattern with its class;
-        ``"mean"`` takes the data mean labelled with the most frequent class (lowest class value on a tie)
-        [choice].
+        ``"mean"`` takes the data mean labelled with the most frequent class (the first of ``classes_`` on a
+        tie) [choice].
     newborn_grace:
         When true, a prototype created by reproduction is exempt from the die operator in the cycle of its
         birth, so it is judged only after it has moved once [choice, not in the spec nor in KEEL; default
@@ -131,9 +122,9 @@ class ENNC(ClassifierMixin, BaseEstimator):
     Attributes
     ----------
     prototypes_ : ndarray (P, d) float64
-    labels_ : ndarray (P,), the class value of each prototype (dtype of ``classes_``)
+    labels_ : ndarray (P,), the class of each prototype, an element of ``classes_``
     n_prototypes_ : int, P
-    classes_ : ndarray (C,), sorted class values seen in ``y`` and in ``init_labels``
+    classes_ : ndarray (C,), sorted classes seen in ``y`` and in ``init_labels``
     n_cycles_run_ : int
     n_prototypes_history_ : list[int], number of prototypes after each cycle
     n_features_in_ : int
@@ -142,8 +133,8 @@ class ENNC(ClassifierMixin, BaseEstimator):
     Examples
     --------
     >>> X = [[0.0], [0.2], [5.0], [5.3]]
-    >>> ENNC(n_cycles=5, random_state=0).fit(X, [0.5, 0.5, -2.0, -2.0]).predict([[0.1], [4.0]]).tolist()
-    [0.5, -2.0]
+    >>> ENNC(n_cycles=5, random_state=0).fit(X, [1, 1, 0, 0]).predict([[0.1], [4.0]]).tolist()
+    [1, 0]
     """
 
     def __init__(
@@ -182,21 +173,20 @@ class ENNC(ClassifierMixin, BaseEstimator):
     ) -> ENNC:
         """Evolve the prototypes on patterns ``X`` (N, d) with classes ``y`` (N,); returns ``self``.
 
-        ``y`` may hold any class labels, numbers included, however many distinct values: unlike most
-        scikit-learn classifiers, a float target is not rejected as "continuous", because in ENNC-QL the
-        classes are Q values.
+        ``y`` holds class labels; a continuous target (non-integer floats, such as raw Q values) raises
+        ``ValueError`` ("Unknown label type"), as in every scikit-learn classifier.
 
         ``init_prototypes`` (P0, d) replace the single starting prototype: the evolution continues from
-        them. ``init_labels`` (P0,) are their class values, of the same kind as ``y`` (numbers or not), which
+        them. ``init_labels`` (P0,) are their classes, of the same kind as ``y`` (numbers or not), which
         need not occur in ``y``; a label is judged as given in the first cycle's quality (a prototype whose
         label is absent from its region has quality 0 and is likely to die), so stale labels are better
         left out: without ``init_labels`` each prototype starts with the majority class of its region in
-        ``X`` (the lowest class value on a tie or for an empty region).
+        ``X`` (the first of ``classes_`` on a tie or for an empty region).
         """
         self._check_params()
-        # check_classification_targets is not called: it rejects float targets, which are Q values here.
         # force_writeable: torch cannot wrap a read-only array (a memmap) without a warning.
         x_np, y_np = validate_data(self, X, y, dtype=np.float64, force_writeable=True)
+        check_classification_targets(y_np)
         warm = _check_warm_start(init_prototypes, init_labels, x_np.shape[1], y_np)
 
         classes = np.unique(y_np if warm is None or warm[1] is None else np.concatenate([y_np, warm[1]]))
@@ -278,22 +268,9 @@ class ENNC(ClassifierMixin, BaseEstimator):
         return index.cpu().numpy()
 
     def predict(self, X: ArrayLike) -> NDArray[Any]:
-        """Class value (label of the nearest prototype) of every row of X."""
+        """Class (label of the nearest prototype, an element of ``classes_``) of every row of X."""
         index = self.predict_index(X)  # first, so that an unfitted ENNC raises NotFittedError
         return self.labels_[index]
-
-    def score(self, X: ArrayLike, y: ArrayLike, sample_weight: ArrayLike | None = None) -> float:
-        """Accuracy: the (``sample_weight``-weighted) fraction of rows of X whose predicted class equals ``y``.
-
-        Compares the values directly instead of through ``sklearn.metrics.accuracy_score`` (what
-        ``ClassifierMixin.score`` does): that metric refuses non-integer float classes, Q values among them,
-        as a "continuous" target.
-        """
-        predicted = self.predict(X)
-        y_true = column_or_1d(y, warn=True)
-        weights = None if sample_weight is None else column_or_1d(sample_weight).astype(np.float64)
-        check_consistent_length(predicted, y_true, weights)
-        return float(np.average(predicted == y_true, weights=weights))
 
     def _check_params(self) -> None:
         _check_int("n_cycles", self.n_cycles, 0)
@@ -432,6 +409,7 @@ def _check_warm_start(
     labels = check_array(init_labels, dtype=None, ensure_2d=False, input_name="init_labels")
     if labels.shape != (prototypes.shape[0],):
         raise ValueError(f"init_labels must have shape ({prototypes.shape[0]},), got {labels.shape}")
+    check_classification_targets(labels)
     # Concatenating numbers with strings would silently turn every class into a string.
     if np.issubdtype(labels.dtype, np.number) != np.issubdtype(y.dtype, np.number):
         raise ValueError(f"init_labels ({labels.dtype}) and y ({y.dtype}) must both be numeric or both not")

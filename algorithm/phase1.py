@@ -1,8 +1,9 @@
 """ENNC-QL phase 1: fitted iterations with one ENNC classifier per action [paper §2.2].
 
 Iteration t builds, for each action a, the training set T_a = {⟨s, q⟩} from the tuples with action a, where
-q = r + γ·max_b Q̂_b^(t−1)(s′) (q = r for terminal s′), turns the q values into classes and fits an ENNC on it;
-the label of each prototype is its numeric Q value and its prototypes are the discretization S_a. Q̂^(0) ≡ 0.
+q = r + γ·max_b Q̂_b^(t−1)(s′) (q = r for terminal s′), turns the q values into classes (:func:`to_classes`) and
+fits an ENNC on their class indices; the label of each prototype is the Q value of its class and its prototypes
+are the discretization S_a. Q̂^(0) ≡ 0.
 
 Usage::
 
@@ -173,18 +174,22 @@ def phase1(
                 device=config.device,
             )
             classes = to_classes(q[rows], config)
+            # ENNC refuses continuous targets, so it fits on class indices, numbered in the order of the Q values
+            # so that its ties (first class wins) still fall on the lowest Q value.
             if warm_start is not None and it == 1:
                 lo, hi = warm_start.offsets[a], warm_start.offsets[a + 1]
+                q_values, index = np.unique(np.concatenate([classes, warm_start.labels[lo:hi]]), return_inverse=True)
                 model.fit(
                     states[rows] / unit,
-                    classes,
+                    index[: rows.size],
                     init_prototypes=warm_start.prototypes[lo:hi] / unit,
-                    init_labels=warm_start.labels[lo:hi],
+                    init_labels=index[rows.size :],
                 )
             else:
-                model.fit(states[rows] / unit, classes)
+                q_values, index = np.unique(classes, return_inverse=True)
+                model.fit(states[rows] / unit, index)
             protos.append(model.prototypes_ * unit)
-            labels.append(np.asarray(model.labels_, dtype=np.float64))
+            labels.append(q_values[model.labels_])
             log.debug("phase 1 iteration %d action %d: %d prototypes", it, a, model.n_prototypes_)
             if progress is not None:
                 progress(it, a)

@@ -31,7 +31,7 @@ def t(values: list[float] | list[list[float]]) -> torch.Tensor:
 def two_blobs(n: int = 100, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     rng = np.random.default_rng(seed)
     X = np.vstack([rng.normal(-4.0, 0.5, (n, 3)), rng.normal(4.0, 0.5, (n, 3))])
-    return X, np.repeat([0.25, -1.0], n)
+    return X, np.repeat([3, -1], n)
 
 
 # --- region assignment -------------------------------------------------------------------------------------
@@ -269,13 +269,13 @@ def test_die_never_deletes_the_last_prototype() -> None:
 # --- estimator ---------------------------------------------------------------------------------------------
 
 
-def test_fit_separates_two_blobs_with_few_prototypes_and_numeric_labels() -> None:
+def test_fit_separates_two_blobs_with_few_prototypes() -> None:
     X, y = two_blobs()
     clf = ENNC(n_cycles=60, random_state=0).fit(X, y)
     assert clf.score(X, y) == 1.0
     assert clf.n_prototypes_ <= 6
-    assert set(clf.labels_.tolist()) == {0.25, -1.0}
-    assert clf.classes_.tolist() == [-1.0, 0.25]
+    assert set(clf.labels_.tolist()) == {3, -1}
+    assert clf.classes_.tolist() == [-1, 3]
     assert clf.prototypes_.shape == (clf.n_prototypes_, 3)
     assert len(clf.n_prototypes_history_) == clf.n_cycles_run_ == 60
 
@@ -293,18 +293,18 @@ def test_fit_is_deterministic_under_a_seed(init: str) -> None:
 def test_warm_start_with_zero_cycles_returns_the_given_prototypes() -> None:
     X, y = two_blobs()
     init = np.array([[-4.0, -4.0, -4.0], [4.0, 4.0, 4.0]])
-    clf = ENNC(n_cycles=0).fit(X, y, init_prototypes=init, init_labels=[0.25, -1.0])
+    clf = ENNC(n_cycles=0).fit(X, y, init_prototypes=init, init_labels=[3, -1])
     np.testing.assert_array_equal(clf.prototypes_, init)
-    assert clf.labels_.tolist() == [0.25, -1.0]
+    assert clf.labels_.tolist() == [3, -1]
     assert clf.score(X, y) == 1.0
 
 
 def test_warm_start_continues_from_the_given_prototypes() -> None:
     X, y = two_blobs()
     init = np.array([[-3.0, -3.0, -3.0], [3.0, 3.0, 3.0]])
-    clf = ENNC(n_cycles=5, random_state=0).fit(X, y, init_prototypes=init, init_labels=[0.25, -1.0])
+    clf = ENNC(n_cycles=5, random_state=0).fit(X, y, init_prototypes=init, init_labels=[3, -1])
     assert clf.n_prototypes_ == 2
-    assert clf.labels_.tolist() == [0.25, -1.0]
+    assert clf.labels_.tolist() == [3, -1]
     np.testing.assert_allclose(clf.prototypes_, [X[:100].mean(0), X[100:].mean(0)])
 
 
@@ -312,14 +312,14 @@ def test_warm_start_without_labels_takes_the_majority_of_each_region() -> None:
     X, y = two_blobs()
     init = np.array([[3.0, 3.0, 3.0], [-3.0, -3.0, -3.0], [50.0, 50.0, 50.0]])
     clf = ENNC(n_cycles=0).fit(X, y, init_prototypes=init)
-    assert clf.labels_.tolist() == [-1.0, 0.25, -1.0]
+    assert clf.labels_.tolist() == [-1, 3, -1]
 
 
 def test_warm_start_labels_absent_from_y_become_classes() -> None:
     X, y = two_blobs()
-    clf = ENNC(n_cycles=0).fit(X, y, init_prototypes=X[:1], init_labels=[7.5])
-    assert clf.classes_.tolist() == [-1.0, 0.25, 7.5]
-    assert clf.predict(X[:3]).tolist() == [7.5, 7.5, 7.5]
+    clf = ENNC(n_cycles=0).fit(X, y, init_prototypes=X[:1], init_labels=[7])
+    assert clf.classes_.tolist() == [-1, 3, 7]
+    assert clf.predict(X[:3]).tolist() == [7, 7, 7]
 
 
 def test_newborn_grace_lets_a_many_class_problem_grow() -> None:

@@ -1,0 +1,95 @@
+"""Phase 1's prototypes and Q-value labels, bit for bit, for a fixed seed.
+
+The digests below were produced by the phase-1 code of commit dfd376d, where ENNC took the Q classes themselves
+as its targets: this file, run there, hashed the two results of :func:`phase1_runs` with :func:`digest` (CPU,
+torch 2.13.0). Phase 1 now hands ENNC class indices and maps each prototype's class back to its Q value; ENNC
+keeps classes in sorted order either way, so its random decisions and therefore every prototype must stay the
+same. The data cover both kinds of classes, distinct rounded q values (few enough) and quantile bins labelled by
+their mean (too many), non-integer Q values, an action without tuples, subsampling, and a warm start whose float32
+labels are mostly not among the new Q classes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import pytest
+
+from algorithm.phase1 import Phase1Config, Phase1Result, phase1
+from algorithm.transitions import Transitions
+
+N_ACTIONS = 4
+"""Action 3 never occurs in the data: phase 1 keeps its previous prototypes."""
+COLD_DIGEST = "e15166c102193def53354bd0b8f3e33ac971a9aa1c058893861b2a52d167ff3e"
+WARM_DIGEST = "85aa73d2f8da6c8c750ea413407020e810429580a4f291ad52ad54da0d9da1d2"
+
+
+def transitions(n: int, seed: int) -> Transitions:
+    """2-D states; terminal (reward −1) left of x = −0.6; elsewhere y rounded to a step of 0.1 (21 values in
+    [−1, 1]), or of 0.5 after action 2 (5 values: its first fit takes the rounded values as they are)."""
+    rng = np.random.default_rng(seed)
+    state = rng.uniform(-1.0, 1.0, (n, 2))
+    action = rng.integers(0, N_ACTIONS - 1, n)
+    done = state[:, 0] < -0.6
+    step = np.where(action == 2, 0.5, 0.1)
+    return Transitions(
+        robot=np.zeros(n, np.int16),
+        state=state.astype(np.float32),
+        action=action.astype(np.uint8),
+        reward=np.where(done, -1.0, np.round(state[:, 1] / step) * step).astype(np.float32),
+        next_state=np.clip(state + rng.normal(0.0, 0.2, (n, 2)), -1.0, 1.0).astype(np.float32),
+        done=done,
+    )
+
+
+def digest(result: Phase1Result) -> str:
+    disc = result.discretization
+    assert disc.scale is not None
+    parts = [disc.prototypes, disc.labels, disc.offsets, disc.scale, np.asarray(result.changed)]
+    return hashlib.sha256(b"".join(np.ascontiguousarray(p).tobytes() for p in parts)).hexdigest()
+
+
+def phase1_runs() -> tuple[Phase1Result, Phase1Result]:
+    """A cold run (3 iterations, one ENNC per action on at most 150 of ~200 tuples, 8 classes at most), then a
+    warm-started run on other tuples from its discretization."""
+    cold = phase1(
+        transitions(600, 0),
+        N_ACTIONS,
+        Phase1Config(n_cycles=25, max_iterations=3, max_classes=8, max_patterns=150),
+        seed=11,
+    )
+    warm = phase1(
+        transitions(500, 1),
+        N_ACTIONS,
+        Phase1Config(n_cycles=20, max_iterations=2, max_classes=8),
+        seed=12,
+        warm_start=cold.discretization,
+    )
+    return cold, warm
+
+
+@pytest.fixture(scope="module")
+def results() -> tuple[Phase1Result, Phase1Result]:
+    return phase1_runs()
+
+
+def test_cold_phase1_prototypes_are_those_of_the_code_before_class_indices(
+    results: tuple[Phase1Result, Phase1Result],
+) -> None:
+    cold = results[0]
+    assert cold.iterations == 3
+    assert cold.discretization.sizes().tolist() == [37, 34, 37, 1]
+    # Non-integer Q values, which a classifier refuses as targets: phase 1 must map them to classes and back.
+    labels = cold.discretization.labels
+    assert not np.all(labels == np.round(labels))
+    assert digest(cold) == COLD_DIGEST
+
+
+def test_warm_started_phase1_prototypes_are_those_of_the_code_before_class_indices(
+    results: tuple[Phase1Result, Phase1Result],
+) -> None:
+    warm = results[1]
+    assert warm.iterations == 2
+    assert warm.discretization.sizes().tolist() == [38, 43, 32, 1]
+    assert digest(warm) == WARM_DIGEST
