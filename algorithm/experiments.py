@@ -52,6 +52,8 @@ class MethodSpec:
     actions: str = "compass"
     """Action set (:data:`sim.actions.ACTION_SETS`): the paper's compass moves, or moves relative to the nearest
     target."""
+    shared_table: bool = False
+    """Every robot learns (as in option 2) into ONE table that every robot uses [beyond the paper]."""
 
 
 METHODS: dict[str, MethodSpec] = {
@@ -84,6 +86,12 @@ class Budget:
     phase2: Phase2Config = field(default_factory=Phase2Config)
     codebook_patterns: int = 50_000
     """LBG runs on a uniform sample of this many explored states [choice]."""
+    refits: int = 0
+    """ENNC-QL: phase 2's batches are cut into ``refits`` + 1 equal parts; after each but the last, phase 1 runs
+    again on the part's on-policy tuples (the newest ``refit_tuples``), warm-started from the current
+    discretization, its targets bootstrapped from the learned tables, which then carry over [beyond the paper]."""
+    refit_tuples: int = 600_000
+    """Tuples of a refit (the newest of its part of phase 2)."""
     test_trials: int = 10
     test_steps: int = 1000
     test_seed: int = 0
@@ -129,6 +137,16 @@ def _discretize(spec: MethodSpec, data: Transitions, budget: Budget, seed: int) 
     return result.discretization, "fixed"
 
 
+def _refit(agent: TabularAgent, data: Transitions, budget: Budget, seed: int) -> tuple[TabularAgent, Discretization]:
+    """Phase 1 again on on-policy ``data``, bootstrapped from the agent's tables (their mean over robots); a new
+    agent over the new discretization with the tables carried over (each new cell from the nearest old one)."""
+    old = agent.discretization
+    fit = phase1(data, N_ACTIONS, budget.phase1, seed=seed, warm_start=old, values=agent.tables.mean(axis=0))
+    disc = fit.discretization
+    template = dataclasses.replace(agent.template, discretization=disc, tables=disc.carry_over(old, agent.tables))
+    return TabularAgent(dataclasses.replace(template, visits=None), budget.phase2), disc
+
+
 def train(
     spec: MethodSpec,
     budget: Budget,
@@ -155,7 +173,7 @@ def train(
     say(f"explored {len(data)} tuples")
     disc, action_mode = _discretize(spec, data, budget, seed)
     say(f"discretization: {disc.size} cells, {disc.sizes().mean():.1f} per action")
-    rows = spec.learning_robots if spec.per_robot_tables else 1
+    rows = spec.learning_robots if spec.per_robot_tables and not spec.shared_table else 1
     template = Policy(
         featurizer=spec.featurizer,
         reward=resolve_reward(spec.featurizer, spec.reward),
@@ -168,7 +186,7 @@ def train(
         actions=spec.actions,
     )
     agent = TabularAgent(template, budget.phase2)
-    learners = None if spec.per_robot_tables else (0,)
+    learners = None if spec.per_robot_tables or spec.shared_table else (0,)
     learner_slice = ExperienceSlice(
         learn_cfg,
         SliceConfig(
@@ -182,10 +200,21 @@ def train(
         seeds[1],
     )
     tuples = len(data)
+    refit_at = (
+        set()
+        if spec.algorithm == "vqql"
+        else {round(k * budget.phase2_trials / (budget.refits + 1)) for k in range(1, budget.refits + 1)}
+    )
+    recent: list[Transitions] = []
     for trial in range(budget.phase2_trials):
-        tuples += len(learner_slice.run_trial(agent, learn=True))
+        batch = learner_slice.run_trial(agent, learn=True)
+        tuples += len(batch)
+        recent = [*recent, batch][-max(1, budget.refit_tuples // max(len(batch), 1)) :]
         if (trial + 1) % max(1, budget.phase2_trials // 4) == 0:
             say(f"phase 2: {trial + 1}/{budget.phase2_trials} trial batches, {tuples} tuples")
+        if trial + 1 in refit_at:
+            agent, disc = _refit(agent, Transitions.concat(recent), budget, seed + trial)
+            say(f"refit: {disc.sizes().mean():.1f} prototypes per action")
     test_robots = base.n_robots
     robot_table = np.arange(test_robots) % rows
     policy = dataclasses.replace(

@@ -13,6 +13,7 @@ Usage::
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -131,11 +132,14 @@ def phase1(
     seed: int | None = None,
     warm_start: Discretization | None = None,
     progress: Progress | None = None,
+    values: np.ndarray | None = None,
 ) -> Phase1Result:
     """Fitted ENNC iterations until no predicted value changes or ``max_iterations``.
 
     ``warm_start`` seeds every action's first fit with its prototypes and labels (the learner's refits as data
-    grows). ``progress(iteration, action)`` is called after each fit.
+    grows). ``values`` (Σ P_a,), with ``warm_start``: Q values learned over its cells (phase 2's tables); the
+    first iteration's targets then bootstrap from them instead of from Q̂^(0) ≡ 0, and each warm prototype starts
+    labelled with the class nearest its value. ``progress(iteration, action)`` is called after each fit.
     """
     ennc_class = estimator()
     config = config or Phase1Config()
@@ -150,7 +154,12 @@ def phase1(
     rewards = np.asarray(data.reward, dtype=np.float64)
     scale = warm_start.scale if warm_start is not None else standard_scale(states) if config.standardize else None
     unit = np.ones(states.shape[1]) if scale is None else scale.astype(np.float64)
-    disc = _constant(states, n_actions, scale)
+    if values is not None:
+        if warm_start is None or np.shape(values) != (warm_start.size,):
+            raise ValueError("values need a warm start and one value per cell of it")
+        disc = dataclasses.replace(warm_start, labels=np.asarray(values, np.float32))
+    else:
+        disc = _constant(states, n_actions, scale)
     predicted = np.zeros(len(data))
     changed: list[float] = []
     converged = False
@@ -176,7 +185,17 @@ def phase1(
             classes = to_classes(q[rows], config)
             # ENNC refuses continuous targets, so it fits on class indices, numbered in the order of the Q values
             # so that its ties (first class wins) still fall on the lowest Q value.
-            if warm_start is not None and it == 1:
+            if warm_start is not None and it == 1 and values is not None:
+                lo, hi = warm_start.offsets[a], warm_start.offsets[a + 1]
+                q_values, index = np.unique(classes, return_inverse=True)
+                nearest = np.abs(np.asarray(values[lo:hi], np.float64)[:, None] - q_values[None, :]).argmin(axis=1)
+                model.fit(
+                    states[rows] / unit,
+                    index,
+                    init_prototypes=warm_start.prototypes[lo:hi] / unit,
+                    init_labels=nearest,
+                )
+            elif warm_start is not None and it == 1:
                 lo, hi = warm_start.offsets[a], warm_start.offsets[a + 1]
                 q_values, index = np.unique(np.concatenate([classes, warm_start.labels[lo:hi]]), return_inverse=True)
                 model.fit(

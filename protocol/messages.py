@@ -34,7 +34,7 @@ N_ACTIONS = 8
 """L, the number of discrete actions of scenario ``cmommt-v1``; changing it is a schema change."""
 
 FEATURIZER_DIMS: Mapping[str, int] = MappingProxyType(
-    {"local2d": 2, "collab6d": 6, "shared8d": 8, "present10d": 10, "frame9d": 9}
+    {"local2d": 2, "collab6d": 6, "shared8d": 8, "present10d": 10, "frame9d": 9, "frame7d": 7}
 )
 """State dimension d of each featurizer a PolicyUpdate may name."""
 

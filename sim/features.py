@@ -99,6 +99,20 @@ def _present10d(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
     return np.concatenate(columns, axis=-1).astype(np.float32)
 
 
+def _frame7d(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
+    f = obs.features.astype(np.float64)
+    frame = target_frame(obs)
+
+    def local(offset: np.ndarray) -> np.ndarray:
+        return np.einsum("...k,...dk->...d", offset, frame)
+
+    has_target = obs.n_seen >= 1
+    distance = np.where(has_target, np.linalg.norm(f[..., 0:2], axis=-1), cfg.mask_value)[..., None]
+    furthest = np.where(has_target[..., None], local(f[..., 2:4]), cfg.mask_value)
+    robot = np.where(obs.sees_robot[..., None], local(f[..., 4:6]), cfg.mask_value)
+    return np.concatenate([distance, furthest, robot, obs.shared], axis=-1).astype(np.float32)
+
+
 def _frame9d(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
     nearest, furthest, robot, has_second, has_robot = _pairs(obs)
     frame = target_frame(obs)  # (E, m, 2, 2): rows x, y
@@ -132,6 +146,20 @@ FEATURIZER_REGISTRY: dict[str, Featurizer] = {
                 "furthest_target_shared",
             ),
             _present10d,
+            "eq2",
+        ),
+        Featurizer(
+            "frame7d",
+            (
+                "nearest_target_distance",
+                "furthest_target_x",
+                "furthest_target_y",
+                "nearest_robot_x",
+                "nearest_robot_y",
+                "nearest_target_shared",
+                "furthest_target_shared",
+            ),
+            _frame7d,
             "eq2",
         ),
         Featurizer(

@@ -182,3 +182,50 @@ def test_phase1_rejects_empty_and_out_of_range_data() -> None:
     data = chain_transitions(2, np.random.default_rng(0))
     with pytest.raises(ValueError, match="actions"):
         phase1(data, n_actions=1)
+
+
+def test_a_decaying_step_size_is_the_running_mean_of_the_targets_down_to_its_floor() -> None:
+    # alpha = 1: the initial value weighs nothing, so each update is the mean of the targets so far, however they
+    # are batched; past 1 / floor = 4 visits the step stays at the floor.
+    rng = np.random.default_rng(0)
+    targets = rng.normal(size=12)
+    table, visits = np.array([7.0]), np.zeros(1, np.uint64)
+    for i, t in enumerate(targets[:4]):
+        q_update(table, visits, np.array([0]), np.array([t]), alpha=1.0, alpha_floor=0.25)
+        assert table[0] == pytest.approx(targets[: i + 1].mean())
+    expected = targets[:4].mean()
+    for t in targets[4:]:
+        expected += 0.25 * (t - expected)
+        q_update(table, visits, np.array([0]), np.array([t]), alpha=1.0, alpha_floor=0.25)
+    assert table[0] == pytest.approx(expected)
+    # One batch of 3 hits at visits 0: the mean of the three, as three sequential running-mean steps give.
+    batch, visits = np.array([7.0]), np.zeros(1, np.uint64)
+    q_update(batch, visits, np.zeros(3, int), targets[:3], alpha=1.0, alpha_floor=0.25)
+    assert batch[0] == pytest.approx(targets[:3].mean())
+    # alpha = 0.1: the initial value weighs 9 samples; the 10th step is 1 / 10, then 1 / 11, ...
+    table, visits = np.array([0.0]), np.zeros(1, np.uint64)
+    q_update(table, visits, np.zeros(2, int), np.array([1.0, 1.0]), alpha=0.1, alpha_floor=0.01)
+    assert table[0] == pytest.approx(2 / 11)
+
+
+def test_phase1_bootstraps_from_learned_values_of_a_warm_start() -> None:
+    # One action, every tuple a 0-reward step into a state near the second warm prototype, whose learned value is
+    # 5: the targets are γ·5 with the learned values, 0 with Q̂^(0) ≡ 0 (the paper's first iteration).
+    rng = np.random.default_rng(2)
+    x = rng.uniform(-1, 1, (400, 2)).astype(np.float32)
+    data = Transitions(
+        robot=np.zeros(400, np.int16),
+        state=x,
+        action=np.zeros(400, np.uint8),
+        reward=np.zeros(400, np.float32),
+        next_state=np.full((400, 2), 0.9, np.float32),
+        done=np.zeros(400, bool),
+    )
+    warm = Discretization.from_per_action([np.array([[-0.9, -0.9], [0.9, 0.9]])], [np.array([0.0, 0.0])])
+    config = Phase1Config(n_cycles=20, max_iterations=1, standardize=False)
+    learned = phase1(data, 1, config, seed=0, warm_start=warm, values=np.array([-3.0, 5.0]))
+    np.testing.assert_allclose(learned.discretization.labels, GAMMA * 5.0, rtol=1e-6)
+    plain = phase1(data, 1, config, seed=0, warm_start=warm)
+    np.testing.assert_allclose(plain.discretization.labels, 0.0)
+    with pytest.raises(ValueError, match="warm start"):
+        phase1(data, 1, config, values=np.array([1.0, 2.0]))
