@@ -168,8 +168,10 @@ def increment_arrays(msg: QTableIncrement) -> tuple[int, np.ndarray, np.ndarray]
 
 
 def status_counters(figures: Any) -> dict[str, float]:
-    """A process's typed figures (a dataclass of numbers) as a ``Status`` message's counters, field by field."""
-    return {f.name: float(getattr(figures, f.name)) for f in dataclasses.fields(figures)}
+    """A process's typed figures (a dataclass of numbers) as a ``Status`` message's counters, field by field; a
+    figure that is None (not measured yet) is left out, so a reader keeps its default."""
+    values = {f.name: getattr(figures, f.name) for f in dataclasses.fields(figures)}
+    return {name: float(v) for name, v in values.items() if v is not None}
 
 
 def figures_from_counters(cls: type[F], counters: Mapping[str, float]) -> F:

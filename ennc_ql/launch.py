@@ -427,7 +427,7 @@ def stop_child(proc: subprocess.Popen[bytes], grace: float) -> None:
 
 def cluster_status(status: LearnerStatus) -> str:
     """The live figures of the learner's status, as the progress bar shows them."""
-    coverage = "–" if status.coverage < 0 else f"{status.coverage:.1f}%"
+    coverage = "–" if status.coverage is None else f"{status.coverage:.1f}%"
     return (
         f"{'exploring' if status.policy_version == 0 else 'phase 2'}: {status.tuples_received:,} tuples "
         f"({status.tuples_per_s / 1e3:.0f} k/s), policy v{status.policy_version}, "
@@ -465,7 +465,7 @@ def _watch(
     with ProgressBar("up", total=duration, unit="s") as bar, ZenohTransport.open(conf, keys) as transport:
         transport.subscribe(keys.status(learner.learner_id), Status, on_status)
         bar.show(status=f"starting the learner and {actors} actor(s)")
-        version, coverage = 0, -1.0
+        version, coverage = 0, None
         while proc.poll() is None:
             time.sleep(1.0)
             for message in supervisor.check():
@@ -477,7 +477,7 @@ def _watch(
             n = min(status.elapsed + age, duration)
             if version == 0 and status.policy_version > 0:
                 bar.mark(f"phase 1 done: policy v{status.policy_version} sent, phase 2 starts", n)
-            if status.coverage >= 0 and status.coverage != coverage:
+            if status.coverage is not None and status.coverage != coverage:
                 bar.mark(f"evaluation: policy v{status.policy_version} observes {status.coverage:.1f}% of targets", n)
             version, coverage = status.policy_version, status.coverage
             bar.show(n, "training over: final evaluation and report" if n >= duration else cluster_status(status))

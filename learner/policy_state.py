@@ -48,9 +48,9 @@ class PolicyState:
         self.action_steps = action_steps
         self.method = method
         self.reward = reward
+        """The reward function the actors learn with (a name of :data:`sim.features.REWARDS`), for the policy file."""
         self.act_every = act_every
         """Steps between decisions of the evaluated and saved policy (None: ``action_steps``)."""
-        """The reward function the actors learn with (a name of :data:`sim.features.REWARDS`), for the policy file."""
         self._lock = threading.Lock()
         self._disc: Discretization | None = None
         self._disc_id = 0
@@ -63,7 +63,9 @@ class PolicyState:
         """(actor, robot) -> summed change and visits of the increments not merged yet."""
         self._current: PolicyUpdate | None = None
         self.increments = 0
+        """Increments received (each sequence number once)."""
         self.stale_increments = 0
+        """Of those, increments over another discretization than the current one: not merged (docs/protocol.md §5)."""
 
     @property
     def version(self) -> int:

@@ -1,8 +1,11 @@
 """The learner's typed figures: the live status it publishes and the report it writes at the end.
 
 ``LearnerStatus`` travels in a ``Status`` message's counters (names and meanings in docs/protocol.md); readers such
-as ``ennc-ql up`` turn the counters back into it instead of reading them by name::
+as ``ennc-ql up`` turn the counters back into it instead of reading them by name. Both are built from the learner's
+parts, never field by field by the learner::
 
+    status = LearnerStatus.of(intake.figures(), state, members, evaluator, fits=fitter.fits, elapsed=clock())
+    report = LearnerReport.of(config, status, figures, state, members, evaluator, final, policy_file, checkpoint)
     status = LearnerStatus.from_counters(msg.counters)
     status.policy_version, status.coverage
 """
@@ -12,9 +15,17 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from algorithm.wire import figures_from_counters, status_counters
+
+if TYPE_CHECKING:  # the parts; readers of the figures (``ennc-ql up``) need none of them
+    from learner.config import LearnerConfig
+    from learner.evaluator import Evaluator
+    from learner.intake import IntakeFigures
+    from learner.membership import Membership
+    from learner.policy_state import PolicyState
 
 
 @dataclass(frozen=True, slots=True)
@@ -38,13 +49,39 @@ class LearnerStatus:
     policy_lag_max: int = 0
     """Largest number of versions an actor's newest experience is behind the current policy."""
     rejected: int = 0
-    """Messages refused (transport-level rejections plus experience of the wrong dimension)."""
-    coverage: float = -1.0
-    """Metric A (%) of the latest evaluation (-1: none yet)."""
+    """Messages refused over the run, each once (invalid, or experience of another state dimension)."""
+    coverage: float | None = None
+    """Metric A (%) of the latest evaluation (None, and no counter sent: none yet)."""
     fits: int = 0
     """Phase-1 fits done."""
     elapsed: float = 0.0
     """Seconds of training."""
+
+    @classmethod
+    def of(
+        cls,
+        intake: IntakeFigures,
+        state: PolicyState,
+        members: Membership,
+        evaluator: Evaluator,
+        fits: int,
+        elapsed: float,
+    ) -> LearnerStatus:
+        return cls(
+            tuples_received=intake.tuples_received,
+            store_size=intake.store_size,
+            overwritten=intake.overwritten,
+            duplicates=intake.duplicates,
+            gaps=intake.gaps,
+            policy_version=state.version,
+            live_actors=len(members.live()),
+            tuples_per_s=intake.tuples_per_s,
+            policy_lag_max=max(state.lag(intake.latest_version).values(), default=0),
+            rejected=intake.rejected,
+            coverage=evaluator.latest,
+            fits=fits,
+            elapsed=elapsed,
+        )
 
     def to_counters(self) -> dict[str, float]:
         return status_counters(self)
@@ -74,6 +111,9 @@ class LearnerReport:
     gaps: int
     rejected: int
     rejected_by_type: dict[str, int]
+    """Messages refused, each once, by error class (docs/protocol.md §6) or ``StateDimension``."""
+    refused_tokens: int
+    """Liveliness tokens refused because their id is not an identifier (not listed among ``actors``)."""
     increments: int
     stale_increments: int
     store_size: int
@@ -88,6 +128,51 @@ class LearnerReport:
     seconds: float
     extra: dict[str, Any] = field(default_factory=dict)
     """Figures added by whoever ran the learner (``ennc-ql up``: run id, command, configuration, recording)."""
+
+    @classmethod
+    def of(
+        cls,
+        config: LearnerConfig,
+        status: LearnerStatus,
+        intake: IntakeFigures,
+        state: PolicyState,
+        members: Membership,
+        evaluator: Evaluator,
+        final: float | None,
+        policy_file: Path | None,
+        checkpoint: Path,
+    ) -> LearnerReport:
+        """The report of a run that ended with ``status`` (built from the same ``intake`` figures) and the final
+        figure ``final`` (None: no policy was learned)."""
+        disc = state.discretization
+        return cls(
+            learner_id=config.learner_id,
+            actors=members.seen(),
+            live_actors=members.live(),
+            tuples_received=status.tuples_received,
+            tuples_by_actor=intake.tuples_by_actor,
+            tuples_per_s=round(status.tuples_received / max(status.elapsed, 1e-9), 1),
+            policy_version=status.policy_version,
+            phase1_fits=status.fits,
+            prototypes_per_action=[] if disc is None else [int(s) for s in disc.sizes()],
+            duplicates=status.duplicates,
+            gaps=status.gaps,
+            rejected=status.rejected,
+            rejected_by_type=intake.rejected_by_type,
+            refused_tokens=members.refused,
+            increments=state.increments,
+            stale_increments=state.stale_increments,
+            store_size=status.store_size,
+            overwritten=status.overwritten,
+            policy_lag=state.lag(intake.latest_version),
+            final_coverage_mean=None if final is None else round(final, 3),
+            final_eval_trials=config.final_eval_trials,
+            eval_trials=config.eval_trials,
+            coverage_curve=[list(p) for p in evaluator.curve],
+            policy_file=None if policy_file is None else str(policy_file),
+            checkpoint=str(checkpoint),
+            seconds=round(status.elapsed, 2),
+        )
 
     def to_dict(self) -> dict[str, Any]:
         out = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "extra"}

@@ -43,6 +43,9 @@ Call sequence in a process::
   reads a file back (recording ids, entity paths, row counts).
 - **Replaying a test trial**: :func:`monitor.trial.record_trial` (imported from its module, as it brings in the
   simulator).
+- **Watchers** (imported from their modules): an actor's learning trial goes through
+  :class:`monitor.trial.TrialWatch`, the learner's figures through :class:`monitor.learner.LearnerWatch`, which does
+  nothing, not even the work of preparing a call, when the monitor is off.
 """
 
 from monitor import paths

@@ -103,7 +103,9 @@ def test_learner_killed_just_after_a_checkpoint_resumes_exactly(cluster: Cluster
 
 def test_a_poisoned_message_is_rejected_and_its_stream_flows_on(cluster: Cluster, tmp_path: Path) -> None:
     """A client written from docs/protocol.md alone (plain msgpack and zenoh, none of the project's protocol code)
-    sends seq 0, a batch with NaN rewards at seq 1, then seq 2, and reads the learner's Reject and Ack."""
+    sends seq 0, a batch with NaN rewards at seq 1 twice (a re-send), then seq 2, and reads the learner's Reject and
+    Ack; it also holds a liveliness token under an id that is not an identifier. One count per message: the
+    poisoned one rejected once and its copy a duplicate; the token refused and logged once, and never listed."""
     import msgpack
     import zenoh
 
@@ -140,7 +142,9 @@ def test_a_poisoned_message_is_rejected_and_its_stream_flows_on(cluster: Cluster
     conf.insert_json5("mode", '"peer"')
     conf.insert_json5("connect/endpoints", f'["{cluster.endpoint}"]')
     conf.insert_json5("scouting/multicast/enabled", "false")
+    log = tmp_path / "learner.log"
     with zenoh.open(conf) as session:
+        token = session.liveliness().declare_token(f"{prefix}/alive/actor/-not-an-id")
         subscribers = [
             session.declare_subscriber(f"{prefix}/{channel}/client-7", on_reply) for channel in ("ack", "reject")
         ]
@@ -148,13 +152,18 @@ def test_a_poisoned_message_is_rejected_and_its_stream_flows_on(cluster: Cluster
             f"{prefix}/experience/client-7", congestion_control=zenoh.CongestionControl.BLOCK
         )
         wait_for(lambda: publisher.matching_status.matching, 60, "the learner's subscription")
-        for seq in (0, 1, 2):
+        for seq in (0, 1, 1, 2):  # in order on one key: the copy of 1 is handled before 2 is stored
             publisher.put(batch(seq))
         wait_for(lambda: ("ack", 2) in replies and ("reject", 1) in replies, 60, "the Reject of 1 and the ack of 2")
+        wait_for(lambda: "-not-an-id" in log.read_text(), 60, "the learner to refuse the token")
         publisher.undeclare()
         for subscriber in subscribers:
             subscriber.undeclare()
+        token.undeclare()
     report = finish(learner, sig=signal.SIGTERM)
     assert [seq for tag, seq in replies if tag == "reject"] == [1]
     assert report["tuples_by_actor"]["client-7"] == 2 * n and report["gaps"] == 0
-    assert report["rejected_by_type"] == {"InvalidValues": 1}
+    assert report["rejected_by_type"] == {"InvalidValues": 1} and report["rejected"] == 1
+    assert report["duplicates"] == 1
+    assert report["refused_tokens"] == 1 and "-not-an-id" not in report["actors"]
+    assert sum("-not-an-id" in line for line in log.read_text().splitlines()) == 1

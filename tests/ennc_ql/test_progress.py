@@ -18,7 +18,8 @@ from tests.ennc_ql.test_reproduce import TINY
 
 
 def counters(**figures: float) -> dict[str, float]:
-    """The learner's status counters as a Status message carries them (learner.report.LearnerStatus)."""
+    """The learner's status counters as a Status message carries them (learner.report.LearnerStatus); ``coverage``
+    only once an evaluation ran."""
     base = {
         "tuples_received": 0.0,
         "store_size": 0.0,
@@ -30,7 +31,6 @@ def counters(**figures: float) -> dict[str, float]:
         "tuples_per_s": 0.0,
         "policy_lag_max": 0.0,
         "rejected": 0.0,
-        "coverage": -1.0,
         "fits": 0.0,
         "elapsed": 0.0,
     }

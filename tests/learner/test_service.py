@@ -177,7 +177,8 @@ def test_experience_of_the_wrong_dimension_is_rejected_and_counted(tmp_path: Pat
             handle.close()
     figures = service.intake.figures()
     assert figures.tuples_received == 3 and figures.store_size == 3
-    assert figures.rejected == 1 and sum(t.stats.rejected.values()) == 1
+    assert figures.rejected_by_type == {"StateDimension": 1, "MalformedMessage": 1} and figures.rejected == 2
+    assert sum(t.stats.rejected.values()) == 1  # the transport saw only the garbage
     assert figures.duplicates == 1
 
 
@@ -211,7 +212,7 @@ def test_refits_warm_start_and_carry_q_values_over(tmp_path: Path) -> None:
         stop = threading.Event()
         thread = threading.Thread(target=actor.run, args=(stop,))
         thread.start()
-        report = run_until(service, lambda: service.fits >= 2 and len(set(prototypes_seen)) >= 2)
+        report = run_until(service, lambda: service.fitter.fits >= 2 and len(set(prototypes_seen)) >= 2)
         stop.set()
         thread.join()
         for handle in reversed(handles):
@@ -276,10 +277,11 @@ def test_a_poisoned_message_is_rejected_by_its_seq_and_the_stream_flows_on(tmp_p
         handles = connect_learner(service, t)
         t.publish(t.keys.experience("a"), good[0])
         t.inject_raw(t.keys.experience("a"), poison)
-        t.inject_raw(t.keys.experience("a"), poison)  # re-sent before the Reject arrived: refused, rejected once
+        t.inject_raw(t.keys.experience("a"), poison)  # re-sent before the Reject arrived: a duplicate, no Reject
         t.inject_raw(t.keys.experience("a"), msgpack.packb(lie, use_bin_type=True))
         t.publish(t.keys.experience("a"), good[1])
         t.publish(t.keys.experience("a"), experience(seq=3, dim=2))  # wrong state dimension: rejected by seq too
+        t.publish(t.keys.experience("a"), experience(seq=3, dim=2))  # and its re-send a duplicate
         service.checkpoint()
         for handle in reversed(handles):
             handle.close()
@@ -289,4 +291,6 @@ def test_a_poisoned_message_is_rejected_by_its_seq_and_the_stream_flows_on(tmp_p
     assert [(a.actor_id, a.seq) for a in acks] == [("a", 3)]  # the cumulative ack steps over both
     figures = service.intake.figures()
     assert figures.tuples_received == 6 and figures.refused == 2 and figures.gaps == 0
-    assert service.rejected_by_type() == {"InvalidValues": 3}  # the lie too, but no Reject went to b for it
+    # One count per arrival: each refused message once, each re-send a duplicate; the lie is counted, but no Reject
+    # went to b for it.
+    assert figures.rejected_by_type == {"InvalidValues": 2, "StateDimension": 1} and figures.duplicates == 2

@@ -33,9 +33,9 @@ def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
         InMemoryTransport(InMemoryBus()) as transport,
     ):
         service = LearnerService(transport, CONFIG, run_dir, monitor=monitor)
-        service._monitor_references()
+        service.watch.started(CONFIG.featurizer, service.state.reward, service.evaluator.references)
         for actor in ACTORS:
-            service.on_actor_join(transport.keys.alive("actor", actor))
+            service.members.on_join(transport.keys.alive("actor", actor))
         service._publish_status()
     return path
 
