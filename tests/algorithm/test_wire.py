@@ -18,7 +18,7 @@ from algorithm.wire import (
     policy_update,
     transitions_from_batch,
 )
-from protocol import FEATURIZER_DIMS, N_ACTIONS, InvalidValues, decode_as, encode
+from protocol import FEATURIZER_DIMS, N_ACTIONS, Header, InvalidValues, decode_as, encode
 from protocol.messages import ExperienceBatch, PolicyUpdate, QTableIncrement
 from sim import COMPASS, FEATURIZERS, scenario
 from tests.algorithm.test_policy_file import make_policy
@@ -59,10 +59,10 @@ def test_a_shared_table_goes_out_as_every_robots_row() -> None:
     assert back.visits is not None and back.visits[5].sum() == 0
 
 
-def test_transitions_round_trip_in_batches_with_consecutive_seqs() -> None:
+def test_transitions_round_trip_in_batches_with_the_headers_they_are_given() -> None:
     data = transitions(2500)
-    batches = experience_batches(data, actor_id="a0", incarnation=9, first_seq=4, policy_version=3, batch_size=1000)
-    assert [b.seq for b in batches] == [4, 5, 6] and [len(b.reward) for b in batches] == [1000, 1000, 500]
+    batches = [build(Header("a0", 9, 4 + k, 3)) for k, build in enumerate(experience_batches(data, batch_size=1000))]
+    assert [b.seq for b in batches] == [4, 5, 6] and [b.n_tuples for b in batches] == [1000, 1000, 500]
     decoded = [transitions_from_batch(decode_as(encode(b), ExperienceBatch)) for b in batches]
     joined = Transitions.concat(decoded)
     for name in ("robot", "state", "action", "reward", "next_state", "done"):
@@ -73,17 +73,18 @@ def test_transitions_round_trip_in_batches_with_consecutive_seqs() -> None:
 def test_an_invalid_tuple_is_caught_in_the_actor_before_the_wire() -> None:
     data = transitions(10)
     data.reward[3] = np.nan
+    first, second = experience_batches(data, batch_size=8)
     with pytest.raises(InvalidValues, match="reward"):
-        experience_batches(data, actor_id="a0", incarnation=1, first_seq=0, policy_version=0, batch_size=8)
+        first(Header("a0", 1, 0, 0))
+    assert second(Header("a0", 1, 0, 0)).n_tuples == 2  # only the part holding the NaN is refused
 
 
 def test_increments_round_trip_and_saturate_visits() -> None:
     change = np.array([0.5, -1.25, 0.0], np.float64)
     visits = np.array([3, 2**40, 0], np.uint64)
     offsets = np.array([0, 1, 2, 3, 3, 3, 3, 3, 3], np.int64)
-    msg = increment_message(
-        actor_id="a0", incarnation=1, seq=2, policy_version=5, robot=4, change=change, visits=visits, offsets=offsets
-    )
+    msg = increment_message(Header("a0", 1, 2, 5), robot=4, change=change, visits=visits, offsets=offsets)
+    assert (msg.actor_id, msg.incarnation, msg.seq, msg.policy_version) == ("a0", 1, 2, 5)
     robot, back_change, back_visits = increment_arrays(decode_as(encode(msg), QTableIncrement))
     assert robot == 4
     np.testing.assert_array_equal(back_change, change)
