@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -92,6 +93,29 @@ def test_increments_round_trip_and_saturate_visits() -> None:
     tables, total = merge_increments(np.zeros((5, 3)), np.zeros((5, 3), np.uint64), [(robot, back_change, back_visits)])
     np.testing.assert_array_equal(tables[4], [0.5, -1.25, 0.0])
     assert total[4, 0] == 3
+
+
+def test_the_builders_write_the_pinned_wire_bytes() -> None:
+    golden = Path(__file__).parents[1] / "protocol" / "golden"
+    tuples = Transitions(
+        robot=np.array([0, 5], np.int16),
+        state=np.array([[0.5, -1.0], [2.0, 0.25]], np.float32),
+        action=np.array([1, 7], np.uint8),
+        reward=np.array([1.0, -0.5], np.float32),
+        next_state=np.array([[0.75, -1.0], [2.0, 0.0]], np.float32),
+        done=np.array([False, True]),
+    )
+    (build,) = experience_batches(tuples, batch_size=2)
+    batch = build(Header("actor-0", 0x0123456789ABCDEF, seq=7, policy_version=3))
+    assert encode(batch) == (golden / "experience.msgpack").read_bytes()
+    increment = increment_message(
+        Header("actor-0", 0x0123456789ABCDEF, seq=8, policy_version=3),
+        robot=5,
+        change=np.linspace(-1.0, 1.0, N_ACTIONS),
+        visits=np.arange(N_ACTIONS),
+        offsets=np.arange(N_ACTIONS + 1),
+    )
+    assert encode(increment) == (golden / "qinc.msgpack").read_bytes()
 
 
 def test_the_protocols_constants_are_the_simulators() -> None:
