@@ -10,9 +10,10 @@ transport)::
 
 Before the first policy arrives every robot explores randomly; afterwards the robots it learns act ε-greedily on
 their own tables (phase 2, option 2) and the others follow the broadcast policy greedily. Experience goes out in
-columnar batches stamped with the policy version, each with (incarnation, seq); Q-table increments carry the change
-of each learned table since the previous increment. Unacknowledged messages stay in a bounded outbox and are
-re-sent when the learner comes back or an ack is overdue; a full outbox slows the actor down instead of dropping.
+columnar batches of at most ``batch_size`` tuples; Q-table increments carry the change of each learned table since
+the previous increment. The outbox gives each message its header (actor id, incarnation, the stream's next seq, the
+policy version it was made under), keeps it until acknowledged and re-sends it when the learner comes back or an ack
+is overdue; a full outbox slows the actor down instead of dropping.
 """
 
 from __future__ import annotations
@@ -22,9 +23,8 @@ import secrets
 import threading
 import time
 import zlib
-from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from functools import partial
 
 import numpy as np
 
@@ -35,10 +35,10 @@ from actors.policy_client import PolicyClient
 from algorithm.agent import TabularAgent
 from algorithm.transitions import Transitions
 from algorithm.trials import ExperienceSlice, SliceConfig
-from algorithm.wire import experience_message, increment_message, status_counters
+from algorithm.wire import experience_batches, increment_message, status_counters
 from monitor import Monitor
 from monitor.trial import TrialWatch
-from protocol import ExperienceBatch, Message, ProtocolError, QTableIncrement, Status, Transport
+from protocol import ExperienceBatch, Message, QTableIncrement, Status, Transport
 from sim import scenario
 
 log = logging.getLogger(__name__)
@@ -85,7 +85,7 @@ class RobotActor:
         self.config = config
         self.monitor = monitor or Monitor()
         self.scenario = scenario(config.scenario)
-        self.learn = config.learned_robots()
+        self.learning_robots = config.learning_robots()
         self.incarnation = secrets.randbits(63)
         seed = np.random.SeedSequence([config.seed, zlib.crc32(config.actor_id.encode())])
         self.slice = ExperienceSlice(
@@ -94,26 +94,27 @@ class RobotActor:
                 n_arenas=config.arenas,
                 featurizer=config.featurizer,
                 reward=config.reward,
-                learning_robots=self.learn,
+                learning_robots=self.learning_robots,
             ),
             seed,
         )
         self.outbox = Outbox(
             transport,
+            config.actor_id,
             self.incarnation,
             config.outbox_limit,
             config.resend_after,
             probe_key=self.keys.experience(config.actor_id),
+            stopping=self._stopping,
             on_acked=self._count_acked,
         )
-        self.tracker = IncrementTracker(self.learn)
+        self.tracker = IncrementTracker(self.learning_robots)
         self.policy = PolicyClient(self.scenario.n_robots, config.phase2, self.tracker, config.featurizer)
         self.agent: TabularAgent | None = None
         self._tuples = self._batches = self._increments = self._trials = 0
         self._tuples_acked = self._visits_acked = 0
-        self._invalid = 0
-        self._stop = threading.Event()  # run's stop event: a full outbox stops waiting when it is set
-        self._deadline: float | None = None  # ... or when the run's duration is over
+        self._stop = threading.Event()  # run's stop event and the end of its duration: see _stopping
+        self._deadline: float | None = None
 
     def _count_acked(self, msg: Message) -> None:
         if isinstance(msg, ExperienceBatch):
@@ -135,7 +136,7 @@ class RobotActor:
             tuples_acked=self._tuples_acked,
             visits_acked=self._visits_acked,
             rejected=self.outbox.rejected,
-            invalid=self._invalid,
+            invalid=self.outbox.invalid,
             acked_seq=self.outbox.acked,
             policy_version=self.policy.version,
         )
@@ -152,11 +153,9 @@ class RobotActor:
             self.config.actor_id,
             self.incarnation,
             self.config.arenas,
-            self.learn,
+            self.learning_robots,
         )
-        while not stop.is_set():
-            if self.config.duration is not None and time.monotonic() - start >= self.config.duration:
-                break
+        while not self._stopping():
             self._adopt_policy()
             watch = self._watch_trial(start) if self.monitor.enabled else None
             batch = self.slice.run_trial(self.agent, learn=self.agent is not None, on_step=watch)
@@ -193,47 +192,24 @@ class RobotActor:
             self._send_increments(self.agent)  # hand in what was learned on the old tables, stamped with their version
         self.agent = self.policy.adopt(update, self.agent)
 
-    def _send(self, key: str, make: Callable[..., Message], **fields: Any) -> bool:
-        """Wait for room in the outbox, then send ``make(seq=…, actor_id=…, incarnation=…, policy_version=…,
-        **fields)``; False if nothing was sent (no seq used): stopping with a full outbox, or an invalid message.
+    def _stopping(self) -> bool:
+        """The run's stop event is set or its duration is over: the loop ends, and a full outbox stops waiting."""
+        return self._stop.is_set() or (self._deadline is not None and time.monotonic() >= self._deadline)
 
-        Room is made before each message, so the outbox never holds more than its limit. A message that fails its
-        own validation (our bug: NaN in a tuple) is dropped, counted and logged here, before the wire, without using
-        a sequence number (so it leaves no gap).
-        """
-        self.outbox.wait_for_room(self._stop, self._deadline)
-        if len(self.outbox) >= self.config.outbox_limit:
-            return False
-        try:
-            msg = make(
-                seq=self.outbox.next_seq,
-                actor_id=self.config.actor_id,
-                incarnation=self.incarnation,
-                policy_version=self.policy.version,
-                **fields,
-            )
-        except ProtocolError as exc:
-            self._invalid += 1
-            if self._invalid <= 10 or self._invalid % 1000 == 0:
-                log.error("actor %s dropped an invalid message (#%d): %s", self.config.actor_id, self._invalid, exc)
-            return False
-        self.outbox.send(key, msg, self.outbox.reserve())
-        return True
-
-    def _send_experience(self, batch: Transitions) -> None:
+    def _send_experience(self, tuples: Transitions) -> None:
         key = self.keys.experience(self.config.actor_id)
-        size = self.config.batch_size
-        for start in range(0, len(batch), size):
-            part = batch.take(np.arange(start, min(start + size, len(batch))))
-            if self._send(key, experience_message, transitions=part):
-                self._tuples += len(part)
+        for build in experience_batches(tuples, self.config.batch_size):
+            batch = self.outbox.add(key, build, policy_version=self.policy.version)
+            if batch is not None:
+                self._tuples += batch.n_tuples
                 self._batches += 1
 
     def _send_increments(self, agent: TabularAgent) -> None:
         key = self.keys.qinc(self.config.actor_id)
         offsets = agent.discretization.offsets
         for robot, change, visits in self.tracker.take(agent):
-            if self._send(key, increment_message, robot=robot, change=change, visits=visits, offsets=offsets):
+            build = partial(increment_message, robot=robot, change=change, visits=visits, offsets=offsets)
+            if self.outbox.add(key, build, policy_version=self.policy.version) is not None:
                 self._increments += 1
 
     def _publish_status(self) -> None:

@@ -108,5 +108,5 @@ class ActorConfig:
                 f"learn: robots {self.learn} do not all exist: the scenario has {n_robots} (0-{n_robots - 1})"
             )
 
-    def learned_robots(self) -> tuple[int, ...]:
+    def learning_robots(self) -> tuple[int, ...]:
         return self.learn if self.learn is not None else tuple(range(SCENARIOS[self.scenario].n_robots))

@@ -3,10 +3,10 @@ so none is lost when a broadcast overtakes it.
 
 Usage::
 
-    tracker = IncrementTracker(learn=(0, 1, 2))
+    tracker = IncrementTracker(robots=(0, 1, 2))  # the robots the actor learns
     tracker.reset(agent)                          # a new discretization: nothing of it handed in yet
     for robot, change, visits in tracker.take(agent):
-        send(increment_message(robot=robot, change=change, visits=visits, ...))
+        msg = increment_message(header, robot=robot, change=change, visits=visits, offsets=offsets)
     tracker.rebase(new_agent, old_agent)          # a broadcast over the same cells: keep what is not handed in
 """
 
@@ -18,8 +18,8 @@ from algorithm.agent import TabularAgent
 
 
 class IncrementTracker:
-    def __init__(self, learn: tuple[int, ...]) -> None:
-        self.learn = list(learn)
+    def __init__(self, robots: tuple[int, ...]) -> None:
+        self.robots = list(robots)
         self._tables = np.zeros(0)
         self._visits = np.zeros(0, np.uint64)
 
@@ -30,7 +30,7 @@ class IncrementTracker:
     def take(self, agent: TabularAgent) -> list[tuple[int, np.ndarray, np.ndarray]]:
         """(robot, change, visits) of every learned robot whose table was visited since the last ``take``."""
         out = []
-        for robot in self.learn:
+        for robot in self.robots:
             visits = agent.visits[robot] - self._visits[robot]
             if not visits.any():
                 continue
@@ -42,7 +42,7 @@ class IncrementTracker:
     def rebase(self, new: TabularAgent, old: TabularAgent) -> None:
         """Put the learning not yet handed in on top of the merged tables of ``new`` (the broadcast may not hold our
         newest increments yet: they are in flight, and come back in a later broadcast)."""
-        learned = self.learn
-        new.tables[learned] += old.tables[learned] - self._tables[learned]
-        new.visits[learned] = old.visits[learned]
-        self._tables[learned] = new.template.tables[learned]
+        robots = self.robots
+        new.tables[robots] += old.tables[robots] - self._tables[robots]
+        new.visits[robots] = old.visits[robots]
+        self._tables[robots] = new.template.tables[robots]

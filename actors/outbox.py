@@ -1,15 +1,18 @@
-"""The actor's outbox (Acme's ``Adder``): sequence numbers, unacknowledged messages, cumulative acks, re-sends,
-back-pressure and the final flush.
+"""The actor's outbox (Acme's ``Adder``): the stream's sequence numbers, unacknowledged messages, cumulative acks,
+re-sends, back-pressure and the final flush.
 
-Usage (``send``/``wait_for_room``/``flush`` from the actor's loop; ``on_ack``/``on_learner_join`` from transport
+Usage (``add``/``flush`` from the actor's loop; ``on_ack``/``on_reject``/``on_learner_join`` from transport
 threads)::
 
-    outbox = Outbox(transport, incarnation, limit=256, resend_after=10.0, probe_key=keys.experience("actor-0"))
-    seq = outbox.reserve()
-    outbox.send(key, message_with(seq), seq)  # published now, kept until acknowledged
-    outbox.wait_for_room(stop)              # re-sends what is overdue; blocks while `limit` messages are unacked
-    outbox.on_reject(reject)                # the learner refused a message for good: it is dropped, counted, logged
-    outbox.flush(timeout=10.0)              # on stopping: re-send and wait for the last acks
+    outbox = Outbox(transport, "actor-0", incarnation, limit=256, resend_after=10.0,
+                    probe_key=keys.experience("actor-0"), stopping=stop.is_set)
+    batch = outbox.add(key, build, policy_version=3)  # waits for room, re-sending what is due; builds
+                                                      # build(Header("actor-0", incarnation, <next seq>, 3)),
+                                                      # publishes it and keeps it until acknowledged
+    outbox.on_ack(ack)                                # every seq <= ack.seq leaves the outbox
+    outbox.on_reject(reject)                          # refused for good by the learner: dropped, counted, logged
+    outbox.on_learner_join(key)                       # a (re)started learner: everything is sent again
+    outbox.flush(timeout=10.0)                        # on stopping: re-send and wait for the last acks
 """
 
 from __future__ import annotations
@@ -20,10 +23,13 @@ import time
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TypeVar
 
-from protocol import Ack, Message, Reject, Transport
+from protocol import Ack, Header, Message, ProtocolError, Reject, Transport
 
 log = logging.getLogger(__name__)
+
+M = TypeVar("M", bound=Message)
 
 
 @dataclass(slots=True)
@@ -37,45 +43,60 @@ class Outbox:
     def __init__(
         self,
         transport: Transport,
+        actor_id: str,
         incarnation: int,
         limit: int,
         resend_after: float,
         probe_key: str,
+        stopping: Callable[[], bool],
         on_acked: Callable[[Message], None] | None = None,
     ) -> None:
         self.transport = transport
+        self.actor_id = actor_id
         self.incarnation = incarnation
         self.limit = limit
         self.resend_after = resend_after
         self.probe_key = probe_key
         """A key of ours the learner subscribes to: a re-send after a learner (re)joined waits until it is matched."""
+        self.stopping = stopping
+        """True once the actor stops (or its duration is over): ``add`` then stops waiting for room."""
         self.on_acked = on_acked
         """Called with each message as its acknowledgement arrives (on the transport's thread)."""
         self._cond = threading.Condition()
         self._pending: OrderedDict[int, _Pending] = OrderedDict()
         self._seq = 0
+        """The seq of the next message: every seq below it was sent, so the learner sees no gap."""
         self._acked = -1
         self._resend_all = False
         self.resent = 0
         self.waits = 0
         self.rejected = 0
         """Messages the learner rejected (and this outbox dropped)."""
+        self.invalid = 0
+        """Messages that failed their own validation while being built, dropped before the wire."""
 
-    @property
-    def next_seq(self) -> int:
-        """The sequence number the next ``reserve`` hands out."""
-        return self._seq
+    def add(self, key: str, build: Callable[[Header], M], *, policy_version: int) -> M | None:
+        """Send ``build(header)`` on ``key`` under the stream's next seq and keep it until it is acknowledged or
+        rejected; the message sent, or None when nothing was sent and no seq used.
 
-    def reserve(self, count: int = 1) -> int:
-        """The first of ``count`` consecutive sequence numbers for messages about to be sent."""
-        first = self._seq
-        self._seq += count
-        return first
-
-    def send(self, key: str, msg: Message, seq: int) -> None:
+        While ``limit`` messages are unacknowledged it waits for acks, re-sending what is due (back-pressure instead
+        of dropping), until ``stopping()``: then nothing is sent. A message that fails its own validation (our bug:
+        NaN in a tuple) is counted, logged and dropped here, before the wire, and its seq goes to the next message.
+        """
+        if not self._wait_for_room():
+            return None
+        try:
+            msg = build(Header(self.actor_id, self.incarnation, self._seq, policy_version))
+        except ProtocolError as exc:
+            self.invalid += 1
+            if self.invalid <= 10 or self.invalid % 1000 == 0:
+                log.error("actor %s dropped an invalid message (#%d): %s", self.actor_id, self.invalid, exc)
+            return None
         with self._cond:
-            self._pending[seq] = _Pending(key, msg, time.monotonic())
+            self._pending[self._seq] = _Pending(key, msg, time.monotonic())
+            self._seq += 1
         self.transport.publish(key, msg)
+        return msg
 
     def on_ack(self, ack: Ack) -> None:
         if ack.incarnation != self.incarnation:
@@ -108,15 +129,15 @@ class Outbox:
                 self._resend_all = True
                 log.info("learner %s joined: re-sending %d unacknowledged messages", key, len(self._pending))
 
-    def wait_for_room(self, stop: threading.Event, deadline: float | None = None) -> None:
-        """Re-send what is due, and wait while the outbox is full (slowing down instead of dropping), until ``stop``
-        is set or ``time.monotonic()`` passes ``deadline``."""
+    def _wait_for_room(self) -> bool:
+        """Re-send what is due and wait while the outbox is full; False if ``stopping()`` ended the wait first."""
         while True:
             self._resend_due()
             with self._cond:
-                over = deadline is not None and time.monotonic() >= deadline
-                if len(self._pending) < self.limit or stop.is_set() or over:
-                    return
+                if len(self._pending) < self.limit:
+                    return True
+                if self.stopping():
+                    return False
                 self.waits += 1
                 self._cond.wait(timeout=1.0)
 

@@ -4,14 +4,15 @@ The learner and the actors never build or unpack a message field by field themse
 
     update = policy_update(policy, scenario="cmommt-v1")                  # learner: Policy -> PolicyUpdate
     policy = policy_from_update(update, n_robots=10)                      # actor: PolicyUpdate -> Policy
-    batches = experience_batches(transitions, actor_id="actor-0", incarnation=7, first_seq=0,
-                                 policy_version=3, batch_size=16384)      # Transitions -> ExperienceBatch(es)
-    transitions = transitions_from_batch(batches[0])                      # learner: ExperienceBatch -> Transitions
-    msg = increment_message(actor_id="actor-0", incarnation=7, seq=5, policy_version=3, robot=2,
-                            change=change, visits=visits, offsets=disc.offsets)
-    robot, change, visits = increment_arrays(msg)                        # learner: QTableIncrement -> arrays
-    counters = status_counters(figures)                                  # a figures dataclass -> Status.counters
-    figures = figures_from_counters(LearnerStatus, counters)             # and back (readers such as `up`)
+    header = Header(actor_id="actor-0", incarnation=7, seq=5, policy_version=3)
+    batch = experience_message(header, transitions)                       # Transitions -> ExperienceBatch
+    for seq, build in enumerate(experience_batches(transitions, 16384)):  # ... in messages of <= 16384 tuples,
+        batch = build(Header("actor-0", 7, seq, 3))                       #     each given its header when sent
+    transitions = transitions_from_batch(batch)                           # learner: ExperienceBatch -> Transitions
+    msg = increment_message(header, robot=2, change=change, visits=visits, offsets=disc.offsets)
+    robot, change, visits = increment_arrays(msg)                         # learner: QTableIncrement -> arrays
+    counters = status_counters(figures)                                   # a figures dataclass -> Status.counters
+    figures = figures_from_counters(LearnerStatus, counters)              # and back (readers such as `up`)
 
 Imports only the message definitions (no transport, no zenoh, no torch).
 """
@@ -19,7 +20,8 @@ Imports only the message definitions (no transport, no zenoh, no torch).
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Callable, Iterator, Mapping
+from functools import partial
 from typing import Any, TypeVar
 
 import numpy as np
@@ -27,7 +29,7 @@ import numpy as np
 from algorithm.discretization import Discretization
 from algorithm.policy import Policy
 from algorithm.transitions import Transitions
-from protocol.messages import ExperienceBatch, PolicyUpdate, QTableIncrement
+from protocol.messages import ExperienceBatch, Header, PolicyUpdate, QTableIncrement
 
 _U32_MAX = np.iinfo(np.uint32).max
 F = TypeVar("F")
@@ -85,16 +87,14 @@ def policy_from_update(update: PolicyUpdate, n_robots: int, method: str = "") ->
     )
 
 
-def experience_message(
-    transitions: Transitions, *, actor_id: str, incarnation: int, seq: int, policy_version: int
-) -> ExperienceBatch:
+def experience_message(header: Header, transitions: Transitions) -> ExperienceBatch:
     """One experience message of ``transitions``. Building it validates it, so a tuple the learner would refuse
     (NaN, a wrong dtype) fails here, in the actor that made it, not on the wire."""
     return ExperienceBatch(
-        actor_id=actor_id,
-        incarnation=incarnation,
-        seq=seq,
-        policy_version=policy_version,
+        actor_id=header.actor_id,
+        incarnation=header.incarnation,
+        seq=header.seq,
+        policy_version=header.policy_version,
         robot=transitions.robot,
         state=transitions.state,
         action=transitions.action,
@@ -104,26 +104,16 @@ def experience_message(
     )
 
 
-def experience_batches(
-    transitions: Transitions,
-    *,
-    actor_id: str,
-    incarnation: int,
-    first_seq: int,
-    policy_version: int,
-    batch_size: int,
-) -> list[ExperienceBatch]:
-    """``transitions`` split into messages of at most ``batch_size`` tuples with seqs ``first_seq, first_seq+1, …``."""
-    return [
-        experience_message(
-            transitions.take(np.arange(start, min(start + batch_size, len(transitions)))),
-            actor_id=actor_id,
-            incarnation=incarnation,
-            seq=first_seq + k,
-            policy_version=policy_version,
-        )
-        for k, start in enumerate(range(0, len(transitions), batch_size))
-    ]
+def experience_batches(transitions: Transitions, batch_size: int) -> Iterator[Callable[[Header], ExperienceBatch]]:
+    """``transitions`` in order, in messages of at most ``batch_size`` tuples, each still to be given its header.
+
+    The header comes last because its seq is the sender's to assign, one message at a time: the actor's outbox
+    calls each with the next seq of its stream when it has room (``Outbox.add``); a benchmark calls them with the
+    seqs it counts. Each part is cut from ``transitions`` when the iteration reaches it.
+    """
+    for start in range(0, len(transitions), batch_size):
+        part = transitions.take(np.arange(start, min(start + batch_size, len(transitions))))
+        yield partial(experience_message, transitions=part)
 
 
 def transitions_from_batch(msg: ExperienceBatch) -> Transitions:
@@ -139,22 +129,15 @@ def transitions_from_batch(msg: ExperienceBatch) -> Transitions:
 
 
 def increment_message(
-    *,
-    actor_id: str,
-    incarnation: int,
-    seq: int,
-    policy_version: int,
-    robot: int,
-    change: np.ndarray,
-    visits: np.ndarray,
-    offsets: np.ndarray,
+    header: Header, *, robot: int, change: np.ndarray, visits: np.ndarray, offsets: np.ndarray
 ) -> QTableIncrement:
-    """The change (Σ P_a,) of one robot's table since the previous increment, with the visits behind it."""
+    """The change (Σ P_a,) of one robot's table since the previous increment, with the visits behind it, over the
+    discretization of ``header.policy_version``."""
     return QTableIncrement(
-        actor_id=actor_id,
-        incarnation=incarnation,
-        seq=seq,
-        policy_version=policy_version,
+        actor_id=header.actor_id,
+        incarnation=header.incarnation,
+        seq=header.seq,
+        policy_version=header.policy_version,
         robot=int(robot),
         q=np.asarray(change, np.float32),
         visits=_u32(np.asarray(visits)),

@@ -20,9 +20,10 @@ from algorithm.agent import Phase2Config, TabularAgent
 from algorithm.policy import Policy
 from algorithm.transitions import Transitions
 from algorithm.trials import ExperienceSlice, SliceConfig
-from algorithm.wire import experience_message
+from algorithm.wire import experience_batches
 from ennc_ql.progress import ProgressBar
 from monitor import Monitor, paths
+from protocol import Header
 from sim import HAND_MADE, N_ACTIONS, ScenarioConfig, reset, scenario, sense, step, trial_reward
 
 SIM_TARGETS = {"random": 10e6, "a_cmommt": 3e6}
@@ -349,9 +350,8 @@ def _actor_trials(
         start = time.perf_counter()
         batch = sl.run_trial(agent, learn=True)
         built = time.perf_counter()
-        for seq, first in enumerate(range(0, len(batch), batch_size)):
-            part = batch.take(np.arange(first, min(first + batch_size, len(batch))))
-            experience_message(part, actor_id="bench", incarnation=1, seq=seq, policy_version=1)
+        for seq, build in enumerate(experience_batches(batch, batch_size)):
+            build(Header(actor_id="bench", incarnation=1, seq=seq, policy_version=1))
         message_s += time.perf_counter() - built
         slice_s += built - start
         steps += arenas * cfg.n_robots * cfg.learning_steps

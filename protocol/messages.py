@@ -255,11 +255,30 @@ class _Validated:
         """Cross-field rules beyond shapes and ranges; the default has none."""
 
 
+@dataclass(frozen=True, slots=True)
+class Header:
+    """Where a message stands in an actor's stream: the four fields an ``ExperienceBatch`` and a ``QTableIncrement``
+    begin with. The actor's outbox makes one per message, with the stream's next seq, and the message is built
+    with it (``algorithm.wire``)::
+
+        header = Header(actor_id="actor-0", incarnation=0x1234, seq=5, policy_version=3)
+        batch = experience_message(header, transitions)
+
+    A header is never sent as such: on the wire its fields stay flat in the message's body (docs/protocol.md).
+    """
+
+    actor_id: str
+    incarnation: int
+    seq: int
+    policy_version: int
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class ExperienceBatch(_Validated):
     """N experience tuples ⟨robot, s, a, r, s′, done⟩ from one actor, columnar.
 
-    ``(actor_id, incarnation, seq)`` identifies the batch for de-duplication and acknowledgement.
+    ``(actor_id, incarnation, seq)`` identifies the batch for de-duplication and acknowledgement; the first four
+    fields are a :class:`Header`'s.
     """
 
     TAG: ClassVar[str] = "experience"
@@ -295,7 +314,8 @@ class ExperienceBatch(_Validated):
 
 @dataclass(frozen=True, slots=True, eq=False)
 class QTableIncrement(_Validated):
-    """One robot's Q-table delta over discretization ``policy_version``, sent by the actor hosting it.
+    """One robot's Q-table delta over discretization ``policy_version``, sent by the actor hosting it; the first four
+    fields are a :class:`Header`'s.
 
     The table is the concatenation over actions a = 0..L-1 of its P_a prototype cells:
     cells of action a are ``q[offsets[a]:offsets[a + 1]]``.

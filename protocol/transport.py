@@ -6,7 +6,7 @@ implementations. Call sequence of a learner and an actor::
     with ZenohTransport.open(conf) as t:          # or InMemoryTransport(bus)
         t.liveliness_token(t.keys.alive("learner", "learner-0"))
         t.liveliness_subscribe(t.keys.alive("actor"), on_join=..., on_leave=...)
-        t.subscribe(t.keys.experience(), ExperienceBatch, store.add)
+        t.subscribe(t.keys.experience(), ExperienceBatch, intake.on_experience)
         t.declare_queryable(t.keys.policy_latest(), lambda: current_policy)
         t.publish(t.keys.policy(), policy)         # broadcast a new version
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import threading
+import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -13,50 +15,116 @@ from algorithm.agent import Phase2Config, TabularAgent
 from algorithm.discretization import Discretization
 from algorithm.policy import Policy
 from algorithm.wire import policy_update
-from protocol import Ack, InMemoryBus, InMemoryTransport, Status
+from protocol import Ack, Header, InMemoryBus, InMemoryTransport, Reject, Status
 
 
-def status(seq: int) -> Status:
-    return Status(sender="a0", role="actor", wall_time=0.0, counters={"seq": float(seq)})
+def stamped(header: Header) -> Status:
+    """A small message carrying the header the outbox gave it."""
+    return Status(
+        sender=header.actor_id,
+        role="actor",
+        wall_time=0.0,
+        counters={"seq": float(header.seq), "policy_version": float(header.policy_version)},
+    )
 
 
-def test_cumulative_acks_drain_the_outbox_and_a_full_one_waits() -> None:
+def never() -> bool:
+    return False
+
+
+def wait_until(predicate: Callable[[], bool], timeout: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
+
+
+def test_the_outbox_numbers_what_it_sends_and_a_full_one_waits_for_a_cumulative_ack() -> None:
     bus = InMemoryBus()
     received: list[float] = []
     with InMemoryTransport(bus) as actor, InMemoryTransport(bus) as learner:
-        learner.subscribe(learner.keys.status("a0"), Status, lambda m: received.append(m.counters["seq"]))
-        outbox = Outbox(actor, incarnation=7, limit=3, resend_after=60.0, probe_key=actor.keys.status("a0"))
-        first = outbox.reserve(3)
-        for seq in range(first, first + 3):
-            outbox.send(actor.keys.status("a0"), status(seq), seq)
-        assert len(outbox) == 3 and received == [0.0, 1.0, 2.0]
+        key = actor.keys.status("a0")
+        learner.subscribe(key, Status, lambda m: received.append(m.counters["seq"]))
+        outbox = Outbox(actor, "a0", incarnation=7, limit=3, resend_after=60.0, probe_key=key, stopping=never)
+        sent = [outbox.add(key, stamped, policy_version=2) for _ in range(3)]
+        assert [m.counters["seq"] for m in sent if m is not None] == [0.0, 1.0, 2.0] == received
+        assert {m.counters["policy_version"] for m in sent if m is not None} == {2.0}
         outbox.on_ack(Ack(actor_id="a0", incarnation=6, seq=2))  # another incarnation's ack changes nothing
         assert len(outbox) == 3 and outbox.acked == -1
-        # Full: wait_for_room blocks until an ack makes room.
-        done = threading.Event()
-        waiter = threading.Thread(target=lambda: (outbox.wait_for_room(threading.Event()), done.set()))
+        # Full: the next add waits (sending nothing) until an ack makes room, then goes out under the next seq.
+        added: list[Status | None] = []
+        waiter = threading.Thread(target=lambda: added.append(outbox.add(key, stamped, policy_version=3)))
         waiter.start()
-        assert not done.wait(0.3)
+        assert wait_until(lambda: outbox.waits >= 1)
+        assert received == [0.0, 1.0, 2.0] and not added
         outbox.on_ack(Ack(actor_id="a0", incarnation=7, seq=1))
-        assert done.wait(10.0)
-        waiter.join()
-        assert len(outbox) == 1 and outbox.acked == 1 and outbox.waits >= 1
-        assert outbox.reserve() == 3  # sequence numbers go on after the reserved block
+        waiter.join(10.0)
+        assert received == [0.0, 1.0, 2.0, 3.0] and added[0] is not None and added[0].counters["seq"] == 3.0
+        assert len(outbox) == 2 and outbox.acked == 1
+
+
+def test_stopping_with_a_full_outbox_sends_nothing_and_uses_no_seq() -> None:
+    stop = threading.Event()
+    received: list[float] = []
+    with InMemoryTransport(InMemoryBus()) as actor:
+        key = actor.keys.status("a0")
+        actor.subscribe(key, Status, lambda m: received.append(m.counters["seq"]))
+        outbox = Outbox(actor, "a0", incarnation=1, limit=1, resend_after=60.0, probe_key=key, stopping=stop.is_set)
+        outbox.add(key, stamped, policy_version=0)
+        stop.set()
+        assert outbox.add(key, stamped, policy_version=0) is None and received == [0.0]
+        stop.clear()
+        outbox.on_ack(Ack(actor_id="a0", incarnation=1, seq=0))
+        outbox.add(key, stamped, policy_version=0)
+        assert received == [0.0, 1.0]  # no gap: the refused add used no seq
+
+
+def test_an_invalid_message_is_dropped_before_the_wire_and_its_seq_goes_to_the_next() -> None:
+    def invalid(header: Header) -> Status:
+        return Status(sender=header.actor_id, role="actor", wall_time=float("nan"), counters={})
+
+    received: list[float] = []
+    with InMemoryTransport(InMemoryBus()) as actor:
+        key = actor.keys.status("a0")
+        actor.subscribe(key, Status, lambda m: received.append(m.counters["seq"]))
+        outbox = Outbox(actor, "a0", incarnation=1, limit=4, resend_after=60.0, probe_key=key, stopping=never)
+        assert outbox.add(key, invalid, policy_version=0) is None
+        outbox.add(key, stamped, policy_version=0)
+        assert received == [0.0] and outbox.invalid == 1 and len(outbox) == 1
+
+
+def test_an_overdue_message_is_sent_again_before_the_next_one() -> None:
+    received: list[float] = []
+    with InMemoryTransport(InMemoryBus()) as actor:
+        key = actor.keys.status("a0")
+        actor.subscribe(key, Status, lambda m: received.append(m.counters["seq"]))
+        # resend_after 0: every unacknowledged message is overdue by the time the next one is added.
+        outbox = Outbox(actor, "a0", incarnation=1, limit=4, resend_after=0.0, probe_key=key, stopping=never)
+        outbox.add(key, stamped, policy_version=0)
+        outbox.add(key, stamped, policy_version=0)
+        assert received == [0.0, 0.0, 1.0] and outbox.resent == 1
 
 
 def test_a_rejoining_learner_gets_the_whole_outbox_again_and_flush_ends_on_the_last_ack() -> None:
     bus = InMemoryBus()
     received: list[float] = []
     with InMemoryTransport(bus) as actor, InMemoryTransport(bus) as learner:
-        outbox = Outbox(actor, incarnation=1, limit=10, resend_after=60.0, probe_key=actor.keys.status("a0"))
-        for seq in range(outbox.reserve(2), 2):
-            outbox.send(actor.keys.status("a0"), status(seq), seq)  # nobody listens yet: both are lost
-        learner.subscribe(learner.keys.status("a0"), Status, lambda m: received.append(m.counters["seq"]))
+        key = actor.keys.status("a0")
+        outbox = Outbox(actor, "a0", incarnation=1, limit=10, resend_after=60.0, probe_key=key, stopping=never)
+        for _ in range(2):
+            outbox.add(key, stamped, policy_version=0)  # nobody listens yet: both are lost
+
+        def learner_receives(msg: Status) -> None:
+            received.append(msg.counters["seq"])
+            outbox.on_ack(Ack(actor_id="a0", incarnation=1, seq=int(msg.counters["seq"])))
+
+        learner.subscribe(key, Status, learner_receives)
         outbox.on_learner_join("alive/learner/l0")
-        outbox.wait_for_room(threading.Event())  # re-sends everything once the learner's subscription is matched
-        assert received == [0.0, 1.0] and outbox.resent == 2
-        outbox.on_ack(Ack(actor_id="a0", incarnation=1, seq=1))
-        assert outbox.flush(timeout=5.0) == 0
+        # flush re-sends everything once the learner's subscription is matched, and returns on the last ack.
+        assert outbox.flush(timeout=10.0) == 0
+        assert received == [0.0, 1.0] and outbox.resent == 2 and outbox.acked == 1
 
 
 def one_cell_policy(version: int, q: float) -> Policy:
@@ -71,7 +139,7 @@ def one_cell_policy(version: int, q: float) -> Policy:
 
 
 def test_policy_client_keeps_the_newest_and_the_learning_not_handed_in() -> None:
-    tracker = IncrementTracker(learn=(0, 1))
+    tracker = IncrementTracker(robots=(0, 1))
     client = PolicyClient(n_robots=3, phase2=Phase2Config(), tracker=tracker, featurizer="local2d")
     client.offer(policy_update(one_cell_policy(2, 0.0), "cmommt-v1"))
     client.offer(policy_update(one_cell_policy(1, 9.0), "cmommt-v1"))  # older: ignored
@@ -97,7 +165,7 @@ def test_policy_client_keeps_the_newest_and_the_learning_not_handed_in() -> None
 
 def test_policy_client_refuses_a_broadcast_over_another_state_and_counts_it() -> None:
     client = PolicyClient(
-        n_robots=3, phase2=Phase2Config(), tracker=IncrementTracker(learn=(0,)), featurizer="collab6d"
+        n_robots=3, phase2=Phase2Config(), tracker=IncrementTracker(robots=(0,)), featurizer="collab6d"
     )
     client.offer(policy_update(one_cell_policy(2, 0.0), "cmommt-v1"))  # a local2d policy: 2-D prototypes
     client.offer(policy_update(one_cell_policy(3, 0.0), "cmommt-v1"))
@@ -105,44 +173,46 @@ def test_policy_client_refuses_a_broadcast_over_another_state_and_counts_it() ->
 
 
 def test_a_rejected_message_leaves_the_outbox_and_the_rest_flows_on() -> None:
-    from protocol import Reject
-
+    received: list[float] = []
     with InMemoryTransport(InMemoryBus()) as actor:
-        outbox = Outbox(actor, incarnation=3, limit=2, resend_after=60.0, probe_key=actor.keys.status("a0"))
-        for seq in range(outbox.reserve(2), 2):
-            outbox.send(actor.keys.status("a0"), status(seq), seq)
+        key = actor.keys.status("a0")
+        actor.subscribe(key, Status, lambda m: received.append(m.counters["seq"]))
+        outbox = Outbox(actor, "a0", incarnation=3, limit=2, resend_after=60.0, probe_key=key, stopping=never)
+        for _ in range(2):
+            outbox.add(key, stamped, policy_version=0)
         outbox.on_reject(Reject(actor_id="a0", incarnation=2, seq=0, reason="another incarnation"))
         assert len(outbox) == 2
         outbox.on_reject(Reject(actor_id="a0", incarnation=3, seq=0, reason="InvalidValues: reward"))
         assert len(outbox) == 1 and outbox.rejected == 1
-        outbox.wait_for_room(threading.Event())  # room again: the rejected message no longer holds a place
-        outbox.on_ack(Ack(actor_id="a0", incarnation=3, seq=1))
-        assert len(outbox) == 0
+        outbox.add(key, stamped, policy_version=0)  # room again: the rejected message no longer holds a place
+        outbox.on_ack(Ack(actor_id="a0", incarnation=3, seq=2))
+        assert received == [0.0, 1.0, 2.0] and len(outbox) == 0 and outbox.resent == 0
 
 
-def test_an_actor_drops_its_own_invalid_message_before_the_wire_without_using_a_seq() -> None:
+def test_an_actor_sends_a_trial_in_batches_and_drops_an_invalid_one_without_using_a_seq() -> None:
     from actors.actor import RobotActor
     from actors.config import ActorConfig
     from algorithm.transitions import Transitions
     from protocol import ExperienceBatch
 
-    def tuples(reward: float) -> Transitions:
-        return Transitions(
-            robot=np.zeros(2, np.int16),
-            state=np.zeros((2, 6), np.float32),
-            action=np.zeros(2, np.uint8),
-            reward=np.full(2, reward, np.float32),
-            next_state=np.zeros((2, 6), np.float32),
-            done=np.zeros(2, bool),
-        )
-
+    reward = np.arange(5, dtype=np.float32)
+    reward[2] = np.nan  # in the second batch of two
+    tuples = Transitions(
+        robot=np.zeros(5, np.int16),
+        state=np.zeros((5, 6), np.float32),
+        action=np.zeros(5, np.uint8),
+        reward=reward,
+        next_state=np.zeros((5, 6), np.float32),
+        done=np.zeros(5, bool),
+    )
     bus = InMemoryBus()
-    seen: list[int] = []
+    seen: list[ExperienceBatch] = []
     with InMemoryTransport(bus) as transport, InMemoryTransport(bus) as learner:
-        learner.subscribe(learner.keys.experience(), ExperienceBatch, lambda m: seen.append(m.seq))
-        actor = RobotActor(transport, ActorConfig(actor_id="a0", arenas=1))
-        actor._send_experience(tuples(np.nan))
-        actor._send_experience(tuples(0.0))
+        learner.subscribe(learner.keys.experience(), ExperienceBatch, seen.append)
+        actor = RobotActor(transport, ActorConfig(actor_id="a0", arenas=1, batch_size=2))
+        actor._send_experience(tuples)
     status = actor.status()
-    assert seen == [0]  # the valid batch took seq 0: no gap for the learner
-    assert status.invalid == 1 and status.tuples_sent == 2 and status.batches_sent == 1
+    # Tuples 0-1 and 4 went out as seqs 0 and 1: no gap for the learner where the invalid batch was dropped.
+    assert [(m.seq, m.reward.tolist()) for m in seen] == [(0, [0.0, 1.0]), (1, [4.0])]
+    assert {(m.actor_id, m.incarnation, m.policy_version) for m in seen} == {("a0", actor.incarnation, 0)}
+    assert status.invalid == 1 and status.tuples_sent == 3 and status.batches_sent == 2 and status.outbox == 2

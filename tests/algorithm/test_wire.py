@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,7 +19,7 @@ from algorithm.wire import (
     policy_update,
     transitions_from_batch,
 )
-from protocol import FEATURIZER_DIMS, N_ACTIONS, InvalidValues, decode_as, encode
+from protocol import FEATURIZER_DIMS, N_ACTIONS, Header, InvalidValues, decode_as, encode
 from protocol.messages import ExperienceBatch, PolicyUpdate, QTableIncrement
 from sim import COMPASS, FEATURIZERS, scenario
 from tests.algorithm.test_policy_file import make_policy
@@ -59,10 +60,10 @@ def test_a_shared_table_goes_out_as_every_robots_row() -> None:
     assert back.visits is not None and back.visits[5].sum() == 0
 
 
-def test_transitions_round_trip_in_batches_with_consecutive_seqs() -> None:
+def test_transitions_round_trip_in_batches_with_the_headers_they_are_given() -> None:
     data = transitions(2500)
-    batches = experience_batches(data, actor_id="a0", incarnation=9, first_seq=4, policy_version=3, batch_size=1000)
-    assert [b.seq for b in batches] == [4, 5, 6] and [len(b.reward) for b in batches] == [1000, 1000, 500]
+    batches = [build(Header("a0", 9, 4 + k, 3)) for k, build in enumerate(experience_batches(data, batch_size=1000))]
+    assert [b.seq for b in batches] == [4, 5, 6] and [b.n_tuples for b in batches] == [1000, 1000, 500]
     decoded = [transitions_from_batch(decode_as(encode(b), ExperienceBatch)) for b in batches]
     joined = Transitions.concat(decoded)
     for name in ("robot", "state", "action", "reward", "next_state", "done"):
@@ -73,17 +74,18 @@ def test_transitions_round_trip_in_batches_with_consecutive_seqs() -> None:
 def test_an_invalid_tuple_is_caught_in_the_actor_before_the_wire() -> None:
     data = transitions(10)
     data.reward[3] = np.nan
+    first, second = experience_batches(data, batch_size=8)
     with pytest.raises(InvalidValues, match="reward"):
-        experience_batches(data, actor_id="a0", incarnation=1, first_seq=0, policy_version=0, batch_size=8)
+        first(Header("a0", 1, 0, 0))
+    assert second(Header("a0", 1, 0, 0)).n_tuples == 2  # only the part holding the NaN is refused
 
 
 def test_increments_round_trip_and_saturate_visits() -> None:
     change = np.array([0.5, -1.25, 0.0], np.float64)
     visits = np.array([3, 2**40, 0], np.uint64)
     offsets = np.array([0, 1, 2, 3, 3, 3, 3, 3, 3], np.int64)
-    msg = increment_message(
-        actor_id="a0", incarnation=1, seq=2, policy_version=5, robot=4, change=change, visits=visits, offsets=offsets
-    )
+    msg = increment_message(Header("a0", 1, 2, 5), robot=4, change=change, visits=visits, offsets=offsets)
+    assert (msg.actor_id, msg.incarnation, msg.seq, msg.policy_version) == ("a0", 1, 2, 5)
     robot, back_change, back_visits = increment_arrays(decode_as(encode(msg), QTableIncrement))
     assert robot == 4
     np.testing.assert_array_equal(back_change, change)
@@ -91,6 +93,29 @@ def test_increments_round_trip_and_saturate_visits() -> None:
     tables, total = merge_increments(np.zeros((5, 3)), np.zeros((5, 3), np.uint64), [(robot, back_change, back_visits)])
     np.testing.assert_array_equal(tables[4], [0.5, -1.25, 0.0])
     assert total[4, 0] == 3
+
+
+def test_the_builders_write_the_pinned_wire_bytes() -> None:
+    golden = Path(__file__).parents[1] / "protocol" / "golden"
+    tuples = Transitions(
+        robot=np.array([0, 5], np.int16),
+        state=np.array([[0.5, -1.0], [2.0, 0.25]], np.float32),
+        action=np.array([1, 7], np.uint8),
+        reward=np.array([1.0, -0.5], np.float32),
+        next_state=np.array([[0.75, -1.0], [2.0, 0.0]], np.float32),
+        done=np.array([False, True]),
+    )
+    (build,) = experience_batches(tuples, batch_size=2)
+    batch = build(Header("actor-0", 0x0123456789ABCDEF, seq=7, policy_version=3))
+    assert encode(batch) == (golden / "experience.msgpack").read_bytes()
+    increment = increment_message(
+        Header("actor-0", 0x0123456789ABCDEF, seq=8, policy_version=3),
+        robot=5,
+        change=np.linspace(-1.0, 1.0, N_ACTIONS),
+        visits=np.arange(N_ACTIONS),
+        offsets=np.arange(N_ACTIONS + 1),
+    )
+    assert encode(increment) == (golden / "qinc.msgpack").read_bytes()
 
 
 def test_the_protocols_constants_are_the_simulators() -> None:
