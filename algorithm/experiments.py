@@ -54,6 +54,9 @@ class MethodSpec:
     target."""
     shared_table: bool = False
     """Every robot learns (as in option 2) into ONE table that every robot uses [beyond the paper]."""
+    phase2_reward: str | None = None
+    """Reward of phase 2's learners when it differs from the one phase 1's discretization is fitted on
+    (:data:`sim.features.REWARDS`); None: ``reward`` [beyond the paper]."""
 
 
 METHODS: dict[str, MethodSpec] = {
@@ -176,7 +179,7 @@ def train(
     rows = spec.learning_robots if spec.per_robot_tables and not spec.shared_table else 1
     template = Policy(
         featurizer=spec.featurizer,
-        reward=resolve_reward(spec.featurizer, spec.reward),
+        reward=resolve_reward(spec.featurizer, spec.phase2_reward or spec.reward),
         discretization=disc,
         tables=np.tile(disc.labels, (rows, 1)),
         robot_table=np.arange(spec.learning_robots) % rows,
@@ -192,7 +195,7 @@ def train(
         SliceConfig(
             n_arenas=budget.arenas,
             featurizer=spec.featurizer,
-            reward=spec.reward,
+            reward=spec.phase2_reward or spec.reward,
             actions=spec.actions,
             learning_robots=learners,
             action_mode=action_mode,

@@ -50,6 +50,11 @@ class Phase1Config:
     """How q values are binned when there are too many: equal-count or equal-width bins [choice]."""
     max_patterns: int | None = None
     """Fit each action's ENNC on at most this many tuples (a uniform sample); None = all [choice]."""
+    smooth_k: int = 0
+    """0: ENNC fits each tuple's own target q [paper]. k > 0: it fits the mean target of the tuple's k nearest
+    tuples of the same action (standardized states), an estimate of Q(s, a) = E[q | s, a]: the targets of a
+    per-step reward are noisy, and ENNC, which keeps a prototype only where its class is pure, shrinks to a few
+    prototypes on noisy classes [beyond the paper]."""
     device: str = "cpu"
     """torch device of the ENNC operators."""
     standardize: bool = True
@@ -106,6 +111,15 @@ def _constant(states: np.ndarray, n_actions: int, scale: np.ndarray | None) -> D
     """Q̂^(0): one prototype per action, labelled 0 [paper]."""
     centre = states.mean(axis=0, keepdims=True)
     return Discretization.from_per_action([centre] * n_actions, scale=scale)
+
+
+def _smoothed(states: np.ndarray, q: np.ndarray, k: int) -> np.ndarray:
+    """(N,) mean of ``q`` over each state's ``k`` nearest states (itself included)."""
+    from scipy.spatial import cKDTree
+
+    k = min(k, len(q))
+    _, nearest = cKDTree(states).query(states, k=k)
+    return q[nearest.reshape(len(q), k)].mean(axis=1)
 
 
 def standard_scale(states: np.ndarray) -> np.ndarray:
@@ -182,7 +196,8 @@ def phase1(
                 random_state=int(rng.integers(2**31)),
                 device=config.device,
             )
-            classes = to_classes(q[rows], config)
+            target = q[rows] if config.smooth_k <= 0 else _smoothed(states[rows] / unit, q[rows], config.smooth_k)
+            classes = to_classes(target, config)
             # ENNC refuses continuous targets, so it fits on class indices, numbered in the order of the Q values
             # so that its ties (first class wins) still fall on the lowest Q value.
             if warm_start is not None and it == 1 and values is not None:
