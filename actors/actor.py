@@ -57,7 +57,7 @@ class ActorStatus:
     """Learning trials run (each in every arena)."""
     policies_applied: int = 0
     policies_refused: int = 0
-    """Broadcasts over another featurizer than this actor's (a misconfigured run), ignored."""
+    """Broadcasts over another formulation than this actor's (a misconfigured run), ignored."""
     outbox_waits: int = 0
     """Times the actor waited for acks because its outbox was full."""
     outbox: int = 0
@@ -92,8 +92,8 @@ class RobotActor:
             self.scenario,
             SliceConfig(
                 n_arenas=config.arenas,
-                featurizer=config.featurizer,
-                reward=config.reward,
+                featurizer=config.resolved.featurizer,
+                reward=config.resolved.reward,
                 learning_robots=self.learn,
             ),
             seed,
@@ -107,7 +107,7 @@ class RobotActor:
             on_acked=self._count_acked,
         )
         self.tracker = IncrementTracker(self.learn)
-        self.policy = PolicyClient(self.scenario.n_robots, config.phase2, self.tracker, config.featurizer)
+        self.policy = PolicyClient(self.scenario.n_robots, config.phase2, self.tracker, config.resolved)
         self.agent: TabularAgent | None = None
         self._tuples = self._batches = self._increments = self._trials = 0
         self._tuples_acked = self._visits_acked = 0
@@ -225,7 +225,7 @@ class RobotActor:
         size = self.config.batch_size
         for start in range(0, len(batch), size):
             part = batch.take(np.arange(start, min(start + size, len(batch))))
-            if self._send(key, experience_message, transitions=part):
+            if self._send(key, experience_message, transitions=part, formulation=self.config.resolved):
                 self._tuples += len(part)
                 self._batches += 1
 

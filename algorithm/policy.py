@@ -17,6 +17,7 @@ import numpy as np
 from algorithm.discretization import Discretization
 from algorithm.qtable import greedy
 from sim import FEATURIZERS, ScenarioConfig
+from sim.actions import ACTION_SETS
 from sim.controllers import compass_velocity, wander
 from sim.features import REWARDS, featurize, lost
 from sim.world import Observation, WorldState
@@ -57,12 +58,16 @@ class Policy:
     reward: str = "eq2"
     """The reward function it was learned with, a name of :data:`sim.features.REWARDS` (provenance: acting does
     not read it)."""
+    actions: str = "compass"
+    """The action set its action indices mean, a name of :data:`sim.actions.ACTION_SETS`."""
 
     def __post_init__(self) -> None:
         if self.featurizer not in FEATURIZERS:
             raise ValueError(f"unknown featurizer {self.featurizer!r}")
         if self.reward not in REWARDS:
             raise ValueError(f"unknown reward {self.reward!r}; known: {', '.join(REWARDS)}")
+        if self.actions not in ACTION_SETS:
+            raise ValueError(f"unknown action set {self.actions!r}; known: {', '.join(ACTION_SETS)}")
         if FEATURIZERS[self.featurizer] != self.discretization.dim:
             raise ValueError("featurizer dimension and discretization dimension differ")
         if self.tables.ndim != 2 or self.tables.shape[1] != self.discretization.size:

@@ -4,8 +4,8 @@ The learner and the actors never build or unpack a message field by field themse
 
     update = policy_update(policy, scenario="cmommt-v1")                  # learner: Policy -> PolicyUpdate
     policy = policy_from_update(update, n_robots=10)                      # actor: PolicyUpdate -> Policy
-    batches = experience_batches(transitions, actor_id="actor-0", incarnation=7, first_seq=0,
-                                 policy_version=3, batch_size=16384)      # Transitions -> ExperienceBatch(es)
+    batches = experience_batches(transitions, actor_id="actor-0", incarnation=7, first_seq=0, policy_version=3,
+                                 formulation=formulation, batch_size=16384)  # Transitions -> ExperienceBatch(es)
     transitions = transitions_from_batch(batches[0])                      # learner: ExperienceBatch -> Transitions
     msg = increment_message(actor_id="actor-0", incarnation=7, seq=5, policy_version=3, robot=2,
                             change=change, visits=visits, offsets=disc.offsets)
@@ -28,6 +28,7 @@ from algorithm.discretization import Discretization
 from algorithm.policy import Policy
 from algorithm.transitions import Transitions
 from protocol.messages import ExperienceBatch, PolicyUpdate, QTableIncrement
+from sim.features import Formulation
 
 _U32_MAX = np.iinfo(np.uint32).max
 F = TypeVar("F")
@@ -47,6 +48,8 @@ def policy_update(policy: Policy, scenario: str) -> PolicyUpdate:
         version=policy.version,
         scenario=scenario,
         featurizer=policy.featurizer,
+        reward_function=policy.reward,
+        action_set=policy.actions,
         action_steps=policy.action_steps,
         prototypes=disc.prototypes.astype(np.float32),
         labels=disc.labels.astype(np.float32),
@@ -82,19 +85,30 @@ def policy_from_update(update: PolicyUpdate, n_robots: int, method: str = "") ->
         visits=visits,
         version=int(update.version),
         method=method,
+        reward=update.reward_function,
+        actions=update.action_set,
     )
 
 
 def experience_message(
-    transitions: Transitions, *, actor_id: str, incarnation: int, seq: int, policy_version: int
+    transitions: Transitions,
+    *,
+    actor_id: str,
+    incarnation: int,
+    seq: int,
+    policy_version: int,
+    formulation: Formulation,
 ) -> ExperienceBatch:
-    """One experience message of ``transitions``. Building it validates it, so a tuple the learner would refuse
-    (NaN, a wrong dtype) fails here, in the actor that made it, not on the wire."""
+    """One experience message of ``transitions``, made under ``formulation``. Building it validates it, so a tuple
+    the learner would refuse (NaN, a wrong dtype) fails here, in the actor that made it, not on the wire."""
     return ExperienceBatch(
         actor_id=actor_id,
         incarnation=incarnation,
         seq=seq,
         policy_version=policy_version,
+        featurizer=formulation.featurizer,
+        reward_function=formulation.reward,
+        action_set=formulation.actions,
         robot=transitions.robot,
         state=transitions.state,
         action=transitions.action,
@@ -111,6 +125,7 @@ def experience_batches(
     incarnation: int,
     first_seq: int,
     policy_version: int,
+    formulation: Formulation,
     batch_size: int,
 ) -> list[ExperienceBatch]:
     """``transitions`` split into messages of at most ``batch_size`` tuples with seqs ``first_seq, first_seq+1, …``."""
@@ -121,6 +136,7 @@ def experience_batches(
             incarnation=incarnation,
             seq=first_seq + k,
             policy_version=policy_version,
+            formulation=formulation,
         )
         for k, start in enumerate(range(0, len(transitions), batch_size))
     ]

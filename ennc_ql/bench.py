@@ -24,6 +24,7 @@ from algorithm.wire import experience_message
 from ennc_ql.progress import ProgressBar
 from monitor import Monitor, paths
 from sim import HAND_MADE, N_ACTIONS, ScenarioConfig, reset, scenario, sense, step, trial_reward
+from sim.features import FORMULATIONS
 
 SIM_TARGETS = {"random": 10e6, "a_cmommt": 3e6}
 """Robot-steps per second the simulator must reach on the 2-core reference machine (issue 2)."""
@@ -351,7 +352,9 @@ def _actor_trials(
         built = time.perf_counter()
         for seq, first in enumerate(range(0, len(batch), batch_size)):
             part = batch.take(np.arange(first, min(first + batch_size, len(batch))))
-            experience_message(part, actor_id="bench", incarnation=1, seq=seq, policy_version=1)
+            experience_message(
+                part, actor_id="bench", incarnation=1, seq=seq, policy_version=1, formulation=FORMULATIONS["paper"]
+            )
         message_s += time.perf_counter() - built
         slice_s += built - start
         steps += arenas * cfg.n_robots * cfg.learning_steps

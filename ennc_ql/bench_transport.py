@@ -51,11 +51,13 @@ from ennc_ql.secure import SecureSet, write_secure_set
 from ennc_ql.system import free_port
 from protocol import DEFAULT_KEYS, N_ACTIONS, ExperienceBatch, ZenohTransport, encode, zenoh_config
 from protocol.security import ROUTER
+from sim.features import FEATURIZERS, FORMULATIONS
 
 log = logging.getLogger(__name__)
 
-DIM = 6
-"""State dimension of collab6d, the featurizer the learner trains on."""
+FORMULATION = FORMULATIONS["paper"]
+"""What the batches are stamped with and the receiver stores: collab6d (d = 6), as in every figure measured so far."""
+DIM = FEATURIZERS[FORMULATION.featurizer]
 RAW_KEY = "enncql-bench/raw"
 """Outside the protocol's key space: the raw payloads are not messages."""
 STORE_CAPACITY = 1 << 20
@@ -73,6 +75,9 @@ def template_batch(actor_id: str, incarnation: int, batch_size: int, seed: int =
         incarnation=incarnation,
         seq=0,
         policy_version=0,
+        featurizer=FORMULATION.featurizer,
+        reward_function=FORMULATION.reward,
+        action_set=FORMULATION.actions,
         robot=rng.integers(0, 10, batch_size, dtype=np.int16),
         state=rng.random((batch_size, DIM), dtype=np.float32),
         action=rng.integers(0, N_ACTIONS, batch_size, dtype=np.uint8),
@@ -103,6 +108,9 @@ def _publish_protocol(transport: ZenohTransport, template: ExperienceBatch, firs
             incarnation=template.incarnation,
             seq=first_seq + sent,
             policy_version=template.policy_version,
+            featurizer=template.featurizer,
+            reward_function=template.reward_function,
+            action_set=template.action_set,
             robot=template.robot,
             state=template.state,
             action=template.action,
@@ -303,7 +311,7 @@ def bench_transport(
     folder = tempfile.TemporaryDirectory(prefix="enncql-bench-") if secure else None
     spec = _secure_set(folder.name, actors) if folder is not None else None
     endpoint = spec.connect[0] if spec is not None else f"tcp/127.0.0.1:{free_port()}"
-    ingest = ExperienceIntake(STORE_CAPACITY, DIM)
+    ingest = ExperienceIntake(STORE_CAPACITY, FORMULATION)
     stored, raw = _Arrivals(), _Arrivals()
 
     def on_experience(msg: ExperienceBatch) -> None:

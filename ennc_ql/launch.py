@@ -42,13 +42,18 @@ from monitor import (
 from monitor.recordings import rerun_cli
 from protocol import Status
 from protocol.security import OBSERVER, ROUTER
-from sim.features import FORMULATIONS
+from sim.features import DEFAULT_FORMULATION, FORMULATIONS
 
 log = logging.getLogger(__name__)
 
 ACTOR_NICENESS = 10
 """Actors produce experience faster than one learner digests it on a shared machine: they yield the CPU to the
 learner so phase 1 and evaluations are not starved."""
+
+
+FORMULATION_PARTS = ("featurizer", "reward", "act_every")
+"""Fields of the learner's and the actors' configurations that override their formulation's parts: ``up`` gives
+every process the one formulation it names instead."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -59,9 +64,10 @@ class UpConfig:
     """Seconds of training."""
     seed: int = 0
     """Run seed, given to the learner and to every actor (each derives its own stream from it and its id)."""
-    formulation: str = "shared-difference"
-    """State and reward of every process, by name: shared-difference (the shared8d state, the difference reward:
-    the best formulation of the README's ablations) or paper (the paper's collab6d state and Eq. 2 reward)."""
+    formulation: str = DEFAULT_FORMULATION
+    """State, reward and action set of every process, by name: shared-difference (the shared8d state, the difference
+    reward, deciding every step in tests: the best formulation of the README's ablations) or paper (the paper's
+    collab6d state and Eq. 2 reward, deciding once per action)."""
     learner: LearnerConfig = field(default_factory=LearnerConfig)
     """The learner process."""
     actor: ActorConfig = field(default_factory=ActorConfig)
@@ -71,10 +77,22 @@ class UpConfig:
         require_at_least(1, actors=self.actors)
         require_positive(duration=self.duration)
         require_known("formulation", self.formulation, FORMULATIONS)
+        parts = [
+            f"{role}.{name}"
+            for role, process in (("learner", self.learner), ("actor", self.actor))
+            for name in FORMULATION_PARTS
+            if getattr(process, name, None) is not None
+        ]
+        if parts:
+            raise ValueError(f"{', '.join(parts)}: up gives every process the formulation it names (--formulation)")
+        # The learner's and the actors' own formulation is up's, so that up.toml says one thing once.
+        for role in ("learner", "actor"):
+            object.__setattr__(self, role, dataclasses.replace(getattr(self, role), formulation=self.formulation))
 
 
 UP_PRESETS: dict[str, Any] = {
-    # A 400 000-tuple store holds ~1.5 minutes of two actors' experience and keeps the learner's RSS modest.
+    # A 400 000-tuple store holds under a second of two actors' experience (~530 k tuples/s) and keeps the learner's
+    # RSS modest.
     "learner.store_capacity": 400_000,
     # Evaluations cost CPU the actors share: every 30 s gives a 16-point learning curve in 8 minutes.
     "learner.eval_interval": 30.0,
@@ -90,12 +108,12 @@ UP_PRESETS: dict[str, Any] = {
 SET_BY_UP = (
     "learner.duration",
     "learner.seed",
-    "learner.featurizer",
-    "learner.reward",
-    "learner.act_every",
+    "learner.formulation",
+    *(f"learner.{name}" for name in FORMULATION_PARTS),
     "actor.actor_id",
     "actor.seed",
     "actor.duration",
+    "actor.formulation",
     "actor.featurizer",
     "actor.reward",
 )
@@ -103,24 +121,9 @@ SET_BY_UP = (
 
 
 def child_configs(config: UpConfig) -> tuple[LearnerConfig, list[ActorConfig]]:
-    formulation = FORMULATIONS[config.formulation]
-    learner = dataclasses.replace(
-        config.learner,
-        duration=config.duration,
-        seed=config.seed,
-        featurizer=formulation.featurizer,
-        reward=formulation.reward,
-        act_every=formulation.act_every,
-    )
+    learner = dataclasses.replace(config.learner, duration=config.duration, seed=config.seed)
     actors = [
-        dataclasses.replace(
-            config.actor,
-            actor_id=f"actor-{i}",
-            seed=config.seed,
-            duration=None,
-            featurizer=formulation.featurizer,
-            reward=formulation.reward,
-        )
+        dataclasses.replace(config.actor, actor_id=f"actor-{i}", seed=config.seed, duration=None)
         for i in range(config.actors)
     ]
     return learner, actors

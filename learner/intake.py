@@ -2,7 +2,7 @@
 
 Usage (handlers run on transport worker threads; every method is thread-safe and takes the intake's own lock)::
 
-    intake = ExperienceIntake(capacity=1_000_000, dim=6)
+    intake = ExperienceIntake(capacity=1_000_000, formulation=FORMULATIONS["paper"])
     transport.subscribe(keys.experience(), ExperienceBatch, intake.on_experience)
     intake.accept_sequence(actor, incarnation, seq)     # a Q-table increment shares its sender's sequence
     data = intake.snapshot_for_fit()                    # (stored tuples, tuples received so far)
@@ -25,6 +25,7 @@ from algorithm.transitions import Transitions
 from algorithm.wire import transitions_from_batch
 from learner.store import ExperienceStore, SequenceLedger
 from protocol import ExperienceBatch
+from sim.features import FEATURIZERS, Formulation
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +42,8 @@ class IntakeFigures:
     duplicates: int
     gaps: int
     rejected: int
-    """Batches refused here (wrong state dimension); transport-level rejections are counted by the transport."""
+    """Batches refused here (another formulation, a wrong state dimension); transport-level rejections are counted by
+    the transport."""
     refused: int
     """Messages rejected explicitly by sequence number (a Reject sent), here or at the transport."""
     tuples_per_s: float
@@ -53,11 +55,13 @@ class IntakeFigures:
 class ExperienceIntake:
     """Store + ledger behind one lock, with the figures the learner reports."""
 
-    def __init__(self, capacity: int, dim: int, on_refused: Refused | None = None) -> None:
+    def __init__(self, capacity: int, formulation: Formulation, on_refused: Refused | None = None) -> None:
+        self.formulation = formulation
+        """What every stored tuple was made under: a batch stamped with another formulation is refused."""
         self.on_refused = on_refused
         """Told (actor, incarnation, seq, reason) of a batch refused here, once (the learner sends the Reject)."""
         self._lock = threading.Lock()
-        self._store = ExperienceStore(capacity, dim)
+        self._store = ExperienceStore(capacity, FEATURIZERS[formulation.featurizer])
         self._ledger = SequenceLedger()
         self._rejected = 0
         self._refused = 0
@@ -68,8 +72,8 @@ class ExperienceIntake:
         self._received_before = 0  # tuples received before a resume: the rate counts this process only
 
     def on_experience(self, msg: ExperienceBatch) -> None:
-        if msg.state.shape[1] != self._store.dim:
-            reason = f"state dimension {msg.state.shape[1]}, expected {self._store.dim}"
+        reason = self._mismatch(msg)
+        if reason:
             with self._lock:
                 self._rejected += 1
                 count = self._rejected
@@ -86,6 +90,21 @@ class ExperienceIntake:
             self._received += len(batch)
             self._by_actor[msg.actor_id] = self._by_actor.get(msg.actor_id, 0) + len(batch)
             self._latest_version[msg.actor_id] = max(self._latest_version.get(msg.actor_id, 0), msg.policy_version)
+
+    def _mismatch(self, msg: ExperienceBatch) -> str:
+        """Why ``msg`` cannot join the store ("" if it can): tuples of another formulation mean something else. The
+        reason names the first part that differs (a Reject's reason holds 64 characters)."""
+        own = self.formulation
+        for part, theirs, mine in (
+            ("featurizer", msg.featurizer, own.featurizer),
+            ("reward_function", msg.reward_function, own.reward),
+            ("action_set", msg.action_set, own.actions),
+        ):
+            if theirs != mine:
+                return f"{part} {theirs}, expected {mine}"
+        if msg.state.shape[1] != self._store.dim:
+            return f"state dimension {msg.state.shape[1]}, expected {self._store.dim}"
+        return ""
 
     def refuse(self, sender: str, incarnation: int, seq: int) -> bool:
         """A message refused for good: its seq counts as arrived (the cumulative ack steps over it). True the first

@@ -38,7 +38,6 @@ from learner.policy_state import PolicyState
 from learner.report import LearnerReport, LearnerStatus
 from monitor import Monitor
 from protocol import (
-    FEATURIZER_DIMS,
     N_ACTIONS,
     Ack,
     PolicyUpdate,
@@ -51,7 +50,6 @@ from protocol import (
 )
 from protocol.messages import MAX_NAME_LEN
 from sim import HAND_MADE, evaluate, scenario
-from sim.features import resolve_reward
 
 log = logging.getLogger(__name__)
 
@@ -71,19 +69,19 @@ class LearnerService:
         self.run_dir = run_dir
         self.monitor = monitor or Monitor()
         self.scenario = scenario(config.scenario)
-        self.intake = ExperienceIntake(
-            config.store_capacity, FEATURIZER_DIMS[config.featurizer], on_refused=self._send_reject
-        )
+        formulation = config.resolved
+        self.intake = ExperienceIntake(config.store_capacity, formulation, on_refused=self._send_reject)
         self.version_mark = VersionMark(run_dir)
         self.state = PolicyState(
             self.scenario.n_robots,
-            config.featurizer,
+            formulation.featurizer,
             self.scenario.name,
             self.scenario.action_steps,
             config.method,
             on_version=self.version_mark.record,
-            reward=resolve_reward(config.featurizer, config.reward),
-            act_every=config.act_every,
+            reward=formulation.reward,
+            act_every=formulation.act_every,
+            actions=formulation.actions,
         )
         self.evaluator = Evaluator(self.scenario, config.eval_trials, config.eval_steps, config.final_eval_trials)
         self.checkpointer = Checkpointer(run_dir)
@@ -168,7 +166,7 @@ class LearnerService:
         c = self.config
         self._started = time.monotonic()
         if self.monitor.enabled:
-            self.monitor.formulation(c.featurizer, self.state.reward)
+            self.monitor.formulation(c.resolved.featurizer, self.state.reward)
             self._monitor_references()
         next_broadcast = next_checkpoint = next_status = self._started
         next_eval = self._started + c.eval_interval

@@ -41,7 +41,7 @@ from ennc_ql.chaos.peers import INTRUDER_TUPLES, REFUSAL_TIMEOUT_MS, SPOOF_PUTS,
 from ennc_ql.launch import ACTOR_NICENESS, UpConfig, child_configs, write_configs
 from ennc_ql.secure import write_secure_set
 from learner.checkpoint import CHECKPOINT, VersionMark
-from protocol import FEATURIZER_DIMS, KeySpace, encode
+from protocol import KeySpace, encode
 from protocol.security import OBSERVER, ROUTER
 
 log = logging.getLogger("ennc_ql.chaos")  # one name for the package: its lines read "ennc_ql.chaos: ..."
@@ -77,7 +77,7 @@ class Chaos:
         self.learner, self.actors = child_configs(config)
         self.learner_id = self.learner.learner_id
         self.actor_ids = [a.actor_id for a in self.actors]
-        self.dims = FEATURIZER_DIMS[self.learner.featurizer]
+        self.formulation = self.learner.resolved
         self.wiring = make_wiring(run_dir, namespace, self.learner_id, self.actor_ids, options.secure)
         self.lease_s = int(self.wiring.session(OBSERVER).get_json("transport/link/tx/lease")) / 1000
         self.t0 = time.monotonic()
@@ -294,7 +294,7 @@ class Chaos:
     def _poison(self) -> tuple[bool, dict[str, Any]]:
         ident = self.wiring.hostile("poisoner")
         replies = Replies(secrets.randbits(64))  # a new incarnation per round: its seqs start at 0 again
-        with Peer(self.wiring.session(ident), self.keys, ident, self.dims) as peer:
+        with Peer(self.wiring.session(ident), self.keys, ident, self.formulation) as peer:
             peer.listen(replies)
             peer.await_learner()
             peer.put(peer.own_key, encode(peer.batch(0, replies.incarnation)))
@@ -317,7 +317,7 @@ class Chaos:
         last = self.observer.latest(self.learner_id)
         before = int(last[1].get("rejected", 0)) if last else 0
         incarnation = secrets.randbits(64)
-        with Peer(self.wiring.session(ident), self.keys, ident, self.dims) as peer:
+        with Peer(self.wiring.session(ident), self.keys, ident, self.formulation) as peer:
             peer.await_learner()
             for seq in range(SPOOF_PUTS):  # the learner must count these as IdentityMismatch and drop them
                 peer.put(peer.own_key, encode(peer.batch(seq, incarnation, actor_id=target)))
@@ -363,7 +363,7 @@ class Chaos:
         conf["connect"]["timeout_ms"] = REFUSAL_TIMEOUT_MS
         started = time.monotonic()
         try:
-            with Peer(zenoh.Config.from_json5(json.dumps(conf)), self.keys, MALLORY, self.dims) as peer:
+            with Peer(zenoh.Config.from_json5(json.dumps(conf)), self.keys, MALLORY, self.formulation) as peer:
                 peer.put(peer.own_key, encode(peer.batch(0, secrets.randbits(64), n=INTRUDER_TUPLES)))
                 time.sleep(STATUS_SETTLE_S)
         except zenoh.ZError as exc:
@@ -376,7 +376,7 @@ class Chaos:
         ident = self.wiring.hostile("oversizer")
         watched = (ROUTER, self.learner_id)
         before = self.rss.measure(watched)
-        with Peer(self.wiring.session(ident), self.keys, ident, self.dims) as peer:
+        with Peer(self.wiring.session(ident), self.keys, ident, self.formulation) as peer:
             peer.await_learner()
             peak, put_s = self._peak_rss_while(watched, lambda: peer.put(peer.own_key, bytes(OVERSIZE_BYTES)))
         after = time.monotonic()

@@ -18,9 +18,11 @@ from algorithm.wire import (
     policy_update,
     transitions_from_batch,
 )
-from protocol import FEATURIZER_DIMS, N_ACTIONS, InvalidValues, decode_as, encode
+from protocol import N_ACTIONS, InvalidValues, decode_as, encode
 from protocol.messages import ExperienceBatch, PolicyUpdate, QTableIncrement
-from sim import COMPASS, FEATURIZERS, scenario
+from sim import COMPASS, scenario
+from sim.actions import ACTION_SETS
+from sim.features import FORMULATIONS
 from tests.algorithm.test_policy_file import make_policy
 
 
@@ -46,6 +48,8 @@ def test_policy_round_trips_through_the_wire() -> None:
     assert policy.visits is not None and back.visits is not None
     np.testing.assert_array_equal(back.visits, policy.visits)
     assert (back.version, back.featurizer, back.action_steps) == (policy.version, policy.featurizer, 5)
+    assert (update.reward_function, update.action_set) == (policy.reward, policy.actions) == ("eq2", "compass")
+    assert (back.reward, back.actions) == (policy.reward, policy.actions)
     assert update.scenario == "cmommt-v1" and update.robots.tolist() == list(range(10))
 
 
@@ -61,20 +65,32 @@ def test_a_shared_table_goes_out_as_every_robots_row() -> None:
 
 def test_transitions_round_trip_in_batches_with_consecutive_seqs() -> None:
     data = transitions(2500)
-    batches = experience_batches(data, actor_id="a0", incarnation=9, first_seq=4, policy_version=3, batch_size=1000)
+    shared = FORMULATIONS["shared-difference"]
+    batches = experience_batches(
+        data, actor_id="a0", incarnation=9, first_seq=4, policy_version=3, formulation=shared, batch_size=1000
+    )
     assert [b.seq for b in batches] == [4, 5, 6] and [len(b.reward) for b in batches] == [1000, 1000, 500]
     decoded = [transitions_from_batch(decode_as(encode(b), ExperienceBatch)) for b in batches]
     joined = Transitions.concat(decoded)
     for name in ("robot", "state", "action", "reward", "next_state", "done"):
         np.testing.assert_array_equal(getattr(joined, name), getattr(data, name))
     assert {b.policy_version for b in batches} == {3} and {b.incarnation for b in batches} == {9}
+    assert {(b.featurizer, b.reward_function, b.action_set) for b in batches} == {("shared8d", "difference", "compass")}
 
 
 def test_an_invalid_tuple_is_caught_in_the_actor_before_the_wire() -> None:
     data = transitions(10)
     data.reward[3] = np.nan
     with pytest.raises(InvalidValues, match="reward"):
-        experience_batches(data, actor_id="a0", incarnation=1, first_seq=0, policy_version=0, batch_size=8)
+        experience_batches(
+            data,
+            actor_id="a0",
+            incarnation=1,
+            first_seq=0,
+            policy_version=0,
+            formulation=FORMULATIONS["paper"],
+            batch_size=8,
+        )
 
 
 def test_increments_round_trip_and_saturate_visits() -> None:
@@ -95,7 +111,7 @@ def test_increments_round_trip_and_saturate_visits() -> None:
 
 def test_the_protocols_constants_are_the_simulators() -> None:
     assert len(COMPASS) == N_ACTIONS
-    assert dict(FEATURIZER_DIMS) == FEATURIZERS
+    assert {len(actions.moves) for actions in ACTION_SETS.values()} == {N_ACTIONS}
     assert scenario().n_robots <= np.iinfo(np.int16).max  # robot ids travel as int16
 
 

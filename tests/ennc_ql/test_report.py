@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +24,7 @@ from ennc_ql.report import (
 )
 from learner.config import LearnerConfig
 from sim import HAND_MADE, evaluate, scenario
-from sim.features import FORMULATIONS
+from sim.features import DEFAULT_FORMULATION, FORMULATIONS
 
 CURVE_BLUE = (0x3B / 255, 0x7D / 255, 0xD8 / 255)
 
@@ -187,17 +188,22 @@ def test_up_writes_every_process_configuration_and_they_load_back(tmp_path: Path
     # The children's own command lines read the same files; a flag given there still wins.
     child = build_parser().parse_args(["actor", "--config", str(tmp_path / "actor-1.toml"), "--arenas", "7"])
     assert load_config(ActorConfig, file=child.config, args=child) == dataclasses.replace(actors[1], arenas=7)
-    # The formulation sets the state and the reward of every process at once: the paper's, or the default one.
-    chosen = FORMULATIONS[UpConfig().formulation]
-    assert (learner.featurizer, learner.reward, learner.act_every) == (
-        chosen.featurizer,
-        chosen.reward,
-        chosen.act_every,
-    )
-    assert {(a.featurizer, a.reward) for a in actors} == {(chosen.featurizer, chosen.reward)}
+    # The formulation sets the state, the reward and the action set of every process at once: the default one, or
+    # the paper's; up.toml says it once, and every table of it says the same.
+    chosen = FORMULATIONS[DEFAULT_FORMULATION]
+    assert UpConfig().formulation == LearnerConfig().formulation == ActorConfig().formulation == DEFAULT_FORMULATION
+    assert learner.resolved == chosen and {a.resolved.featurizer for a in actors} == {chosen.featurizer}
+    assert {(a.resolved.reward, a.resolved.actions) for a in actors} == {(chosen.reward, chosen.actions)}
+    toml = tomllib.loads((tmp_path / "up.toml").read_text())
+    assert toml["formulation"] == toml["learner"]["formulation"] == toml["actor"]["formulation"] == DEFAULT_FORMULATION
+    assert not {"featurizer", "reward", "act_every"} & (set(toml["learner"]) | set(toml["actor"]))
     paper = load_config(UpConfig, args=build_parser().parse_args(["up", "--formulation", "paper"]), defaults=UP_PRESETS)
     learner, actors = child_configs(paper)
-    assert {(p.featurizer, p.reward) for p in (learner, *actors)} == {("collab6d", "eq2")}
-    assert learner.act_every is None
+    assert {p.formulation for p in (paper.learner, paper.actor, learner, *actors)} == {"paper"}
+    assert {(p.resolved.featurizer, p.resolved.reward) for p in (learner, *actors)} == {("collab6d", "eq2")}
+    assert learner.resolved.act_every is None
+    (tmp_path / "mixed.toml").write_text('formulation = "paper"\n[learner]\nreward = "difference"\n')
+    with pytest.raises(ConfigError, match=r"learner.reward: up gives every process the formulation it names"):
+        load_config(UpConfig, file=tmp_path / "mixed.toml")
     with pytest.raises(ConfigError, match="formulation: unknown 'best'"):
         load_config(UpConfig, args=build_parser().parse_args(["up", "--formulation", "best"]), defaults=UP_PRESETS)
