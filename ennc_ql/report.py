@@ -15,6 +15,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from sim.controllers import COMPASS_NAMES
 from sim.features import FORMULATIONS
 
 if TYPE_CHECKING:
@@ -102,10 +103,6 @@ def _integrity(report: Mapping[str, Any]) -> list[str]:
 
 
 def _policy(report: Mapping[str, Any]) -> list[str]:
-    # Imported here: sim loads numba, and bench_transport's publisher processes import this module (through
-    # ennc_ql.up) where every second of start-up counts.
-    from sim.controllers import COMPASS_NAMES
-
     sizes: list[int] = report["prototypes_per_action"]
     lines = [
         "## Policy",
@@ -158,8 +155,8 @@ def markdown_report(report: Mapping[str, Any], curve_png: str = LEARNING_CURVE_P
 
 def learning_curve_figure(report: Mapping[str, Any]) -> Figure:
     """Evaluation coverage against training seconds, with the hand-made controllers' levels as horizontal lines."""
-    # Imported here, as sim in _policy, to keep importers of ennc_ql.up quick to start. The object-oriented Figure
-    # needs no pyplot: no global backend switch, no figure registry to leak into.
+    # Imported here: every command line builds up's parser, and matplotlib is needed only once a run has ended. The
+    # object-oriented Figure needs no pyplot: no global backend switch, no figure registry to leak into.
     from matplotlib.figure import Figure
 
     curve = report.get("coverage_curve") or []

@@ -9,14 +9,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from algorithm.checks import require_at_least, require_id, require_known, require_positive
-from algorithm.phase1 import Phase1Config
+from algorithm.phase1 import CMOMMT_PHASE1, Phase1Config
 from sim import SCENARIOS
 from sim.features import DEFAULT_FORMULATION, Formulation, resolve_formulation
-
-
-def _phase1_default() -> Phase1Config:
-    # One fitted iteration suffices in CMOMMT [paper]; 30 000 tuples per action keep a fit under a minute here.
-    return Phase1Config(max_iterations=1, max_patterns=30_000)
 
 
 @dataclass(frozen=True, slots=True)
@@ -46,7 +41,7 @@ class LearnerConfig:
     """Tuples stored before the first phase 1."""
     refit_growth: float = 0.0
     """Refit (warm-started) whenever the tuples received have grown this many times since the last fit; 0 = never."""
-    phase1: Phase1Config = field(default_factory=_phase1_default)
+    phase1: Phase1Config = field(default_factory=lambda: CMOMMT_PHASE1)
     """ENNC-QL phase 1."""
     broadcast_interval: float = 3.0
     """Seconds between merges + policy broadcasts."""

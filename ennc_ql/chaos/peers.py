@@ -12,7 +12,7 @@ import msgpack
 import numpy as np
 import zenoh
 
-from ennc_ql.chaos.cluster import RECOVERY_TIMEOUT_S, wait_for
+from ennc_ql.chaos.observe import RECOVERY_TIMEOUT_S, wait_for
 from protocol import Ack, ExperienceBatch, KeySpace, Reject, ZenohTransport, encode
 from sim.features import FEATURIZERS, Formulation
 

@@ -118,7 +118,7 @@ def test_the_protocols_constants_are_the_simulators() -> None:
 @pytest.mark.parametrize(
     "modules",
     [
-        "actors.actor, actors.wiring, ennc_ql.processes",  # everything an actor process loads
+        "actors.actor, actors.wiring, ennc_ql.actor",  # everything an actor process loads
         "algorithm.policy, algorithm.agent, algorithm.trials, algorithm.wire, algorithm.policy_file, algorithm",
         "learner.config, algorithm.phase1, algorithm.experiments",  # configurations are read without fitting
         "ennc_ql.router, ennc_ql.cli",

@@ -19,8 +19,8 @@ import yaml
 from actors.config import ActorConfig
 from algorithm.policy_file import load_policy
 from ennc_ql.cli import build_parser
+from ennc_ql.cluster import UP_PRESETS, UpConfig, child_configs
 from ennc_ql.config import load_config
-from ennc_ql.launch import UP_PRESETS, UpConfig, child_configs
 from ennc_ql.system import free_port
 from learner.config import LearnerConfig
 from sim.features import Formulation

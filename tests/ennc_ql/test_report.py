@@ -13,8 +13,8 @@ from matplotlib.image import imread
 
 from actors.config import ActorConfig
 from ennc_ql.cli import build_parser
+from ennc_ql.cluster import UP_PRESETS, UpConfig, child_configs, write_configs
 from ennc_ql.config import ConfigError, load_config
-from ennc_ql.launch import UP_PRESETS, UpConfig, child_configs, write_configs
 from ennc_ql.report import (
     FINAL_REFERENCE,
     HAND_MADE_COVERAGE,
