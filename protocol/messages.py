@@ -6,6 +6,7 @@ type. Messages validate themselves on construction, so a message object that exi
 
     batch = ExperienceBatch(
         actor_id="actor-0", incarnation=0x1234, seq=0, policy_version=0,
+        featurizer="collab6d", reward_function="eq2", action_set="compass",
         robot=np.zeros(2, np.int16), state=np.zeros((2, 6), np.float32), action=np.array([1, 7], np.uint8),
         reward=np.zeros(2, np.float32), next_state=np.zeros((2, 6), np.float32), done=np.zeros(2, bool),
     )
