@@ -33,7 +33,7 @@ from ennc_ql.cluster import (
     run_serial,
     write_configs,
 )
-from ennc_ql.command import configure, fail, writable_dir
+from ennc_ql.command import configure, emit, fail, writable_dir
 from ennc_ql.config import add_config_flags
 from ennc_ql.figures import policy_figure
 from ennc_ql.report import results_table, write_run_report
@@ -107,11 +107,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     markdown, png = write_run_report(out, run_dir)
     out.update(report_md=str(markdown), learning_curve=str(png))
     (run_dir / "report.json").write_text(json.dumps(out, indent=2))
-    if args.json:
-        print(json.dumps(out))
-    else:
-        print(results_table(out))
-        print(f"report: {markdown} (learning curve {png})")
+    emit(out, args.json, f"{results_table(out)}\nreport: {markdown} (learning curve {png})")
     return 0
 
 
