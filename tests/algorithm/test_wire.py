@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,7 +24,7 @@ from protocol import N_ACTIONS, InvalidValues, decode_as, encode
 from protocol.messages import ExperienceBatch, PolicyUpdate, QTableIncrement
 from sim import COMPASS, scenario
 from sim.actions import ACTION_SETS
-from sim.features import FORMULATIONS
+from sim.features import FEATURIZERS, FORMULATIONS, REWARDS
 from tests.algorithm.test_policy_file import make_policy
 
 
@@ -112,6 +114,21 @@ def test_increments_round_trip_and_saturate_visits() -> None:
 def test_the_protocols_constants_are_the_simulators() -> None:
     assert len(COMPASS) == N_ACTIONS
     assert {len(actions.moves) for actions in ACTION_SETS.values()} == {N_ACTIONS}
+
+
+def test_the_formulation_names_docs_protocol_lists_are_the_registries() -> None:
+    """docs/protocol.md §4 lists the names a formulation may carry: exactly sim's registries, dimensions and moves."""
+    text = (Path(__file__).parents[2] / "docs" / "protocol.md").read_text()
+    table = text[text.index("### Formulation") : text.index("### `ack`")]
+    rows = dict(re.findall(r"^\| `(\w+)`\s+\| (.+?) \|$", table, re.M))
+    documented = {
+        kind: re.findall(r"`([a-z0-9-]+)`(?: \(d = (\d+)\))?", rows[kind].split("(`")[0])
+        for kind in ("featurizer", "reward_function", "action_set")
+    }
+    assert documented["featurizer"] == [(name, str(d)) for name, d in FEATURIZERS.items()]
+    assert [name for name, _ in documented["reward_function"]] == list(REWARDS)
+    assert [name for name, _ in documented["action_set"]] == list(ACTION_SETS)
+    assert ", ".join(ACTION_SETS["compass"].moves) in rows["action_set"]
     assert scenario().n_robots <= np.iinfo(np.int16).max  # robot ids travel as int16
 
 
