@@ -57,7 +57,7 @@ class ActorStatus:
     """Learning trials run (each in every arena)."""
     policies_applied: int = 0
     policies_refused: int = 0
-    """Broadcasts over another featurizer than this actor's (a misconfigured run), ignored."""
+    """Broadcasts over another formulation than this actor's (a misconfigured run), ignored."""
     outbox_waits: int = 0
     """Times the actor waited for acks because its outbox was full."""
     outbox: int = 0
@@ -92,8 +92,9 @@ class RobotActor:
             self.scenario,
             SliceConfig(
                 n_arenas=config.arenas,
-                featurizer=config.featurizer,
-                reward=config.reward,
+                featurizer=config.resolved.featurizer,
+                reward=config.resolved.reward,
+                actions=config.resolved.actions,
                 learning_robots=self.learning_robots,
             ),
             seed,
@@ -109,7 +110,7 @@ class RobotActor:
             on_acked=self._count_acked,
         )
         self.tracker = IncrementTracker(self.learning_robots)
-        self.policy = PolicyClient(self.scenario.n_robots, config.phase2, self.tracker, config.featurizer)
+        self.policy = PolicyClient(self.scenario.n_robots, config.phase2, self.tracker, config.resolved)
         self.agent: TabularAgent | None = None
         self._tuples = self._batches = self._increments = self._trials = 0
         self._tuples_acked = self._visits_acked = 0
@@ -198,7 +199,7 @@ class RobotActor:
 
     def _send_experience(self, tuples: Transitions) -> None:
         key = self.keys.experience(self.config.actor_id)
-        for build in experience_batches(tuples, self.config.batch_size):
+        for build in experience_batches(tuples, self.config.batch_size, self.config.resolved):
             batch = self.outbox.add(key, build, policy_version=self.policy.version)
             if batch is not None:
                 self._tuples += batch.n_tuples

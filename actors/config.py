@@ -13,9 +13,8 @@ from dataclasses import dataclass, field
 
 from algorithm.agent import Phase2Config
 from algorithm.checks import require_at_least, require_id, require_known, require_positive
-from protocol import FEATURIZER_DIMS
 from sim import SCENARIOS
-from sim.features import REWARD_NAMES
+from sim.features import DEFAULT_FORMULATION, Formulation, resolve_formulation
 
 
 def parse_robots(text: str) -> tuple[int, ...]:
@@ -57,13 +56,16 @@ class ActorConfig:
     """Actor id, unique in the run (letters, digits, '_', '.', '-'); 'auto': from the hostname and pid."""
     scenario: str = "cmommt-v1"
     """Scenario the actor simulates."""
-    featurizer: str = "collab6d"
-    """State definition of the experience: local2d, collab6d or shared8d (collab6d and whether another robot
-    observes its nearest / furthest target)."""
-    reward: str = "paper"
-    """Reward of the learning robots: paper (the featurizer's own: observed for local2d, Eq. 2 otherwise), observed,
-    eq2, difference (targets only this robot observes, at the trial's end) or difference-decision (the same, per
-    action). The learner's must be the same: its experience is the actors'."""
+    formulation: str = DEFAULT_FORMULATION
+    """State, reward and action set of the learning robots, by name: shared-difference (the shared8d state: collab6d
+    and whether another robot observes its nearest / furthest target; the difference reward: targets only this robot
+    observes, at the trial's end) or paper (the paper's collab6d state and Eq. 2 reward). The learner's must be the
+    same: its experience is the actors'."""
+    featurizer: str | None = None
+    """State definition instead of the formulation's: local2d, collab6d or shared8d (none: the formulation's)."""
+    reward: str | None = None
+    """Reward instead of the formulation's (none: the formulation's): paper (the state's own: observed for local2d,
+    Eq. 2 otherwise), observed, eq2, difference or difference-decision (the difference reward, per action)."""
     learn: tuple[int, ...] | None = field(default=None, metadata={"parse": parse_robots})
     """Robot ids whose tables this actor learns (and whose tuples it streams), e.g. 0-4,7; None = every robot."""
     arenas: int = 256
@@ -86,12 +88,14 @@ class ActorConfig:
     """On-line Q-learning of the robots this actor learns."""
     draw_every: int = 10
     """With monitoring on, every this many trials arena 0 is drawn at each step of the trial."""
+    resolved: Formulation = field(init=False, repr=False, compare=False)
+    """The formulation this actor runs: ``formulation`` with the explicit fields over it (resolved here, once)."""
 
     def __post_init__(self) -> None:
         require_id("actor_id", self.actor_id)
         require_known("scenario", self.scenario, SCENARIOS)
-        require_known("featurizer", self.featurizer, FEATURIZER_DIMS)
-        require_known("reward", self.reward, REWARD_NAMES)
+        resolved = resolve_formulation(self.formulation, featurizer=self.featurizer, reward=self.reward)
+        object.__setattr__(self, "resolved", resolved)
         require_at_least(
             1,
             arenas=self.arenas,

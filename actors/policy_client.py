@@ -2,8 +2,8 @@
 
 Usage (``offer`` from the transport's thread, ``adopt`` from the actor's loop)::
 
-    client = PolicyClient(n_robots=10, phase2=Phase2Config(), tracker=IncrementTracker(learn), featurizer="collab6d")
-    client.offer(update)                   # newest version wins; older ones, and other states, are ignored
+    client = PolicyClient(n_robots=10, phase2=Phase2Config(), tracker=IncrementTracker(learn), formulation=f)
+    client.offer(update)                   # newest version wins; older ones, and other formulations, are ignored
     update = client.take()                 # None while nothing newer than the adopted version has come
     agent = client.adopt(update, agent)    # the agent over the new tables
 """
@@ -20,17 +20,20 @@ from algorithm.agent import Phase2Config, TabularAgent
 from algorithm.discretization import Discretization
 from algorithm.wire import policy_from_update
 from protocol import PolicyUpdate
+from sim.features import FEATURIZERS, Formulation
 
 log = logging.getLogger(__name__)
 
 
 class PolicyClient:
-    def __init__(self, n_robots: int, phase2: Phase2Config, tracker: IncrementTracker, featurizer: str) -> None:
+    def __init__(
+        self, n_robots: int, phase2: Phase2Config, tracker: IncrementTracker, formulation: Formulation
+    ) -> None:
         self.n_robots = n_robots
-        self.featurizer = featurizer
-        """The actor's own state definition: a broadcast over another one cannot be acted on."""
+        self.formulation = formulation
+        """The actor's own state, reward and action set: a broadcast over another formulation cannot be acted on."""
         self.refused = 0
-        """Broadcasts refused because they name another featurizer than the actor's."""
+        """Broadcasts refused because they are over another formulation than the actor's."""
         self.phase2 = phase2
         self.tracker = tracker
         self._lock = threading.Lock()
@@ -40,23 +43,35 @@ class PolicyClient:
         self.adopted = 0
 
     def offer(self, update: PolicyUpdate) -> None:
-        if update.featurizer != self.featurizer:
+        mismatch = self._mismatch(update)
+        if mismatch:
             with self._lock:
                 self.refused += 1
                 first = self.refused == 1
             # Every broadcast would say it again: the first is logged, all are counted (status: policies_refused).
             if first:
                 log.error(
-                    "policy version %d is over the %s state, this actor's is %s: it is refused (is the learner "
-                    "started with the same --featurizer?)",
+                    "policy version %d is refused: %s (is the learner started with the same --formulation?)",
                     update.version,
-                    update.featurizer,
-                    self.featurizer,
+                    mismatch,
                 )
             return
         with self._lock:
             if update.version > max(self.version, 0 if self._newest is None else self._newest.version):
                 self._newest = update
+
+    def _mismatch(self, update: PolicyUpdate) -> str:
+        """What makes ``update`` unusable here ("" if nothing): another formulation, or a state dimension that is
+        not its featurizer's (the wire checks only that the names are well formed)."""
+        own = self.formulation
+        theirs = (update.featurizer, update.reward_function, update.action_set)
+        mine = (own.featurizer, own.reward, own.actions)
+        if theirs != mine:
+            return f"it is over the {'/'.join(theirs)} formulation, this actor's is {'/'.join(mine)}"
+        dim = int(update.prototypes.shape[1])
+        if dim != FEATURIZERS[own.featurizer]:
+            return f"its prototypes have {dim} dimensions, {own.featurizer} has {FEATURIZERS[own.featurizer]}"
+        return ""
 
     def take(self) -> PolicyUpdate | None:
         """The newest broadcast if it is newer than the adopted one (once)."""

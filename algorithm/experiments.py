@@ -21,7 +21,7 @@ import numpy as np
 
 from algorithm.agent import Phase2Config, TabularAgent
 from algorithm.discretization import Discretization
-from algorithm.phase1 import Phase1Config, phase1
+from algorithm.phase1 import CMOMMT_PHASE1, Phase1Config, phase1
 from algorithm.policy import ActionMode, LostBehaviour, Policy, PolicyController
 from algorithm.transitions import Transitions
 from algorithm.trials import ExperienceSlice, SliceConfig
@@ -84,8 +84,8 @@ class Budget:
     """Batches of random-exploration learning trials (phase 0), each in every arena."""
     phase2_trials: int = 60
     """Batches of ε-greedy learning trials (phase 2)."""
-    phase1: Phase1Config = field(default_factory=lambda: Phase1Config(max_iterations=1, max_patterns=30_000))
-    """ENNC-QL phase 1; one iteration suffices in CMOMMT [paper]."""
+    phase1: Phase1Config = field(default_factory=lambda: CMOMMT_PHASE1)
+    """ENNC-QL phase 1, as the learner fits it."""
     phase2: Phase2Config = field(default_factory=Phase2Config)
     codebook_patterns: int = 50_000
     """LBG runs on a uniform sample of this many explored states [choice]."""

@@ -74,6 +74,11 @@ class Phase1Config:
             raise ValueError("max_patterns must be positive or None")
 
 
+CMOMMT_PHASE1 = Phase1Config(max_iterations=1, max_patterns=30_000)
+"""Phase 1 as this project fits it on CMOMMT: the learner's default, reproduce's full budget and the actor benchmark's
+policy. One fitted iteration suffices in CMOMMT [paper]; 30 000 tuples per action keep a fit under a minute here."""
+
+
 @dataclass(frozen=True, slots=True)
 class Phase1Result:
     discretization: Discretization

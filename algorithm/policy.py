@@ -64,10 +64,10 @@ class Policy:
     def __post_init__(self) -> None:
         if self.featurizer not in FEATURIZERS:
             raise ValueError(f"unknown featurizer {self.featurizer!r}")
-        if self.actions not in ACTION_SETS:
-            raise ValueError(f"unknown action set {self.actions!r}; known: {', '.join(ACTION_SETS)}")
         if self.reward not in REWARDS:
             raise ValueError(f"unknown reward {self.reward!r}; known: {', '.join(REWARDS)}")
+        if self.actions not in ACTION_SETS:
+            raise ValueError(f"unknown action set {self.actions!r}; known: {', '.join(ACTION_SETS)}")
         if FEATURIZERS[self.featurizer] != self.discretization.dim:
             raise ValueError("featurizer dimension and discretization dimension differ")
         if self.tables.ndim != 2 or self.tables.shape[1] != self.discretization.size:

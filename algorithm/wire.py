@@ -5,9 +5,9 @@ The learner and the actors never build or unpack a message field by field themse
     update = policy_update(policy, scenario="cmommt-v1")                  # learner: Policy -> PolicyUpdate
     policy = policy_from_update(update, n_robots=10)                      # actor: PolicyUpdate -> Policy
     header = Header(actor_id="actor-0", incarnation=7, seq=5, policy_version=3)
-    batch = experience_message(header, transitions)                       # Transitions -> ExperienceBatch
-    for seq, build in enumerate(experience_batches(transitions, 16384)):  # ... in messages of <= 16384 tuples,
-        batch = build(Header("actor-0", 7, seq, 3))                       #     each given its header when sent
+    batch = experience_message(header, transitions, formulation)          # Transitions -> ExperienceBatch
+    for seq, build in enumerate(experience_batches(transitions, 16384, formulation)):  # in messages of <= 16384
+        batch = build(Header("actor-0", 7, seq, 3))                       #     tuples, each given its header when sent
     transitions = transitions_from_batch(batch)                           # learner: ExperienceBatch -> Transitions
     msg = increment_message(header, robot=2, change=change, visits=visits, offsets=disc.offsets)
     robot, change, visits = increment_arrays(msg)                         # learner: QTableIncrement -> arrays
@@ -30,6 +30,7 @@ from algorithm.discretization import Discretization
 from algorithm.policy import Policy
 from algorithm.transitions import Transitions
 from protocol.messages import ExperienceBatch, Header, PolicyUpdate, QTableIncrement
+from sim.features import Formulation
 
 _U32_MAX = np.iinfo(np.uint32).max
 F = TypeVar("F")
@@ -49,6 +50,8 @@ def policy_update(policy: Policy, scenario: str) -> PolicyUpdate:
         version=policy.version,
         scenario=scenario,
         featurizer=policy.featurizer,
+        reward_function=policy.reward,
+        action_set=policy.actions,
         action_steps=policy.action_steps,
         prototypes=disc.prototypes.astype(np.float32),
         labels=disc.labels.astype(np.float32),
@@ -84,17 +87,22 @@ def policy_from_update(update: PolicyUpdate, n_robots: int, method: str = "") ->
         visits=visits,
         version=int(update.version),
         method=method,
+        reward=update.reward_function,
+        actions=update.action_set,
     )
 
 
-def experience_message(header: Header, transitions: Transitions) -> ExperienceBatch:
-    """One experience message of ``transitions``. Building it validates it, so a tuple the learner would refuse
-    (NaN, a wrong dtype) fails here, in the actor that made it, not on the wire."""
+def experience_message(header: Header, transitions: Transitions, formulation: Formulation) -> ExperienceBatch:
+    """One experience message of ``transitions``, made under ``formulation``. Building it validates it, so a tuple
+    the learner would refuse (NaN, a wrong dtype) fails here, in the actor that made it, not on the wire."""
     return ExperienceBatch(
         actor_id=header.actor_id,
         incarnation=header.incarnation,
         seq=header.seq,
         policy_version=header.policy_version,
+        featurizer=formulation.featurizer,
+        reward_function=formulation.reward,
+        action_set=formulation.actions,
         robot=transitions.robot,
         state=transitions.state,
         action=transitions.action,
@@ -104,8 +112,11 @@ def experience_message(header: Header, transitions: Transitions) -> ExperienceBa
     )
 
 
-def experience_batches(transitions: Transitions, batch_size: int) -> Iterator[Callable[[Header], ExperienceBatch]]:
-    """``transitions`` in order, in messages of at most ``batch_size`` tuples, each still to be given its header.
+def experience_batches(
+    transitions: Transitions, batch_size: int, formulation: Formulation
+) -> Iterator[Callable[[Header], ExperienceBatch]]:
+    """``transitions`` in order, in messages of at most ``batch_size`` tuples made under ``formulation``, each still
+    to be given its header.
 
     The header comes last because its seq is the sender's to assign, one message at a time: the actor's outbox
     calls each with the next seq of its stream when it has room (``Outbox.add``); a benchmark calls them with the
@@ -113,7 +124,7 @@ def experience_batches(transitions: Transitions, batch_size: int) -> Iterator[Ca
     """
     for start in range(0, len(transitions), batch_size):
         part = transitions.take(np.arange(start, min(start + batch_size, len(transitions))))
-        yield partial(experience_message, transitions=part)
+        yield partial(experience_message, transitions=part, formulation=formulation)
 
 
 def transitions_from_batch(msg: ExperienceBatch) -> Transitions:

@@ -36,6 +36,7 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
+from ennc_ql.command import fail
 from protocol.keys import KeySpace
 from protocol.security import OBSERVER, ROUTER, TlsFiles, access_control, client_config, router_config
 
@@ -197,8 +198,6 @@ def write_secure_set(spec: SecureSet) -> list[str]:
 
 
 def cmd_secure_init(args: argparse.Namespace) -> int:
-    from ennc_ql.processes import fail
-
     if args.actors < 1:
         fail("secure init", f"--actors must be at least 1, got {args.actors}")
     port = args.port

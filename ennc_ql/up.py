@@ -4,12 +4,12 @@ One learner and N actor processes (real OS processes, the same commands a multi-
 Zenoh in peer mode on a loopback endpoint with multicast scouting off, so nothing leaves the machine and no router
 is needed; ``--secure`` joins them through a router instead, each with its own certificate, password and
 access-control identity (``ennc-ql secure init``'s files, in ``runs/<id>/secure``); ``--serial`` runs the same
-objects in this one process on the in-memory bus. Every actor learns
-every robot's table (option 2); the learner averages their changes by visits. The flags are generated from
-``ennc_ql.launch.UpConfig`` (with ``up``'s presets, ``UP_PRESETS``); every process's resolved configuration is
-written into ``runs/<id>/`` (``up.toml``, ``learner.toml``, ``actor-<i>.toml``) and the children start from those
-files, so ``ennc-ql up --config runs/<id>/up.toml`` repeats a run exactly. At the end the results are printed and
-``runs/<id>/report.md`` and ``learning_curve.png`` are written.
+objects in this one process on the in-memory bus. Every actor learns every robot's table (option 2); the learner
+averages their changes by visits. The flags are generated from ``ennc_ql.cluster.UpConfig`` (with ``up``'s presets,
+``UP_PRESETS``); every process's resolved configuration is written into ``runs/<id>/`` (``up.toml``,
+``learner.toml``, ``actor-<i>.toml``) and the children start from those files, so ``ennc-ql up --config
+runs/<id>/up.toml`` repeats a run exactly. At the end the results are printed and ``runs/<id>/report.md`` and
+``learning_curve.png`` are written.
 """
 
 from __future__ import annotations
@@ -20,8 +20,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ennc_ql.config import add_config_flags
-from ennc_ql.launch import (
+from actors.config import ActorConfig
+from algorithm.policy_file import load_policy, scenario_from_header
+from ennc_ql.cluster import (
     SET_BY_UP,
     UP_PRESETS,
     LaunchError,
@@ -32,8 +33,11 @@ from ennc_ql.launch import (
     run_serial,
     write_configs,
 )
-from ennc_ql.processes import configure, fail, writable_dir
+from ennc_ql.command import configure, emit, fail, writable_dir
+from ennc_ql.config import add_config_flags
+from ennc_ql.figures import policy_figure
 from ennc_ql.report import results_table, write_run_report
+from learner.config import LearnerConfig
 from learner.report import LearnerReport
 from monitor import Sink, add_rerun_args, paths
 from protocol import check_id
@@ -52,7 +56,7 @@ def add_up_parser(sub: Any) -> None:
     p.add_argument("--run-id", help="run folder name (default: a timestamp)")
     p.add_argument("--json", action="store_true", help="print the learner's report as one JSON object")
     add_config_flags(
-        p.add_argument_group("run configuration (ennc_ql.launch.UpConfig)"),
+        p.add_argument_group("run configuration (ennc_ql.cluster.UpConfig)"),
         UpConfig,
         exclude=SET_BY_UP,
         defaults=UP_PRESETS,
@@ -64,40 +68,29 @@ def add_up_parser(sub: Any) -> None:
 def cmd_up(args: argparse.Namespace) -> int:
     # Every configuration is checked here, before any process starts: a bad value is one line naming it.
     config: UpConfig = configure(UpConfig, args, "up", defaults=UP_PRESETS)
-    learner, actors = child_configs(config)
+    if args.serial and args.secure:
+        fail("up", "--serial runs on the in-memory bus, which has no network to secure; drop one of them")
     run_id = args.run_id or time.strftime("%Y%m%d-%H%M%S")
     try:
         check_id(run_id, "--run-id")
     except ValueError as exc:
         fail("up", str(exc))
     run_dir = writable_dir(args.runs / run_id, "up", "--runs")
+    learner, actors = child_configs(config)
     write_configs(config, learner, actors, run_dir)
     started = time.monotonic()
-    recording = endpoint = None
+    endpoint: str | None = None
     restarts: dict[str, int] = {}
-    if args.serial and args.secure:
-        fail("up", "--serial runs on the in-memory bus, which has no network to secure; drop one of them")
+    recording: dict[str, Any] | None = None
     if args.serial:
         report = run_serial(learner, actors, run_dir)
     else:
-        monitoring = Monitoring(args.rerun or Sink("save", str(run_dir / paths.RECORDING_FILE)), run_id, run_dir)
-        try:
-            endpoint, restarts = run_processes(
-                learner, actors, run_dir, monitoring, namespace=f"run-{run_id}", secure=args.secure
-            )
-        except LaunchError as exc:
-            fail("up", str(exc))
-        finally:
-            recording = monitoring.finish()
-        report_path = run_dir / "report.json"
-        if not report_path.exists():
-            fail("up", f"the learner wrote no report; see {run_dir / 'learner.log'}")
-        report = LearnerReport.from_dict(json.loads(report_path.read_text()))
-    extra: dict[str, Any] = {
-        "run_id": run_id,
-        "run_dir": str(run_dir),
-        "command": f"ennc-ql up --config {run_dir / 'up.toml'}",
-        "config": {
+        report, endpoint, restarts, recording = _processes(args, learner, actors, run_id)
+    out = report.with_extra(
+        run_id=run_id,
+        run_dir=str(run_dir),
+        command=f"ennc-ql up --config {run_dir / 'up.toml'}",
+        config={
             "actors": config.actors,
             "duration": config.duration,
             "seed": config.seed,
@@ -105,24 +98,44 @@ def cmd_up(args: argparse.Namespace) -> int:
             "serial": args.serial,
             "secure": args.secure,
         },
-        "endpoint": endpoint,
-        "actor_restarts": restarts,
-        "wall_seconds": round(time.monotonic() - started, 1),
-        "recording": recording,
-    }
-    if report.policy_file:
-        from algorithm.policy_file import load_policy, scenario_from_header
-        from ennc_ql.figures import policy_figure
-
-        policy, header = load_policy(report.policy_file)
-        extra["policy_figure"] = str(policy_figure(policy, scenario_from_header(header), run_dir / "policy.png"))
-    out = report.with_extra(**extra).to_dict()
+        endpoint=endpoint,
+        actor_restarts=restarts,
+        wall_seconds=round(time.monotonic() - started, 1),
+        recording=recording,
+        **_policy_figure(report, run_dir),
+    ).to_dict()
     markdown, png = write_run_report(out, run_dir)
     out.update(report_md=str(markdown), learning_curve=str(png))
     (run_dir / "report.json").write_text(json.dumps(out, indent=2))
-    if args.json:
-        print(json.dumps(out))
-    else:
-        print(results_table(out))
-        print(f"report: {markdown} (learning curve {png})")
+    emit(out, args.json, f"{results_table(out)}\nreport: {markdown} (learning curve {png})")
     return 0
+
+
+def _processes(
+    args: argparse.Namespace, learner: LearnerConfig, actors: list[ActorConfig], run_id: str
+) -> tuple[LearnerReport, str, dict[str, int], dict[str, Any] | None]:
+    """The run as OS processes: the learner's report from the run folder, the endpoint, each child's restarts and
+    the summary of the merged recording."""
+    run_dir = args.runs / run_id
+    monitoring = Monitoring(args.rerun or Sink("save", str(run_dir / paths.RECORDING_FILE)), run_id, run_dir)
+    try:
+        endpoint, restarts = run_processes(
+            learner, actors, run_dir, monitoring, namespace=f"run-{run_id}", secure=args.secure
+        )
+    except LaunchError as exc:
+        fail("up", str(exc))
+    finally:
+        recording = monitoring.finish()
+    report_path = run_dir / "report.json"
+    if not report_path.exists():
+        fail("up", f"the learner wrote no report; see {run_dir / 'learner.log'}")
+    report = LearnerReport.from_dict(json.loads(report_path.read_text()))
+    return report, endpoint, restarts, recording
+
+
+def _policy_figure(report: LearnerReport, run_dir: Path) -> dict[str, str]:
+    """``policy.png`` of the learned policy, if one was learned."""
+    if not report.policy_file:
+        return {}
+    policy, header = load_policy(report.policy_file)
+    return {"policy_figure": str(policy_figure(policy, scenario_from_header(header), run_dir / "policy.png"))}

@@ -9,15 +9,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from algorithm.checks import require_at_least, require_id, require_known, require_positive
-from algorithm.phase1 import Phase1Config
-from protocol import FEATURIZER_DIMS
+from algorithm.phase1 import CMOMMT_PHASE1, Phase1Config
 from sim import SCENARIOS
-from sim.features import REWARD_NAMES
-
-
-def _phase1_default() -> Phase1Config:
-    # One fitted iteration suffices in CMOMMT [paper]; 30 000 tuples per action keep a fit under a minute here.
-    return Phase1Config(max_iterations=1, max_patterns=30_000)
+from sim.features import DEFAULT_FORMULATION, Formulation, resolve_formulation
 
 
 @dataclass(frozen=True, slots=True)
@@ -26,21 +20,28 @@ class LearnerConfig:
     """Learner id (a key-expression chunk: letters, digits, '_', '.', '-')."""
     scenario: str = "cmommt-v1"
     """Scenario the policy is learned and evaluated on."""
-    featurizer: str = "collab6d"
-    """State definition of the experience: local2d, collab6d or shared8d."""
-    reward: str = "paper"
-    """Reward the actors pay their robots (the actors' --reward): recorded in the policy; the learner's fits read
-    the rewards of the tuples."""
+    formulation: str = DEFAULT_FORMULATION
+    """State, reward and action set of the experience, and how often the evaluated policy decides, by name:
+    shared-difference (the shared8d state, the difference reward, deciding every step) or paper (the paper's
+    collab6d state and Eq. 2 reward, deciding once per action). The actors' must be the same."""
+    featurizer: str | None = None
+    """State definition instead of the formulation's: local2d, collab6d or shared8d (none: the formulation's)."""
+    reward: str | None = None
+    """Reward instead of the formulation's (none: the formulation's), as the actors' --reward: recorded in the
+    policy; the learner's fits read the rewards of the tuples."""
     act_every: int | None = None
-    """Steps between a robot's decisions when the learned policy is evaluated and in the policy file (None: the
-    scenario's action_steps, as the actors learn); the broadcast keeps the actors' action_steps."""
+    """Steps between a robot's decisions when the learned policy is evaluated and in the policy file, instead of the
+    formulation's (none: the formulation's; the paper's is the scenario's action_steps, as the actors learn); the
+    broadcast keeps the actors' action_steps."""
+    resolved: Formulation = field(init=False, repr=False, compare=False)
+    """The formulation this learner runs: ``formulation`` with the explicit fields over it (resolved here, once)."""
     store_capacity: int = 1_000_000
     """Tuples kept; the oldest are overwritten beyond it (counted)."""
     min_tuples: int = 150_000
     """Tuples stored before the first phase 1."""
     refit_growth: float = 0.0
     """Refit (warm-started) whenever the tuples received have grown this many times since the last fit; 0 = never."""
-    phase1: Phase1Config = field(default_factory=_phase1_default)
+    phase1: Phase1Config = field(default_factory=lambda: CMOMMT_PHASE1)
     """ENNC-QL phase 1."""
     broadcast_interval: float = 3.0
     """Seconds between merges + policy broadcasts."""
@@ -69,8 +70,10 @@ class LearnerConfig:
     def __post_init__(self) -> None:
         require_id("learner_id", self.learner_id)
         require_known("scenario", self.scenario, SCENARIOS)
-        require_known("featurizer", self.featurizer, FEATURIZER_DIMS)
-        require_known("reward", self.reward, REWARD_NAMES)
+        resolved = resolve_formulation(
+            self.formulation, featurizer=self.featurizer, reward=self.reward, act_every=self.act_every
+        )
+        object.__setattr__(self, "resolved", resolved)
         require_at_least(
             1,
             store_capacity=self.store_capacity,
@@ -87,12 +90,10 @@ class LearnerConfig:
             duration=self.duration,
         )
         require_at_least(0, threads=self.threads)
-        if self.act_every is not None:
-            require_at_least(1, act_every=self.act_every)
         if self.refit_growth != 0 and not self.refit_growth > 1:
             raise ValueError(f"refit_growth must be 0 (never) or above 1, got {self.refit_growth}")
 
     @property
     def method(self) -> str:
         """The name the learned policy carries (as in ``reproduce``'s table)."""
-        return "ennc-ql-local" if self.featurizer == "local2d" else "ennc-ql-collab-option2"
+        return "ennc-ql-local" if self.resolved.featurizer == "local2d" else "ennc-ql-collab-option2"

@@ -3,7 +3,7 @@ good, and say what can be acked.
 
 Usage (handlers run on transport worker threads; every method is thread-safe and takes the intake's own lock)::
 
-    intake = ExperienceIntake(capacity=1_000_000, dim=6, transport=transport)
+    intake = ExperienceIntake(capacity=1_000_000, formulation=FORMULATIONS["paper"], transport=transport)
     transport.subscribe(keys.experience(), ExperienceBatch, intake.on_experience, intake.on_rejected)
     intake.accept_sequence(actor, incarnation, seq)     # a Q-table increment shares its sender's sequence
     data = intake.snapshot_for_fit()                    # (stored tuples, tuples received so far)
@@ -11,10 +11,10 @@ Usage (handlers run on transport worker threads; every method is thread-safe and
     figures = intake.figures()                          # counters for status and report
 
 **One count per message.** Every arrival is counted once: stored, a duplicate, or a rejection. A message refused
-for good (invalid, or of another state dimension) that names its sender's own stream takes its seq in the ledger
-and is rejected by it (a ``Reject`` to its sender, once), so a re-sent copy is a duplicate like any re-send, not a
-second rejection. A refused payload whose seq cannot be read, or that claims another sender's stream, is counted
-at each arrival: nothing ties two copies of it together.
+for good (invalid, of another formulation or of another state dimension) that names its sender's own stream takes
+its seq in the ledger and is rejected by it (a ``Reject`` to its sender, once), so a re-sent copy is a duplicate
+like any re-send, not a second rejection. A refused payload whose seq cannot be read, or that claims another
+sender's stream, is counted at each arrival: nothing ties two copies of it together.
 """
 
 from __future__ import annotations
@@ -33,11 +33,15 @@ from algorithm.wire import transitions_from_batch
 from learner.store import ExperienceStore, SequenceLedger
 from protocol import DEFAULT_KEYS, ExperienceBatch, ProtocolError, Reject, Transport, peek_sequence
 from protocol.messages import MAX_NAME_LEN
+from sim.features import FEATURIZERS, Formulation
 
 log = logging.getLogger(__name__)
 
 STATE_DIMENSION = "StateDimension"
 """``rejected_by_type`` name of a valid batch over another state dimension than the learner's featurizer."""
+FORMULATION = "Formulation"
+"""``rejected_by_type`` name of a valid batch stamped with another formulation than the learner's: its tuples mean
+something else (another state, reward or action set)."""
 
 _LOG_FIRST = 10
 _LOG_EVERY = 1000
@@ -70,12 +74,14 @@ class IntakeFigures:
 class ExperienceIntake:
     """Store + ledger + rejection counts behind one lock, with the figures the learner reports."""
 
-    def __init__(self, capacity: int, dim: int, transport: Transport | None = None) -> None:
+    def __init__(self, capacity: int, formulation: Formulation, transport: Transport | None = None) -> None:
+        self.formulation = formulation
+        """What every stored tuple was made under: a batch stamped with another formulation is refused."""
         self.transport = transport
         """Where Rejects go (None: refusals are only counted, as in the transport benchmark)."""
         self._keys = DEFAULT_KEYS if transport is None else transport.keys
         self._lock = threading.Lock()
-        self._store = ExperienceStore(capacity, dim)
+        self._store = ExperienceStore(capacity, FEATURIZERS[formulation.featurizer])
         self._ledger = SequenceLedger()
         self._rejected: Counter[str] = Counter()
         self._refused = 0
@@ -86,9 +92,9 @@ class ExperienceIntake:
         self._received_before = 0  # tuples received before a resume: the rate counts this process only
 
     def on_experience(self, msg: ExperienceBatch) -> None:
-        if msg.state.shape[1] != self._store.dim:
-            reason = f"state dimension {msg.state.shape[1]}, expected {self._store.dim}"
-            self._refuse((msg.actor_id, msg.incarnation, msg.seq), STATE_DIMENSION, reason)
+        kind, reason = self._mismatch(msg)
+        if reason:
+            self._refuse((msg.actor_id, msg.incarnation, msg.seq), kind, reason)
             return
         batch = transitions_from_batch(msg)
         with self._lock:
@@ -98,6 +104,21 @@ class ExperienceIntake:
             self._received += len(batch)
             self._by_actor[msg.actor_id] = self._by_actor.get(msg.actor_id, 0) + len(batch)
             self._latest_version[msg.actor_id] = max(self._latest_version.get(msg.actor_id, 0), msg.policy_version)
+
+    def _mismatch(self, msg: ExperienceBatch) -> tuple[str, str]:
+        """(kind, why) ``msg`` cannot join the store, or ("", ""): tuples of another formulation mean something else.
+        The reason names the first part that differs (a Reject's reason holds 64 characters)."""
+        own = self.formulation
+        for part, theirs, mine in (
+            ("featurizer", msg.featurizer, own.featurizer),
+            ("reward_function", msg.reward_function, own.reward),
+            ("action_set", msg.action_set, own.actions),
+        ):
+            if theirs != mine:
+                return FORMULATION, f"{part} {theirs}, expected {mine}"
+        if msg.state.shape[1] != self._store.dim:
+            return STATE_DIMENSION, f"state dimension {msg.state.shape[1]}, expected {self._store.dim}"
+        return "", ""
 
     def on_rejected(self, key: str, payload: bytes, error: ProtocolError) -> None:
         """A payload the transport refused on an actor's key (the transport's ``on_reject``): rejected by its seq

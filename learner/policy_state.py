@@ -39,6 +39,7 @@ class PolicyState:
         on_version: Callable[[int], None] | None = None,
         reward: str = "eq2",
         act_every: int | None = None,
+        actions: str = "compass",
     ) -> None:
         self.on_version = on_version
         """Called with each new version before anyone can see it (the learner persists its version mark there)."""
@@ -49,6 +50,8 @@ class PolicyState:
         self.method = method
         self.reward = reward
         """The reward function the actors learn with (a name of :data:`sim.features.REWARDS`), for the policy file."""
+        self.actions = actions
+        """The action set the tables' actions mean (a name of :data:`sim.actions.ACTION_SETS`)."""
         self.act_every = act_every
         """Steps between decisions of the evaluated and saved policy (None: ``action_steps``)."""
         self._lock = threading.Lock()
@@ -219,6 +222,7 @@ class PolicyState:
             version=self._version,
             method=self.method,
             reward=self.reward,
+            actions=self.actions,
         )
 
 

@@ -39,9 +39,8 @@ from learner.policy_state import PolicyState
 from learner.report import LearnerReport, LearnerStatus
 from monitor import Monitor
 from monitor.learner import LearnerWatch
-from protocol import FEATURIZER_DIMS, Ack, QTableIncrement, Status, Transport
+from protocol import Ack, QTableIncrement, Status, Transport
 from sim import scenario
-from sim.features import resolve_reward
 
 log = logging.getLogger(__name__)
 
@@ -59,18 +58,20 @@ class LearnerService:
         self.config = config
         self.run_dir = run_dir
         self.scenario = scenario(config.scenario)
-        self.intake = ExperienceIntake(config.store_capacity, FEATURIZER_DIMS[config.featurizer], transport)
+        formulation = config.resolved
+        self.intake = ExperienceIntake(config.store_capacity, formulation, transport)
         self.members = Membership()
         self.version_mark = VersionMark(run_dir)
         self.state = PolicyState(
             self.scenario.n_robots,
-            config.featurizer,
+            formulation.featurizer,
             self.scenario.name,
             self.scenario.action_steps,
             config.method,
             on_version=self.version_mark.record,
-            reward=resolve_reward(config.featurizer, config.reward),
-            act_every=config.act_every,
+            reward=formulation.reward,
+            act_every=formulation.act_every,
+            actions=formulation.actions,
         )
         self.fitter = Fitter(config, on_fitted=self._adopt)
         self.evaluator = Evaluator(self.scenario, config.eval_trials, config.eval_steps, config.final_eval_trials)
@@ -109,7 +110,7 @@ class LearnerService:
     def run(self, stop: threading.Event) -> LearnerReport:
         c = self.config
         self._started = time.monotonic()
-        self.watch.started(c.featurizer, self.state.reward, self.evaluator.references)
+        self.watch.started(c.resolved.featurizer, self.state.reward, self.evaluator.references)
         next_broadcast = next_checkpoint = next_status = self._started
         next_eval = self._started + c.eval_interval
         while not stop.is_set():

@@ -14,7 +14,6 @@ from typing import TYPE_CHECKING, Any
 
 from protocol.codec import MAX_PAYLOAD_BYTES, decode, decode_as, encode, peek_sequence
 from protocol.messages import (
-    FEATURIZER_DIMS,
     N_ACTIONS,
     ROLES,
     SCHEMA_VERSION,
@@ -79,7 +78,6 @@ def __getattr__(name: str) -> Any:
 
 __all__ = [
     "DEFAULT_KEYS",
-    "FEATURIZER_DIMS",
     "MAX_PAYLOAD_BYTES",
     "N_ACTIONS",
     "QOS",

@@ -4,8 +4,8 @@ All keys live under ``[namespace/]enncql/v<SCHEMA_VERSION>/`` so that incompatib
 meet and independent runs can share one network::
 
     keys = KeySpace()                       # or KeySpace(namespace="run-42")
-    keys.experience("actor-3")              # 'enncql/v1/experience/actor-3'  (actor -> learner)
-    keys.experience()                       # 'enncql/v1/experience/*'        (learner subscribes)
+    keys.experience("actor-3")              # 'enncql/v2/experience/actor-3'  (actor -> learner)
+    keys.experience()                       # 'enncql/v2/experience/*'        (learner subscribes)
     keys.qos(keys.experience("actor-3"))    # QoS(reliable=True, congestion_control=BLOCK, ...)
 
 ======================  ============================  ==============  =====================
@@ -139,7 +139,7 @@ class KeySpace:
 
     @property
     def root(self) -> str:
-        """``[namespace/]enncql/v1``."""
+        """``[namespace/]enncql/v2``."""
         return f"{self.namespace}/{ROOT}" if self.namespace else ROOT
 
     def experience(self, actor_id: str = WILD) -> str:

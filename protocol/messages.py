@@ -6,6 +6,7 @@ type. Messages validate themselves on construction, so a message object that exi
 
     batch = ExperienceBatch(
         actor_id="actor-0", incarnation=0x1234, seq=0, policy_version=0,
+        featurizer="collab6d", reward_function="eq2", action_set="compass",
         robot=np.zeros(2, np.int16), state=np.zeros((2, 6), np.float32), action=np.array([1, 7], np.uint8),
         reward=np.zeros(2, np.float32), next_state=np.zeros((2, 6), np.float32), done=np.zeros(2, bool),
     )
@@ -27,16 +28,11 @@ from typing import Any, ClassVar, Literal, TypeAlias
 import numpy as np
 import numpy.typing as npt
 
-SCHEMA_VERSION = 1
-"""Wire schema version: in the envelope and in every key expression (``enncql/v1/...``)."""
+SCHEMA_VERSION = 2
+"""Wire schema version: in the envelope and in every key expression (``enncql/v2/...``)."""
 
 N_ACTIONS = 8
 """L, the number of discrete actions of scenario ``cmommt-v1``; changing it is a schema change."""
-
-FEATURIZER_DIMS: Mapping[str, int] = MappingProxyType(
-    {"local2d": 2, "collab6d": 6, "shared8d": 8, "present10d": 10, "frame9d": 9, "frame7d": 7}
-)
-"""State dimension d of each featurizer a PolicyUpdate may name."""
 
 ROLES = ("learner", "actor", "evaluator")
 MAX_STATE_DIM = 64
@@ -74,7 +70,7 @@ class OversizePayload(ProtocolError):
 
 class InvalidValues(ProtocolError):
     """Well-formed, but a value is out of its domain: NaN/inf, negative or out-of-range integers, bad
-    identifiers, unsorted offsets, unknown featurizer or role, too many counters."""
+    identifiers or names, unsorted offsets, unknown role, too many counters."""
 
 
 class IdentityMismatch(ProtocolError):
@@ -289,6 +285,12 @@ class ExperienceBatch(_Validated):
     seq: int = field(metadata=_u64())
     # PolicyUpdate.version the tuples were collected with; 0 = random exploration.
     policy_version: int = field(metadata=_u64())
+    # The formulation the tuples were made under, as in PolicyUpdate: the state definition (its dimension is d),
+    # the reward function and the action set, each a name in identifier syntax. The learner refuses a batch whose
+    # formulation is not its own: its tuples would mean something else.
+    featurizer: str = field(metadata=_spec("id"))
+    reward_function: str = field(metadata=_spec("id"))
+    action_set: str = field(metadata=_spec("id"))
     # [N] int16 robot id of each tuple, ≥ 0.
     robot: npt.NDArray[np.int16] = field(metadata=_array("int16", "N", lo=0))
     # [N, d] float32 featurized state s (units of the featurizer).
@@ -354,8 +356,13 @@ class PolicyUpdate(_Validated):
     version: int = field(metadata=_u64(lo=1))
     # Versioned scenario name, e.g. "cmommt-v1".
     scenario: str = field(metadata=_spec("name"))
-    # "local2d" (d = 2), "collab6d" (d = 6) or "shared8d" (d = 8).
-    featurizer: str = field(metadata=_spec("choice", choices=tuple(FEATURIZER_DIMS)))
+    # The formulation the policy is learned under, each a name in identifier syntax: the state definition (e.g.
+    # "shared8d", whose dimension is d), the reward function (e.g. "difference") and the action set (e.g. "compass").
+    # Which names exist is the processes' business (sim's registries): an actor refuses a policy over another
+    # formulation than its own.
+    featurizer: str = field(metadata=_spec("id"))
+    reward_function: str = field(metadata=_spec("id"))
+    action_set: str = field(metadata=_spec("id"))
     # Simulator steps an action is held, ≥ 1.
     action_steps: int = field(metadata=_spec("int", lo=1, hi=2**31 - 1))
     # [P, d] float32 prototype states.
@@ -374,9 +381,8 @@ class PolicyUpdate(_Validated):
     scale: npt.NDArray[np.float32] = field(metadata=_array("float32", "d"))
 
     def _check_consistency(self) -> None:
-        d = FEATURIZER_DIMS[self.featurizer]
-        if self.prototypes.shape[1] != d:
-            raise MalformedMessage(f"prototypes: featurizer {self.featurizer} needs d={d}")
+        if not 1 <= self.prototypes.shape[1] <= MAX_STATE_DIM:
+            raise MalformedMessage(f"prototypes: dimension d={self.prototypes.shape[1]} outside [1, {MAX_STATE_DIM}]")
         if not (self.scale > 0).all():
             raise InvalidValues("scale: every component must be positive")
         _check_offsets(self.offsets, self.prototypes.shape[0])

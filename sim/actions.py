@@ -23,10 +23,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.config import ScenarioConfig
+from sim.controllers import COMPASS, COMPASS_NAMES
 from sim.world import Observation
 
 _EIGHTHS = np.arange(8) * np.pi / 4
-_COMPASS_ANGLES = np.pi / 2 - _EIGHTHS
 
 
 @dataclass(frozen=True, slots=True)
@@ -34,8 +34,8 @@ class ActionSet:
     """Eight moves named in a frame: the world's (``relative=False``) or the nearest target's."""
 
     name: str
-    names: tuple[str, ...]
-    """Action names, in index order."""
+    moves: tuple[str, ...]
+    """The move of each action index, in index order."""
     directions: np.ndarray
     """(8, 2) unit vectors of the moves in their frame."""
     relative: bool
@@ -55,18 +55,12 @@ class ActionSet:
         return cfg.robot_speed * np.einsum("...k,...kd->...d", local, frame)
 
 
-COMPASS_NAMES = ("N", "NE", "E", "SE", "S", "SW", "W", "NW")
 RELATIVE_NAMES = ("toward", "toward-left", "left", "away-left", "away", "away-right", "right", "toward-right")
 
 ACTION_SETS: dict[str, ActionSet] = {
     a.name: a
     for a in (
-        ActionSet(
-            "compass",
-            COMPASS_NAMES,
-            np.stack([np.cos(_COMPASS_ANGLES), np.sin(_COMPASS_ANGLES)], axis=-1),
-            relative=False,
-        ),
+        ActionSet("compass", COMPASS_NAMES, COMPASS, relative=False),
         ActionSet("relative", RELATIVE_NAMES, np.stack([np.cos(_EIGHTHS), np.sin(_EIGHTHS)], axis=-1), relative=True),
     )
 }

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.actions import target_frame
+from sim.actions import ACTION_SETS, target_frame
 from sim.config import ScenarioConfig
 from sim.world import Observation
 
@@ -185,6 +185,13 @@ FEATURIZERS: dict[str, int] = {name: f.dim for name, f in FEATURIZER_REGISTRY.it
 """State dimension of each featurizer."""
 
 
+def _featurizer(name: str) -> Featurizer:
+    try:
+        return FEATURIZER_REGISTRY[name]
+    except KeyError:
+        raise ValueError(f"unknown featurizer {name!r}; known: {', '.join(FEATURIZER_REGISTRY)}") from None
+
+
 @dataclass(frozen=True, slots=True)
 class Reward:
     """A reward function: what a learning robot is paid at the end of its trial, or after each of its actions."""
@@ -226,14 +233,31 @@ REWARD_NAMES: tuple[str, ...] = ("paper", *REWARDS)
 
 @dataclass(frozen=True, slots=True)
 class Formulation:
-    """What a learning problem is made of besides the algorithm: the state, the reward, and how often a robot of
-    the learned policy decides in test trials."""
+    """What a learning problem is made of besides the algorithm: the state, the reward, the action set, and how often
+    a robot of the learned policy decides in test trials. Constructing one checks every name against its registry::
+
+        Formulation("shared8d", "difference", act_every=1)      # FORMULATIONS["shared-difference"]
+        resolve_formulation("paper", reward="difference")       # a named one with an explicit part over it
+    """
 
     featurizer: str
+    """A name of :data:`FEATURIZER_REGISTRY`."""
     reward: str
+    """A name of :data:`REWARDS` (``paper`` is resolved before: :func:`resolve_formulation`)."""
     act_every: int | None = None
     """Steps between a robot's decisions in test trials; None: ``action_steps``, as it learned [paper]. Learning
     always holds an action ``action_steps`` steps."""
+    actions: str = "compass"
+    """A name of :data:`sim.actions.ACTION_SETS`."""
+
+    def __post_init__(self) -> None:
+        _featurizer(self.featurizer)
+        if self.reward not in REWARDS:
+            raise ValueError(f"unknown reward {self.reward!r}; known: {', '.join(REWARD_NAMES)}")
+        if self.actions not in ACTION_SETS:
+            raise ValueError(f"unknown action set {self.actions!r}; known: {', '.join(ACTION_SETS)}")
+        if self.act_every is not None and self.act_every < 1:
+            raise ValueError(f"act_every must be at least 1, got {self.act_every}")
 
     def describe(self) -> str:
         every = {None: "every action", 1: "every step"}.get(self.act_every, f"every {self.act_every} steps")
@@ -244,15 +268,27 @@ FORMULATIONS: dict[str, Formulation] = {
     "paper": Formulation("collab6d", "eq2"),
     "shared-difference": Formulation("shared8d", "difference", act_every=1),
 }
-"""What ``ennc-ql up --formulation`` picks: ``paper`` is the paper's collaborative formulation [paper §4, Eq. 2];
+"""Every formulation by name: ``paper`` is the paper's collaborative formulation [paper §4, Eq. 2];
 ``shared-difference`` the best one the ablations of the README found [beyond the paper]."""
+DEFAULT_FORMULATION = "shared-difference"
+"""The formulation of every process (``up``, ``learner``, ``actor``, compose's) unless another is named."""
 
 
-def _featurizer(name: str) -> Featurizer:
-    try:
-        return FEATURIZER_REGISTRY[name]
-    except KeyError:
-        raise ValueError(f"unknown featurizer {name!r}; known: {', '.join(FEATURIZER_REGISTRY)}") from None
+def resolve_formulation(
+    name: str, *, featurizer: str | None = None, reward: str | None = None, act_every: int | None = None
+) -> Formulation:
+    """The formulation ``name`` with the parts given explicitly over its own; a ``reward`` of ``paper`` becomes the
+    state's own reward. ValueError names an unknown name."""
+    if name not in FORMULATIONS:
+        raise ValueError(f"unknown formulation {name!r}; known: {', '.join(FORMULATIONS)}")
+    base = FORMULATIONS[name]
+    state = featurizer or base.featurizer
+    return Formulation(
+        state,
+        resolve_reward(state, reward or base.reward),
+        act_every=base.act_every if act_every is None else act_every,
+        actions=base.actions,
+    )
 
 
 def resolve_reward(featurizer: str, reward: str) -> str:

@@ -35,15 +35,16 @@ status 0 if every check holds, 1 if one fails; ``RUN/chaos.json`` holds what ``-
 """
 
 # The package, by role: options (the faults by name, the defaults, parsing), command (the parser, the command),
-# cluster (the processes and chaos's read-only session), peers (the hostile peer), faults (the run and each fault),
-# checks (the contract checked from the figures, and the table).
+# run (the run: its cluster, started with ennc_ql.cluster's pieces, the rotation, the drain), faults (each fault),
+# observe (chaos's read-only session, RSS, waiting), peers (the hostile peer), checks (the contract checked from the
+# figures, and the table).
 
 from __future__ import annotations
 
 from ennc_ql.chaos.checks import Check, Evidence, figures_and_checks, results_table
 from ennc_ql.chaos.command import add_chaos_parser, cmd_chaos
-from ennc_ql.chaos.faults import Chaos
 from ennc_ql.chaos.options import FAULTS, SECURE_ONLY, ChaosOptions, chaos_options, parse_duration, parse_faults
+from ennc_ql.chaos.run import Chaos
 
 __all__ = [
     "FAULTS",

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from algorithm.policy_file import PolicyFileError, load_policy
 from ennc_ql.chaos.options import SECURE_ONLY
 from ennc_ql.chaos.peers import POISON_TUPLES
 
@@ -104,8 +105,6 @@ def check_exactly_once(ev: Evidence, actors: dict[str, dict[str, Any]]) -> Check
 
 def visit_figures(ev: Evidence, actors: dict[str, dict[str, Any]]) -> dict[str, Any]:
     """Visits in the final policy file's tables (the learner) against those acknowledged to the actors."""
-    from algorithm.policy_file import PolicyFileError, load_policy
-
     figures: dict[str, Any] = {
         "acked": sum(a["visits_acked"] or 0 for a in actors.values()),
         "killed_acked": sum(a["killed_visits_acked"] for a in actors.values()),

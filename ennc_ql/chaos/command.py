@@ -14,8 +14,7 @@ from types import FrameType
 from typing import Any
 
 from ennc_ql.chaos.checks import results_table
-from ennc_ql.chaos.cluster import WaitTimeout
-from ennc_ql.chaos.faults import Chaos
+from ennc_ql.chaos.observe import WaitTimeout
 from ennc_ql.chaos.options import (
     DEFAULT_DURATION_S,
     DEFAULT_FAULT_INTERVAL_S,
@@ -24,9 +23,10 @@ from ennc_ql.chaos.options import (
     SOAK_RSS_INTERVAL_S,
     chaos_options,
 )
+from ennc_ql.chaos.run import Chaos
+from ennc_ql.cluster import SET_BY_UP, UP_PRESETS, UpConfig
+from ennc_ql.command import configure, fail, writable_dir
 from ennc_ql.config import add_config_flags, positive
-from ennc_ql.launch import SET_BY_UP, UP_PRESETS, UpConfig
-from ennc_ql.processes import configure, fail, writable_dir
 from protocol import check_id
 
 LEARNER_EXTRA_S = 3600.0
@@ -113,7 +113,7 @@ def add_chaos_parser(sub: Any) -> None:
     p.add_argument("--config", metavar="FILE", help="TOML file of the cluster's configuration (e.g. a run's up.toml)")
     p.add_argument("--json", action="store_true", help="print the figures and checks as one JSON object")
     add_config_flags(
-        p.add_argument_group("cluster configuration (ennc_ql.launch.UpConfig)"),
+        p.add_argument_group("cluster configuration (ennc_ql.cluster.UpConfig)"),
         UpConfig,
         exclude=(*SET_BY_UP, "duration"),
         defaults=UP_PRESETS,

@@ -7,7 +7,7 @@ import argparse
 import re
 from dataclasses import dataclass
 
-from ennc_ql.processes import fail
+from ennc_ql.command import fail
 
 FAULTS = (
     "learner-kill",

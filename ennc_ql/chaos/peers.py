@@ -12,8 +12,9 @@ import msgpack
 import numpy as np
 import zenoh
 
-from ennc_ql.chaos.cluster import RECOVERY_TIMEOUT_S, wait_for
+from ennc_ql.chaos.observe import RECOVERY_TIMEOUT_S, wait_for
 from protocol import Ack, ExperienceBatch, KeySpace, Reject, ZenohTransport, encode
+from sim.features import FEATURIZERS, Formulation
 
 POISON_TUPLES, INTRUDER_TUPLES, SPOOF_PUTS = 5, 3, 3
 """Tuples per batch of a poison round (two of its three batches are stored: mallory's count is 10 per round, so any
@@ -52,10 +53,12 @@ class Replies:
 class Peer:
     """A session of chaos's own playing a peer under ``ident``, publishing raw bytes past the publish-side checks."""
 
-    def __init__(self, conf: zenoh.Config, keys: KeySpace, ident: str, dims: int) -> None:
+    def __init__(self, conf: zenoh.Config, keys: KeySpace, ident: str, formulation: Formulation) -> None:
         self.keys = keys
         self.ident = ident
-        self.dims = dims
+        self.formulation = formulation
+        """The run's: the learner refuses batches of any other, so the peer's must pass that check to test the rest."""
+        self.dims = FEATURIZERS[formulation.featurizer]
         self.own_key = keys.experience(ident)
         self.transport = ZenohTransport.open(conf, keys)
 
@@ -73,6 +76,9 @@ class Peer:
             incarnation=incarnation,
             seq=seq,
             policy_version=0,
+            featurizer=self.formulation.featurizer,
+            reward_function=self.formulation.reward,
+            action_set=self.formulation.actions,
             robot=np.zeros(n, np.int16),
             state=np.zeros((n, self.dims), np.float32),
             action=np.zeros(n, np.uint8),

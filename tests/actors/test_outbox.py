@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from collections.abc import Callable
 
 import numpy as np
+import pytest
 
 from actors.increments import IncrementTracker
 from actors.outbox import Outbox
@@ -16,6 +18,7 @@ from algorithm.discretization import Discretization
 from algorithm.policy import Policy
 from algorithm.wire import policy_update
 from protocol import Ack, Header, InMemoryBus, InMemoryTransport, Reject, Status
+from sim.features import Formulation
 
 
 def stamped(header: Header) -> Status:
@@ -127,6 +130,10 @@ def test_a_rejoining_learner_gets_the_whole_outbox_again_and_flush_ends_on_the_l
         assert received == [0.0, 1.0] and outbox.resent == 2 and outbox.acked == 1
 
 
+LOCAL = Formulation("local2d", "observed")
+"""The formulation of the one-cell policies below (their prototypes are 2-D)."""
+
+
 def one_cell_policy(version: int, q: float) -> Policy:
     disc = Discretization.from_per_action([np.zeros((1, 2), np.float32)] * 8)
     return Policy(
@@ -135,12 +142,13 @@ def one_cell_policy(version: int, q: float) -> Policy:
         tables=np.full((3, disc.size), q, np.float32),
         robot_table=np.arange(3),
         version=version,
+        reward="observed",
     )
 
 
 def test_policy_client_keeps_the_newest_and_the_learning_not_handed_in() -> None:
     tracker = IncrementTracker(robots=(0, 1))
-    client = PolicyClient(n_robots=3, phase2=Phase2Config(), tracker=tracker, featurizer="local2d")
+    client = PolicyClient(n_robots=3, phase2=Phase2Config(), tracker=tracker, formulation=LOCAL)
     client.offer(policy_update(one_cell_policy(2, 0.0), "cmommt-v1"))
     client.offer(policy_update(one_cell_policy(1, 9.0), "cmommt-v1"))  # older: ignored
     update = client.take()
@@ -163,13 +171,36 @@ def test_policy_client_keeps_the_newest_and_the_learning_not_handed_in() -> None
     assert [(r, c[0], v[0]) for r, c, v in tracker.take(adopted)] == [(0, 0.5, 1)]
 
 
-def test_policy_client_refuses_a_broadcast_over_another_state_and_counts_it() -> None:
-    client = PolicyClient(
-        n_robots=3, phase2=Phase2Config(), tracker=IncrementTracker(robots=(0,)), featurizer="collab6d"
-    )
-    client.offer(policy_update(one_cell_policy(2, 0.0), "cmommt-v1"))  # a local2d policy: 2-D prototypes
-    client.offer(policy_update(one_cell_policy(3, 0.0), "cmommt-v1"))
-    assert client.take() is None and client.refused == 2 and client.version == 0
+def test_policy_client_refuses_a_broadcast_over_another_formulation_and_counts_it(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    def client(formulation: Formulation) -> PolicyClient:
+        return PolicyClient(3, Phase2Config(), IncrementTracker(robots=(0,)), formulation)
+
+    local = one_cell_policy(2, 0.0)
+    other_reward = client(LOCAL)
+    other_reward.offer(policy_update(dataclasses.replace(local, reward="difference"), "cmommt-v1"))
+    other_reward.offer(policy_update(dataclasses.replace(local, version=3, reward="eq2"), "cmommt-v1"))
+    other_state = client(Formulation("collab6d", "observed"))
+    other_state.offer(policy_update(local, "cmommt-v1"))
+    # The wire checks names for their syntax only: a broadcast naming local2d over 6-D prototypes is refused here.
+    six = policy_update(local, "cmommt-v1")
+    wrong_dim = client(LOCAL)
+    wrong_dim.offer(dataclasses.replace(six, prototypes=np.zeros((8, 6), np.float32), scale=np.ones(6, np.float32)))
+    assert [(c.take(), c.refused, c.version) for c in (other_reward, other_state, wrong_dim)] == [
+        (None, 2, 0),
+        (None, 1, 0),
+        (None, 1, 0),
+    ]
+    refusals = [r.getMessage() for r in caplog.records if "refused" in r.getMessage()]
+    assert refusals == [  # logged once per client, counted every time
+        "policy version 2 is refused: it is over the local2d/difference/compass formulation, this actor's is "
+        "local2d/observed/compass (is the learner started with the same --formulation?)",
+        "policy version 2 is refused: it is over the local2d/observed/compass formulation, this actor's is "
+        "collab6d/observed/compass (is the learner started with the same --formulation?)",
+        "policy version 2 is refused: its prototypes have 6 dimensions, local2d has 2 (is the learner started with "
+        "the same --formulation?)",
+    ]
 
 
 def test_a_rejected_message_leaves_the_outbox_and_the_rest_flows_on() -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -19,9 +20,11 @@ from algorithm.wire import (
     policy_update,
     transitions_from_batch,
 )
-from protocol import FEATURIZER_DIMS, N_ACTIONS, Header, InvalidValues, decode_as, encode
+from protocol import N_ACTIONS, Header, InvalidValues, decode_as, encode
 from protocol.messages import ExperienceBatch, PolicyUpdate, QTableIncrement
-from sim import COMPASS, FEATURIZERS, scenario
+from sim import COMPASS, scenario
+from sim.actions import ACTION_SETS
+from sim.features import FEATURIZERS, FORMULATIONS, REWARDS, Formulation
 from tests.algorithm.test_policy_file import make_policy
 
 
@@ -47,6 +50,8 @@ def test_policy_round_trips_through_the_wire() -> None:
     assert policy.visits is not None and back.visits is not None
     np.testing.assert_array_equal(back.visits, policy.visits)
     assert (back.version, back.featurizer, back.action_steps) == (policy.version, policy.featurizer, 5)
+    assert (update.reward_function, update.action_set) == (policy.reward, policy.actions) == ("eq2", "compass")
+    assert (back.reward, back.actions) == (policy.reward, policy.actions)
     assert update.scenario == "cmommt-v1" and update.robots.tolist() == list(range(10))
 
 
@@ -62,19 +67,21 @@ def test_a_shared_table_goes_out_as_every_robots_row() -> None:
 
 def test_transitions_round_trip_in_batches_with_the_headers_they_are_given() -> None:
     data = transitions(2500)
-    batches = [build(Header("a0", 9, 4 + k, 3)) for k, build in enumerate(experience_batches(data, batch_size=1000))]
+    parts = experience_batches(data, 1000, FORMULATIONS["shared-difference"])
+    batches = [build(Header("a0", 9, 4 + k, 3)) for k, build in enumerate(parts)]
     assert [b.seq for b in batches] == [4, 5, 6] and [b.n_tuples for b in batches] == [1000, 1000, 500]
     decoded = [transitions_from_batch(decode_as(encode(b), ExperienceBatch)) for b in batches]
     joined = Transitions.concat(decoded)
     for name in ("robot", "state", "action", "reward", "next_state", "done"):
         np.testing.assert_array_equal(getattr(joined, name), getattr(data, name))
     assert {b.policy_version for b in batches} == {3} and {b.incarnation for b in batches} == {9}
+    assert {(b.featurizer, b.reward_function, b.action_set) for b in batches} == {("shared8d", "difference", "compass")}
 
 
 def test_an_invalid_tuple_is_caught_in_the_actor_before_the_wire() -> None:
     data = transitions(10)
     data.reward[3] = np.nan
-    first, second = experience_batches(data, batch_size=8)
+    first, second = experience_batches(data, 8, FORMULATIONS["paper"])
     with pytest.raises(InvalidValues, match="reward"):
         first(Header("a0", 1, 0, 0))
     assert second(Header("a0", 1, 0, 0)).n_tuples == 2  # only the part holding the NaN is refused
@@ -105,7 +112,7 @@ def test_the_builders_write_the_pinned_wire_bytes() -> None:
         next_state=np.array([[0.75, -1.0], [2.0, 0.0]], np.float32),
         done=np.array([False, True]),
     )
-    (build,) = experience_batches(tuples, batch_size=2)
+    (build,) = experience_batches(tuples, 2, Formulation("local2d", "observed"))
     batch = build(Header("actor-0", 0x0123456789ABCDEF, seq=7, policy_version=3))
     assert encode(batch) == (golden / "experience.msgpack").read_bytes()
     increment = increment_message(
@@ -120,14 +127,29 @@ def test_the_builders_write_the_pinned_wire_bytes() -> None:
 
 def test_the_protocols_constants_are_the_simulators() -> None:
     assert len(COMPASS) == N_ACTIONS
-    assert dict(FEATURIZER_DIMS) == FEATURIZERS
+    assert {len(actions.moves) for actions in ACTION_SETS.values()} == {N_ACTIONS}
+
+
+def test_the_formulation_names_docs_protocol_lists_are_the_registries() -> None:
+    """docs/protocol.md §4 lists the names a formulation may carry: exactly sim's registries, dimensions and moves."""
+    text = (Path(__file__).parents[2] / "docs" / "protocol.md").read_text()
+    table = text[text.index("### Formulation") : text.index("### `ack`")]
+    rows = dict(re.findall(r"^\| `(\w+)`\s+\| (.+?) \|$", table, re.M))
+    documented = {
+        kind: re.findall(r"`([a-z0-9-]+)`(?: \(d = (\d+)\))?", rows[kind].split("(`")[0])
+        for kind in ("featurizer", "reward_function", "action_set")
+    }
+    assert documented["featurizer"] == [(name, str(d)) for name, d in FEATURIZERS.items()]
+    assert [name for name, _ in documented["reward_function"]] == list(REWARDS)
+    assert [name for name, _ in documented["action_set"]] == list(ACTION_SETS)
+    assert ", ".join(ACTION_SETS["compass"].moves) in rows["action_set"]
     assert scenario().n_robots <= np.iinfo(np.int16).max  # robot ids travel as int16
 
 
 @pytest.mark.parametrize(
     "modules",
     [
-        "actors.actor, actors.wiring, ennc_ql.processes",  # everything an actor process loads
+        "actors.actor, actors.wiring, ennc_ql.actor",  # everything an actor process loads
         "algorithm.policy, algorithm.agent, algorithm.trials, algorithm.wire, algorithm.policy_file, algorithm",
         "learner.config, algorithm.phase1, algorithm.experiments",  # configurations are read without fitting
         "ennc_ql.router, ennc_ql.cli",

@@ -1,7 +1,8 @@
 """End-to-end tests: real ``ennc-ql`` processes (loopback, compose topology, network namespaces, benchmarks).
 
-Shared here: :class:`Processes`, the child processes of one test, each with its stdout and stderr in files, all
-stopped and reaped when the ``with`` block ends, whatever happened::
+Shared here: :class:`Processes`, the child processes of one test (the library's start-up skeleton,
+:class:`ennc_ql.cluster.Children`), each with its stdout and stderr in files, all stopped and reaped when the ``with``
+block ends, whatever happened::
 
     with Processes(tmp_path) as procs:
         procs.start("router", ennc_ql("router", "--listen", endpoint))
@@ -13,10 +14,11 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 from types import TracebackType
 from typing import Any, Self
+
+from ennc_ql.cluster import Children, ennc_ql_argv
 
 # Budgets of the short cluster runs: small enough for a first policy within seconds on two busy cores, and the
 # actors stop ten seconds before the learner does, so all they sent is acknowledged and in the learner's report.
@@ -37,27 +39,23 @@ LEARNER_BUDGET = [
 ACTOR_BUDGET = ["--duration=24", "--arenas=16", "--json", "--batch-size=1024", "--flush-timeout=30"]
 
 
-def ennc_ql(*argv: str) -> list[str]:
-    """The command line of ``ennc-ql ARGV`` with this interpreter (no reliance on PATH or the console script)."""
-    return [sys.executable, "-m", "ennc_ql.cli", *argv]
+ennc_ql = ennc_ql_argv
+"""The command line of ``ennc-ql ARGV`` with this interpreter."""
 
 
 class Processes:
-    """Child processes of one test, by name; ``close()`` stops and reaps every one still running."""
+    """Child processes of one test, by name, on the library's :class:`~ennc_ql.cluster.Children`: each one's stderr in
+    ``<name>.log``, its stdout in ``<name>.1.out``; ``close()`` stops and reaps every one still running."""
 
     def __init__(self, log_dir: Path) -> None:
-        self.log_dir = log_dir
-        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+        self.children = Children(log_dir, keep_stdout=True, grace=10.0)
+        self.procs = self.children.procs
 
     def start(self, name: str, argv: list[str]) -> subprocess.Popen[bytes]:
-        with open(self.log_dir / f"{name}.out", "wb") as out, open(self.log_dir / f"{name}.log", "wb") as err:
-            proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=out, stderr=err)
-        self.procs[name] = proc
-        return proc
+        return self.children.start(name, argv)
 
     def log_tail(self, name: str, lines: int = 25) -> str:
-        text = (self.log_dir / f"{name}.log").read_text(errors="replace")
-        return f"--- {name} stderr (last {lines} lines) ---\n" + "\n".join(text.splitlines()[-lines:])
+        return f"--- {name} stderr (last {lines} lines) ---\n" + self.children.tail(name, lines)
 
     def wait(self, name: str, timeout: float) -> int:
         """Wait for ``name`` to exit by itself; its exit code (the test fails with its log on a timeout)."""
@@ -70,22 +68,14 @@ class Processes:
         """Wait for ``name`` to exit 0 and return the JSON object it printed last (``--json``)."""
         code = self.wait(name, timeout)
         assert code == 0, f"{name} exited with {code}\n{self.log_tail(name)}"
-        lines = (self.log_dir / f"{name}.out").read_text().strip().splitlines()
+        lines = self.children.stdout(name).read_text().strip().splitlines()
         assert lines, f"{name} printed nothing\n{self.log_tail(name)}"
         result: dict[str, Any] = json.loads(lines[-1])
         return result
 
     def close(self) -> None:
         """SIGTERM what still runs, SIGKILL what ignores it for 10 s, and reap everything."""
-        running = [p for p in self.procs.values() if p.poll() is None]
-        for proc in running:
-            proc.terminate()
-        for proc in running:
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        self.children.close()
 
     def __enter__(self) -> Self:
         return self

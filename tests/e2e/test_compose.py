@@ -1,4 +1,5 @@
-"""compose.yaml: its structure, and the same topology run as local processes so that the file cannot rot.
+"""compose.yaml: its structure, and the same topology run as local processes so that the file cannot rot; and both
+compose files train what ``ennc-ql up`` (``make run``) trains.
 
 Docker does not run on the development machines, so the router service (the ``eclipse/zenoh`` image) is replaced
 by ``ennc-ql router`` with the same flags, and the learner and ``replicas`` actors run the compose commands as
@@ -15,8 +16,14 @@ from typing import Any
 import pytest
 import yaml
 
+from actors.config import ActorConfig
+from algorithm.policy_file import load_policy
 from ennc_ql.cli import build_parser
+from ennc_ql.cluster import UP_PRESETS, UpConfig, child_configs
+from ennc_ql.config import load_config
 from ennc_ql.system import free_port
+from learner.config import LearnerConfig
+from sim.features import Formulation
 from tests.e2e import ACTOR_BUDGET, LEARNER_BUDGET, Processes, ennc_ql
 
 pytestmark = pytest.mark.slow
@@ -67,6 +74,40 @@ def test_compose_structure() -> None:
     assert services["actor"]["deploy"]["replicas"] >= 2
     # One command line for every replica: the id must be derived at start-up.
     assert flag_values(services["actor"]["command"], "--actor-id") == ["auto"]
+
+
+def ups_formulation() -> Formulation:
+    """What ``ennc-ql up`` (``make run``) gives its learner, and its actors (but for the test-time decision period)."""
+    learner, _ = child_configs(load_config(UpConfig, defaults=UP_PRESETS))
+    return learner.resolved
+
+
+@pytest.mark.parametrize("spec", [compose, lambda: secure_compose()], ids=["compose", "compose.secure"])
+def test_the_compose_processes_train_ups_formulation(spec: Any) -> None:
+    """Every learner and actor resolves, from its compose command as its process does, the formulation up runs."""
+    parser = build_parser()
+    up = ups_formulation()
+    seen = []
+    for service in spec()["services"].values():
+        if service["command"][0] not in ("learner", "actor"):
+            continue  # the router: it carries messages, it learns nothing
+        args = parser.parse_args(service["command"])
+        config = load_config(LearnerConfig if args.command == "learner" else ActorConfig, args=args)
+        mine = config.resolved
+        assert (mine.featurizer, mine.reward, mine.actions) == (up.featurizer, up.reward, up.actions)
+        if args.command == "learner":
+            assert mine.act_every == up.act_every  # the learner alone evaluates and saves the policy
+        seen.append(args.command)
+    assert sorted(set(seen)) == ["actor", "learner"]
+
+
+def assert_trained_ups_formulation(run_dir: Path, actors: list[dict[str, Any]]) -> None:
+    """The learner's policy file names up's formulation, and no actor refused a broadcast over another one."""
+    up = ups_formulation()
+    _, header = load_policy(run_dir / "policy.npz")
+    assert (header["featurizer"]["name"], header["reward"]["name"]) == (up.featurizer, up.reward)
+    assert header["action_steps"] == up.act_every  # the test-time decision period the learner saved it with
+    assert all(a["policies_refused"] == 0 for a in actors)
 
 
 def local_command(argv: list[str], router_port: int, runs: Path) -> list[str]:
@@ -120,6 +161,7 @@ def test_compose_topology_runs_as_local_processes(tmp_path: Path) -> None:
     assert report["policy_version"] >= 1
     assert all(a["policy_version"] >= 1 and a["policies_applied"] >= 1 for a in actors)
     assert all(a["outbox"] == 0 for a in actors)  # everything they sent was acknowledged
+    assert_trained_ups_formulation(run_dir, actors)
 
 
 # -- compose.secure.yaml ----------------------------------------------------------------------------------------------
@@ -203,4 +245,5 @@ def test_secure_compose_topology_runs_as_local_processes(tmp_path: Path) -> None
     # came back to every actor.
     assert report["tuples_by_actor"] == {name: r["tuples_sent"] for name, r in zip(actors, results, strict=True)}
     assert all(r["tuples_sent"] > 0 and r["outbox"] == 0 and r["policies_applied"] >= 1 for r in results)
-    assert report["gaps"] == 0 and report["rejected_by_type"] == {}
+    assert report["gaps"] == 0 and report["rejected_by_type"] == {} and report["rejected"] == 0
+    assert_trained_ups_formulation(Path(flag_values(learner_argv, "--run-dir")[0]), results)

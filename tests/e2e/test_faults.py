@@ -110,7 +110,7 @@ def test_a_poisoned_message_is_rejected_and_its_stream_flows_on(cluster: Cluster
     import zenoh
 
     learner = cluster.learner(tmp_path / "run")
-    prefix = f"{cluster.namespace}/enncql/v1"
+    prefix = f"{cluster.namespace}/enncql/v2"
     n = 5
 
     def array(dtype: str, values: np.ndarray) -> list[object]:
@@ -123,14 +123,17 @@ def test_a_poisoned_message_is_rejected_and_its_stream_flows_on(cluster: Cluster
             "incarnation": 99,
             "seq": seq,
             "policy_version": 0,
+            "featurizer": "shared8d",  # the learner's formulation: shared-difference, by default
+            "reward_function": "difference",
+            "action_set": "compass",
             "robot": array("int16", np.zeros(n)),
-            "state": array("float32", np.ones((n, 6))),
+            "state": array("float32", np.ones((n, 8))),
             "action": array("uint8", np.zeros(n)),
             "reward": array("float32", reward),
-            "next_state": array("float32", np.ones((n, 6))),
+            "next_state": array("float32", np.ones((n, 8))),
             "done": array("bool", np.zeros(n, bool)),
         }
-        return msgpack.packb([1, "experience", fields], use_bin_type=True)
+        return msgpack.packb([2, "experience", fields], use_bin_type=True)
 
     replies: list[tuple[str, int]] = []
 

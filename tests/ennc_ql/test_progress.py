@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 
 from ennc_ql.cli import main
-from ennc_ql.launch import cluster_status
+from ennc_ql.cluster import cluster_status
+from ennc_ql.experiments.reproduce import reproduce
 from ennc_ql.progress import ProgressBar, plain_line
-from ennc_ql.reproduce import reproduce
 from learner.report import LearnerStatus
 from tests.ennc_ql.test_reproduce import TINY
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -12,8 +13,8 @@ from matplotlib.image import imread
 
 from actors.config import ActorConfig
 from ennc_ql.cli import build_parser
+from ennc_ql.cluster import UP_PRESETS, UpConfig, child_configs, write_configs
 from ennc_ql.config import ConfigError, load_config
-from ennc_ql.launch import UP_PRESETS, UpConfig, child_configs, write_configs
 from ennc_ql.report import (
     FINAL_REFERENCE,
     HAND_MADE_COVERAGE,
@@ -23,7 +24,7 @@ from ennc_ql.report import (
 )
 from learner.config import LearnerConfig
 from sim import HAND_MADE, evaluate, scenario
-from sim.features import FORMULATIONS
+from sim.features import DEFAULT_FORMULATION, FORMULATIONS
 
 CURVE_BLUE = (0x3B / 255, 0x7D / 255, 0xD8 / 255)
 
@@ -89,7 +90,7 @@ def test_markdown_report_carries_the_figures(tmp_path: Path) -> None:
     assert "| 201 | 188 | 247 | 230 | 196 | 215 | 260 | 221 |" in text and "mean 219.8" in text
     assert f"`{tmp_path / 'policy.npz'}`" in text
     assert "](learning_curve.png)" in text
-    assert "A-CMOMMT 72.14 %" in text and "on the final figure's 50 trials A-CMOMMT scores 74.97 %" in text
+    assert "A-CMOMMT 68.26 %" in text and "on the final figure's 50 trials A-CMOMMT scores 73.07 %" in text
 
 
 def test_learning_curve_plots_the_curve_and_the_reference_levels(tmp_path: Path) -> None:
@@ -100,21 +101,28 @@ def test_learning_curve_plots_the_curve_and_the_reference_levels(tmp_path: Path)
     assert set(lines) == {
         "learned policy",
         "random, hand-made (16.60 %)",
-        "local, hand-made (56.32 %)",
+        "local, hand-made (56.92 %)",
         "force-6d-shared, hand-made (69.09 %)",
-        "A-CMOMMT, hand-made (72.14 %)",
+        "A-CMOMMT, hand-made (68.26 %)",
+        "A-CMOMMT oracle, hand-made (72.14 %)",
         "final policy (50 test trials)",
-        "A-CMOMMT, hand-made (50 test trials, 74.97 %)",
+        "A-CMOMMT, hand-made (50 test trials, 73.07 %)",
     }
-    assert np.asarray(lines["A-CMOMMT, hand-made (72.14 %)"].get_ydata()).tolist() == [72.14, 72.14]
+    assert np.asarray(lines["A-CMOMMT, hand-made (68.26 %)"].get_ydata()).tolist() == [68.26, 68.26]
     # The final figure is its own point, at the end of training.
     assert lines["final policy (50 test trials)"].get_xydata().tolist() == [[report["seconds"], 61.234]]
-    assert lines["A-CMOMMT, hand-made (50 test trials, 74.97 %)"].get_xydata().tolist() == [[report["seconds"], 74.97]]
+    assert lines["A-CMOMMT, hand-made (50 test trials, 73.07 %)"].get_xydata().tolist() == [[report["seconds"], 73.07]]
     assert ax.get_xlim()[1] >= 480.3 and ax.get_ylim() == (0, 100)
 
 
 def test_the_reference_levels_are_what_eval_measures() -> None:
-    names = {"random": "random", "local": "local", "force-6d-shared": "force-6d-shared", "A-CMOMMT": "a-cmommt"}
+    names = {
+        "random": "random",
+        "local": "local",
+        "force-6d-shared": "force-6d-shared",
+        "A-CMOMMT": "a-cmommt",
+        "A-CMOMMT oracle": "a-cmommt-oracle",
+    }
     for label, level in HAND_MADE_COVERAGE.items():
         assert evaluate(scenario(), HAND_MADE[names[label]], 10, 1000, seed=0).coverage_mean == pytest.approx(
             level, abs=0.005
@@ -187,17 +195,22 @@ def test_up_writes_every_process_configuration_and_they_load_back(tmp_path: Path
     # The children's own command lines read the same files; a flag given there still wins.
     child = build_parser().parse_args(["actor", "--config", str(tmp_path / "actor-1.toml"), "--arenas", "7"])
     assert load_config(ActorConfig, file=child.config, args=child) == dataclasses.replace(actors[1], arenas=7)
-    # The formulation sets the state and the reward of every process at once: the paper's, or the default one.
-    chosen = FORMULATIONS[UpConfig().formulation]
-    assert (learner.featurizer, learner.reward, learner.act_every) == (
-        chosen.featurizer,
-        chosen.reward,
-        chosen.act_every,
-    )
-    assert {(a.featurizer, a.reward) for a in actors} == {(chosen.featurizer, chosen.reward)}
+    # The formulation sets the state, the reward and the action set of every process at once: the default one, or
+    # the paper's; up.toml says it once, and every table of it says the same.
+    chosen = FORMULATIONS[DEFAULT_FORMULATION]
+    assert UpConfig().formulation == LearnerConfig().formulation == ActorConfig().formulation == DEFAULT_FORMULATION
+    assert learner.resolved == chosen and {a.resolved.featurizer for a in actors} == {chosen.featurizer}
+    assert {(a.resolved.reward, a.resolved.actions) for a in actors} == {(chosen.reward, chosen.actions)}
+    toml = tomllib.loads((tmp_path / "up.toml").read_text())
+    assert toml["formulation"] == toml["learner"]["formulation"] == toml["actor"]["formulation"] == DEFAULT_FORMULATION
+    assert not {"featurizer", "reward", "act_every"} & (set(toml["learner"]) | set(toml["actor"]))
     paper = load_config(UpConfig, args=build_parser().parse_args(["up", "--formulation", "paper"]), defaults=UP_PRESETS)
     learner, actors = child_configs(paper)
-    assert {(p.featurizer, p.reward) for p in (learner, *actors)} == {("collab6d", "eq2")}
-    assert learner.act_every is None
+    assert {p.formulation for p in (paper.learner, paper.actor, learner, *actors)} == {"paper"}
+    assert {(p.resolved.featurizer, p.resolved.reward) for p in (learner, *actors)} == {("collab6d", "eq2")}
+    assert learner.resolved.act_every is None
+    (tmp_path / "mixed.toml").write_text('formulation = "paper"\n[learner]\nreward = "difference"\n')
+    with pytest.raises(ConfigError, match=r"learner.reward: up gives every process the formulation it names"):
+        load_config(UpConfig, file=tmp_path / "mixed.toml")
     with pytest.raises(ConfigError, match="formulation: unknown 'best'"):
         load_config(UpConfig, args=build_parser().parse_args(["up", "--formulation", "best"]), defaults=UP_PRESETS)

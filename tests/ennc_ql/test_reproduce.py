@@ -12,7 +12,7 @@ from algorithm.experiments import Budget
 from algorithm.phase1 import Phase1Config
 from algorithm.policy_file import load_policy
 from ennc_ql.cli import main
-from ennc_ql.reproduce import reproduce
+from ennc_ql.experiments.reproduce import reproduce
 
 TINY = Budget(
     arenas=24,

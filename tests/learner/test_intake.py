@@ -7,6 +7,9 @@ import numpy as np
 
 from learner.intake import ExperienceIntake
 from protocol import ExperienceBatch, InMemoryBus, InMemoryTransport, InvalidValues, Reject, encode
+from sim.features import FORMULATIONS
+
+PAPER = FORMULATIONS["paper"]  # collab6d: d = 6
 
 
 def batch(seq: int, dim: int = 6, actor: str = "a") -> ExperienceBatch:
@@ -16,6 +19,9 @@ def batch(seq: int, dim: int = 6, actor: str = "a") -> ExperienceBatch:
         incarnation=7,
         seq=seq,
         policy_version=0,
+        featurizer=PAPER.featurizer,
+        reward_function=PAPER.reward,
+        action_set=PAPER.actions,
         robot=np.zeros(n, np.int16),
         state=np.zeros((n, dim), np.float32),
         action=np.zeros(n, np.uint8),
@@ -37,7 +43,7 @@ def test_a_re_sent_refused_message_is_one_rejection_and_one_duplicate() -> None:
     rejects: list[Reject] = []
     with InMemoryTransport(InMemoryBus()) as t:
         t.subscribe(t.keys.reject(), Reject, rejects.append)
-        intake = ExperienceIntake(100, 6, t)
+        intake = ExperienceIntake(100, PAPER, t)
         key = t.keys.experience("a")
         intake.on_rejected(key, poisoned(0), InvalidValues("reward: NaN"))
         intake.on_rejected(key, poisoned(0), InvalidValues("reward: NaN"))  # the outbox re-sent it
@@ -58,7 +64,7 @@ def test_a_payload_that_cannot_be_tied_to_its_stream_is_counted_at_each_arrival(
     rejects: list[Reject] = []
     with InMemoryTransport(InMemoryBus()) as t:
         t.subscribe(t.keys.reject(), Reject, rejects.append)
-        intake = ExperienceIntake(100, 6, t)
+        intake = ExperienceIntake(100, PAPER, t)
         for _ in range(2):
             intake.on_rejected(t.keys.experience("a"), b"\x93\x01garbage", InvalidValues("garbage"))
             intake.on_rejected(t.keys.experience("a"), poisoned(0, actor="b"), InvalidValues("lie"))  # b's stream
@@ -71,11 +77,11 @@ def test_rejection_counts_survive_a_checkpoint() -> None:
     rejects: list[Reject] = []
     with InMemoryTransport(InMemoryBus()) as t:
         t.subscribe(t.keys.reject(), Reject, rejects.append)
-        intake = ExperienceIntake(100, 6, t)
+        intake = ExperienceIntake(100, PAPER, t)
         intake.on_rejected(t.keys.experience("a"), poisoned(0), InvalidValues("reward: NaN"))
         intake.on_experience(batch(1, dim=2))
         arrays, acks = intake.checkpoint_arrays()
-        resumed = ExperienceIntake(100, 6, t)
+        resumed = ExperienceIntake(100, PAPER, t)
         resumed.restore(arrays)
         resumed.on_rejected(t.keys.experience("a"), poisoned(0), InvalidValues("reward: NaN"))  # re-sent after resume
     figures = resumed.figures()

@@ -21,7 +21,7 @@ from learner.policy_state import PolicyState
 from learner.report import LearnerReport
 from learner.service import LearnerService
 from learner.wiring import connect as connect_learner
-from protocol import ExperienceBatch, InMemoryBus, InMemoryTransport, PolicyUpdate, QTableIncrement
+from protocol import ExperienceBatch, InMemoryBus, InMemoryTransport, PolicyUpdate, QTableIncrement, Reject
 
 FAST = LearnerConfig(
     min_tuples=8000,
@@ -88,8 +88,8 @@ def test_serial_learner_and_actor_exchange_experience_and_policies(tmp_path: Pat
     assert (moved[[0, 1, 2]] > 0).all() and (moved[3:] == 0).all()
 
 
-def one_cell_per_action() -> Discretization:
-    return Discretization.from_per_action([np.zeros((1, 6), np.float32)] * 8)
+def one_cell_per_action(dim: int = 6) -> Discretization:
+    return Discretization.from_per_action([np.zeros((1, dim), np.float32)] * 8)
 
 
 def increment(actor: str, seq: int, q: list[float], visits: list[int], version: int = 1) -> QTableIncrement:
@@ -108,7 +108,7 @@ def increment(actor: str, seq: int, q: list[float], visits: list[int], version: 
 def test_merge_adds_the_visit_weighted_mean_of_the_actors_changes(tmp_path: Path) -> None:
     with InMemoryTransport(InMemoryBus()) as t:
         service = LearnerService(t, FAST, tmp_path)
-        service.state.adopt(one_cell_per_action())
+        service.state.adopt(one_cell_per_action(dim=8))  # FAST's formulation: shared-difference, 8-D states
         first = service.state.publish()  # version 1 over the labels (all 0)
         service.on_increment(increment("a", 0, [1, 0, 0, 0, 0, 0, 0, 0], [1, 0, 0, 0, 0, 0, 0, 0]))
         service.on_increment(increment("a", 1, [1, 2, 0, 0, 0, 0, 0, 0], [1, 2, 0, 0, 0, 0, 0, 0]))  # adds up
@@ -148,12 +148,15 @@ def test_the_evaluated_policy_decides_every_act_every_steps_while_the_broadcast_
     assert plain.policy() is not None and plain.policy().action_steps == 5  # type: ignore[union-attr]
 
 
-def experience(seq: int, dim: int, n: int = 3) -> ExperienceBatch:
+def experience(seq: int, dim: int = 8, reward_function: str = "difference", n: int = 3) -> ExperienceBatch:
     return ExperienceBatch(
         actor_id="a",
         incarnation=1,
         seq=seq,
         policy_version=0,
+        featurizer="shared8d",
+        reward_function=reward_function,
+        action_set="compass",
         robot=np.zeros(n, np.int16),
         state=np.zeros((n, dim), np.float32),
         action=np.zeros(n, np.uint8),
@@ -163,23 +166,30 @@ def experience(seq: int, dim: int, n: int = 3) -> ExperienceBatch:
     )
 
 
-def test_experience_of_the_wrong_dimension_is_rejected_and_counted(tmp_path: Path) -> None:
+def test_experience_of_another_formulation_or_dimension_is_rejected_and_counted(tmp_path: Path) -> None:
+    rejects: list[tuple[int, str]] = []
     with InMemoryTransport(InMemoryBus()) as t:
-        service = LearnerService(t, FAST, tmp_path)
+        t.subscribe(t.keys.reject("a"), Reject, lambda r: rejects.append((r.seq, r.reason)))
+        service = LearnerService(t, FAST, tmp_path)  # shared-difference: shared8d, difference, compass
         handles = connect_learner(service, t)
-        good = experience(seq=0, dim=6)
-        bad = experience(seq=1, dim=2)
+        good = experience(seq=0)
         t.publish(t.keys.experience("a"), good)
-        t.publish(t.keys.experience("a"), bad)
+        t.publish(t.keys.experience("a"), experience(seq=1, dim=2))
+        t.publish(t.keys.experience("a"), experience(seq=2, reward_function="eq2"))  # the paper's reward
         t.inject_raw(t.keys.experience("a"), b"\x93\x01garbage")
         t.publish(t.keys.experience("a"), good)  # a re-sent duplicate
         for handle in reversed(handles):
             handle.close()
     figures = service.intake.figures()
     assert figures.tuples_received == 3 and figures.store_size == 3
-    assert figures.rejected_by_type == {"StateDimension": 1, "MalformedMessage": 1} and figures.rejected == 2
+    assert figures.rejected_by_type == {"StateDimension": 1, "Formulation": 1, "MalformedMessage": 1}
+    assert figures.rejected == 3
     assert sum(t.stats.rejected.values()) == 1  # the transport saw only the garbage
     assert figures.duplicates == 1
+    assert rejects == [
+        (1, "state dimension 2, expected 8"),
+        (2, "reward_function eq2, expected difference"),
+    ]
 
 
 def test_parse_robots() -> None:
@@ -261,8 +271,8 @@ def test_a_poisoned_message_is_rejected_by_its_seq_and_the_stream_flows_on(tmp_p
 
     from protocol import Ack, Reject, encode
 
-    good = [experience(seq=0, dim=6), experience(seq=2, dim=6)]
-    envelope = msgpack.unpackb(encode(experience(seq=1, dim=6)), raw=False)
+    good = [experience(seq=0), experience(seq=2)]
+    envelope = msgpack.unpackb(encode(experience(seq=1)), raw=False)
     reward = np.array([0.0, np.nan, 0.0], np.float32)
     envelope[2]["reward"] = ["float32", [3], reward.tobytes()]  # valid msgpack, NaN reward: InvalidValues
     poison = msgpack.packb(envelope, use_bin_type=True)
@@ -287,7 +297,7 @@ def test_a_poisoned_message_is_rejected_by_its_seq_and_the_stream_flows_on(tmp_p
             handle.close()
     assert [(r.actor_id, r.seq) for r in rejects] == [("a", 1), ("a", 3)]
     assert rejects[0].reason.startswith("InvalidValues: reward")
-    assert rejects[1].reason == "state dimension 2, expected 6"
+    assert rejects[1].reason == "state dimension 2, expected 8"
     assert [(a.actor_id, a.seq) for a in acks] == [("a", 3)]  # the cumulative ack steps over both
     figures = service.intake.figures()
     assert figures.tuples_received == 6 and figures.refused == 2 and figures.gaps == 0

@@ -115,7 +115,7 @@ def test_no_op_monitor_never_imports_rerun() -> None:
 
 PROCESSES_SCRIPT = """
 import sys
-import ennc_ql.cli, ennc_ql.processes, ennc_ql.up, learner.service, actors.actor
+import ennc_ql.cli, ennc_ql.learner, ennc_ql.actor, ennc_ql.up, learner.service, actors.actor
 from ennc_ql.cli import build_parser
 args = build_parser().parse_args(["actor", "--actor-id", "a0"])
 assert args.rerun.kind == "off"

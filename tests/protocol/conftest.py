@@ -7,7 +7,6 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from protocol import (
-    FEATURIZER_DIMS,
     N_ACTIONS,
     Ack,
     ExperienceBatch,
@@ -27,6 +26,9 @@ def sample_batch() -> ExperienceBatch:
         incarnation=0x0123456789ABCDEF,
         seq=7,
         policy_version=3,
+        featurizer="local2d",
+        reward_function="observed",
+        action_set="compass",
         robot=np.array([0, 5], np.int16),
         state=np.array([[0.5, -1.0], [2.0, 0.25]], np.float32),
         action=np.array([1, 7], np.uint8),
@@ -41,6 +43,8 @@ def sample_policy(version: int = 3) -> PolicyUpdate:
         version=version,
         scenario="cmommt-v1",
         featurizer="local2d",
+        reward_function="observed",
+        action_set="compass",
         action_steps=5,
         prototypes=np.arange(2 * N_ACTIONS, dtype=np.float32).reshape(N_ACTIONS, 2) * np.float32(0.25),
         labels=np.linspace(0.0, 1.0, N_ACTIONS, dtype=np.float32),
@@ -94,6 +98,9 @@ def experience_batches(draw: st.DrawFn) -> ExperienceBatch:
         incarnation=draw(u64),
         seq=draw(u64),
         policy_version=draw(u64),
+        featurizer=draw(ids),
+        reward_function=draw(ids),
+        action_set=draw(ids),
         robot=draw(hnp.arrays(np.int16, n, elements=robot_ids)),
         state=draw(hnp.arrays(np.float32, (n, d), elements=f32)),
         action=draw(hnp.arrays(np.uint8, n, elements=st.integers(0, N_ACTIONS - 1))),
@@ -120,29 +127,22 @@ def q_increments(draw: st.DrawFn) -> QTableIncrement:
 
 @st.composite
 def policy_updates(draw: st.DrawFn) -> PolicyUpdate:
-    p, featurizer = draw(st.integers(0, 20)), draw(st.sampled_from(sorted(FEATURIZER_DIMS)))
+    p, d = draw(st.integers(0, 20)), draw(st.integers(1, 8))
     robots = np.array(draw(st.lists(robot_ids, max_size=4, unique=True)), np.int16)
     return PolicyUpdate(
         version=draw(st.integers(1, 2**64 - 1)),
         scenario=draw(st.text(st.characters(categories=["L", "N", "P"]), min_size=1, max_size=64)),
-        featurizer=featurizer,
+        featurizer=draw(ids),
+        reward_function=draw(ids),
+        action_set=draw(ids),
         action_steps=draw(st.integers(1, 100)),
-        prototypes=draw(hnp.arrays(np.float32, (p, FEATURIZER_DIMS[featurizer]), elements=f32)),
+        prototypes=draw(hnp.arrays(np.float32, (p, d), elements=f32)),
         labels=draw(hnp.arrays(np.float32, p, elements=f32)),
         offsets=_offsets(draw, p),
         robots=robots,
         q_tables=draw(hnp.arrays(np.float32, (robots.size, p), elements=f32)),
         visits=draw(hnp.arrays(np.uint32, (robots.size, p))),
-        scale=np.array(
-            draw(
-                st.lists(
-                    st.floats(0.125, 1024.0, width=32),
-                    min_size=FEATURIZER_DIMS[featurizer],
-                    max_size=max(FEATURIZER_DIMS.values()),
-                )
-            ),
-            np.float32,
-        )[: FEATURIZER_DIMS[featurizer]],
+        scale=np.array(draw(st.lists(st.floats(0.125, 1024.0, width=32), min_size=d, max_size=d)), np.float32),
     )
 
 

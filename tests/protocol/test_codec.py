@@ -85,6 +85,9 @@ def test_encode_writes_the_bytes_msgpack_itself_would(n: int) -> None:
             incarnation=2**64 - 1,
             seq=n,
             policy_version=3,
+            featurizer="collab6d",
+            reward_function="eq2",
+            action_set="compass",
             robot=rng.integers(0, 10, n).astype(np.int16),
             state=rng.random((n, dim), dtype=np.float32),
             action=rng.integers(0, N_ACTIONS, n).astype(np.uint8),
@@ -158,12 +161,15 @@ def test_golden_bytes_decode(name: str) -> None:
 
 def test_golden_layout_is_the_documented_envelope() -> None:
     version, tag, body = msgpack.unpackb((GOLDEN_DIR / "experience.msgpack").read_bytes(), raw=False)
-    assert (version, tag) == (1, "experience")
+    assert (version, tag) == (2, "experience")
     assert list(body) == [
         "actor_id",
         "incarnation",
         "seq",
         "policy_version",
+        "featurizer",
+        "reward_function",
+        "action_set",
         "robot",
         "state",
         "action",
@@ -205,8 +211,14 @@ def test_golden_layout_is_the_documented_envelope() -> None:
         ("qinc", {"visits": np.zeros(N_ACTIONS, np.int32)}, MalformedMessage),
         ("qinc", {"robot": 2**15}, InvalidValues),
         ("policy", {"version": 0}, InvalidValues),
-        ("policy", {"featurizer": "collab6d"}, MalformedMessage),
-        ("policy", {"featurizer": "pixels"}, InvalidValues),
+        # The wire checks a formulation's names for their syntax only: which names exist is the processes' business.
+        ("experience", {"featurizer": "a b"}, InvalidValues),
+        ("experience", {"reward_function": ""}, InvalidValues),
+        ("experience", {"action_set": 8}, MalformedMessage),
+        ("policy", {"featurizer": "shared/8d"}, InvalidValues),
+        ("policy", {"reward_function": "*"}, InvalidValues),
+        ("policy", {"action_set": None}, MalformedMessage),
+        ("policy", {"scale": np.ones(3, np.float32)}, MalformedMessage),
         ("policy", {"scenario": ""}, InvalidValues),
         ("policy", {"action_steps": 0}, InvalidValues),
         ("policy", {"robots": np.array([5, 5], np.int16)}, InvalidValues),
@@ -257,7 +269,7 @@ def test_schema_version_mismatch() -> None:
     with pytest.raises(SchemaVersionMismatch):
         decode(envelope("ack", golden_body("ack"), version=SCHEMA_VERSION + 1))
     with pytest.raises(SchemaVersionMismatch):
-        decode(msgpack.packb([2, "some", "future", "layout"]))
+        decode(msgpack.packb([SCHEMA_VERSION + 1, "some", "future", "layout"]))
 
 
 def test_oversize() -> None:
@@ -285,19 +297,21 @@ def _with_array(name: str, field: str, value: list[Any]) -> bytes:
         (msgpack.packb([]), MalformedMessage),
         (msgpack.packb(["1", "ack", {}]), MalformedMessage),
         (msgpack.packb([True, "ack", {}]), MalformedMessage),
-        (msgpack.packb([1, "ack"]), MalformedMessage),
-        (msgpack.packb([1, "nope", {}]), MalformedMessage),
-        (msgpack.packb([1, "ack", []]), MalformedMessage),
+        (msgpack.packb([SCHEMA_VERSION, "ack"]), MalformedMessage),
+        (msgpack.packb([SCHEMA_VERSION, "nope", {}]), MalformedMessage),
+        (msgpack.packb([SCHEMA_VERSION, "ack", []]), MalformedMessage),
         (envelope("ack", {"actor_id": "a", "incarnation": 1}), MalformedMessage),
         (envelope("ack", {"actor_id": "a", "incarnation": 1, "seq": 2, "extra": 0}), MalformedMessage),
         (envelope("ack", {"actor_id": b"a", "incarnation": 1, "seq": 2}), MalformedMessage),
         (envelope("ack", {"actor_id": "a", "incarnation": -1, "seq": 2}), InvalidValues),
         (
-            msgpack.packb([1, "ack", {"actor_id": "a", "incarnation": 1, "seq": msgpack.ExtType(1, b"x")}]),
+            msgpack.packb(
+                [SCHEMA_VERSION, "ack", {"actor_id": "a", "incarnation": 1, "seq": msgpack.ExtType(1, b"x")}]
+            ),
             MalformedMessage,
         ),
-        (msgpack.packb([1, "ack", {1: "a"}]), MalformedMessage),
-        (msgpack.packb([1, "ack", {"actor_id": "x" * 300, "incarnation": 1, "seq": 2}]), MalformedMessage),
+        (msgpack.packb([SCHEMA_VERSION, "ack", {1: "a"}]), MalformedMessage),
+        (msgpack.packb([SCHEMA_VERSION, "ack", {"actor_id": "x" * 300, "incarnation": 1, "seq": 2}]), MalformedMessage),
         (_with_array("experience", "reward", ["float64", [2], bytes(16)]), MalformedMessage),
         (_with_array("experience", "reward", ["object", [2], bytes(16)]), MalformedMessage),
         (_with_array("experience", "reward", ["<f4", [2], bytes(8)]), MalformedMessage),

@@ -21,6 +21,7 @@ from ennc_ql.system import free_port
 from protocol import (
     DEFAULT_KEYS,
     QOS,
+    SCHEMA_VERSION,
     Ack,
     Channel,
     ExperienceBatch,
@@ -55,6 +56,9 @@ def batch(seq: int, n: int = 256, d: int = 6) -> ExperienceBatch:
         incarnation=42,
         seq=seq,
         policy_version=0,
+        featurizer="collab6d",
+        reward_function="eq2",
+        action_set="compass",
         robot=rng.integers(0, 10, n).astype(np.int16),
         state=rng.random((n, d), np.float32),
         action=rng.integers(0, 8, n).astype(np.uint8),
@@ -77,16 +81,16 @@ def wait_until(cond: Callable[[], bool], timeout: float = 5.0) -> bool:
 
 
 def test_key_layout() -> None:
-    assert K.experience("actor-3") == "enncql/v1/experience/actor-3"
-    assert K.experience() == "enncql/v1/experience/*"
-    assert K.qinc("a") == "enncql/v1/qinc/a"
-    assert K.ack("a") == "enncql/v1/ack/a"
-    assert K.policy() == "enncql/v1/policy"
-    assert K.policy_latest() == "enncql/v1/policy/latest"
-    assert K.status("learner-0") == "enncql/v1/status/learner-0"
-    assert K.alive("actor", "a") == "enncql/v1/alive/actor/a"
-    assert K.alive() == "enncql/v1/alive/*/*"
-    assert KeySpace("run-42/x").experience("a") == "run-42/x/enncql/v1/experience/a"
+    assert K.experience("actor-3") == "enncql/v2/experience/actor-3"
+    assert K.experience() == "enncql/v2/experience/*"
+    assert K.qinc("a") == "enncql/v2/qinc/a"
+    assert K.ack("a") == "enncql/v2/ack/a"
+    assert K.policy() == "enncql/v2/policy"
+    assert K.policy_latest() == "enncql/v2/policy/latest"
+    assert K.status("learner-0") == "enncql/v2/status/learner-0"
+    assert K.alive("actor", "a") == "enncql/v2/alive/actor/a"
+    assert K.alive() == "enncql/v2/alive/*/*"
+    assert KeySpace("run-42/x").experience("a") == "run-42/x/enncql/v2/experience/a"
     with pytest.raises(InvalidValues):
         KeySpace("run//x")
 
@@ -112,7 +116,7 @@ def test_channel_and_message_type_of_keys() -> None:
     assert K.channel(K.policy_latest()) is Channel.POLICY
     assert K.message_type(K.policy()) is PolicyUpdate
     assert K.message_type(K.ack("a")) is Ack
-    for bad in ["enncql/v2/experience/a", "enncql/v1/experience/a/b", "enncql/v1/policy/old", "other/thing"]:
+    for bad in ["enncql/v3/experience/a", "enncql/v2/experience/a/b", "enncql/v2/policy/old", "other/thing"]:
         with pytest.raises(InvalidValues):
             K.channel(bad)
     with pytest.raises(InvalidValues):
@@ -138,7 +142,7 @@ def test_connection_args() -> None:
     assert conf.get_json("connect/endpoints") == '["tcp/127.0.0.1:7447","tcp/10.0.0.2:7447"]'
     assert conf.get_json("connect/timeout_ms") == "-1"
     assert conf.get_json("scouting/multicast/enabled") == "false"
-    assert keys_from_args(parser.parse_args(["--namespace", "run-1"])).root == "run-1/enncql/v1"
+    assert keys_from_args(parser.parse_args(["--namespace", "run-1"])).root == "run-1/enncql/v2"
     with pytest.raises(ValueError):
         zenoh_config(mode="satellite")
 
@@ -165,7 +169,7 @@ def test_memory_pub_sub_with_wildcards() -> None:
         learner.subscribe(K.experience(), ExperienceBatch, one.append)
         assert actor.has_subscribers(K.experience("actor-0"))
         assert not actor.has_subscribers(K.qinc("actor-0"))
-        learner.subscribe("enncql/v1/**", ExperienceBatch, everything.append)
+        learner.subscribe("enncql/v2/**", ExperienceBatch, everything.append)
         learner.subscribe(K.experience("actor-1"), ExperienceBatch, lambda m: pytest.fail("wrong actor"))
         sent = batch(0)
         actor.publish(K.experience("actor-0"), sent)
@@ -183,7 +187,7 @@ def test_memory_rejections_are_counted_and_not_raised() -> None:
         key = K.experience("actor-0")
         actor.inject_raw(key, b"\x93garbage")
         actor.inject_raw(key, encode(GOLDEN["status"]))
-        actor.inject_raw(key, msgpack.packb([2, "experience", {}]))
+        actor.inject_raw(key, msgpack.packb([SCHEMA_VERSION + 1, "experience", {}]))
         actor.publish(key, batch(1))
         assert [m.seq for m in got] == [1]
         assert learner.stats.rejected == {"MalformedMessage": 1, "UnexpectedMessageType": 1, "SchemaVersionMismatch": 1}
@@ -216,7 +220,7 @@ def test_memory_queryable_answers_late_joiner() -> None:
         with InMemoryTransport(bus) as late:
             replies = late.get(K.policy_latest(), PolicyUpdate)
             assert [r.version for r in replies] == [5]
-            assert late.get("enncql/v1/policy/*", PolicyUpdate)[0].version == 5
+            assert late.get("enncql/v2/policy/*", PolicyUpdate)[0].version == 5
 
 
 def test_memory_liveliness() -> None:

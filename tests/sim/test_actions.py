@@ -73,7 +73,7 @@ def test_relative_moves_are_named_from_the_nearest_target_and_the_furthests_side
     cfg, obs = _observe(ROBOTS, TARGETS)
     moves = action_set("relative")
     frame = moves.frame(obs)
-    names = list(moves.names)
+    names = list(moves.moves)
     velocity = {name: moves.velocity(cfg, np.full((1, 2), names.index(name)), frame)[0, 0] for name in names}
     np.testing.assert_allclose(velocity["toward"], [0.0, SPEED], atol=1e-12)
     np.testing.assert_allclose(velocity["left"], [-SPEED, 0.0], atol=1e-12)  # towards the furthest target's side

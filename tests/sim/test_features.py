@@ -6,7 +6,18 @@ import numpy as np
 import pytest
 
 from sim import TrialStep, WorldState, featurize, scenario, sense, step_trial
-from sim.features import FEATURIZER_REGISTRY, FEATURIZERS, REWARDS, resolve_reward, reward_value, trial_reward
+from sim.features import (
+    DEFAULT_FORMULATION,
+    FEATURIZER_REGISTRY,
+    FEATURIZERS,
+    FORMULATIONS,
+    REWARDS,
+    Formulation,
+    resolve_formulation,
+    resolve_reward,
+    reward_value,
+    trial_reward,
+)
 from tests.sim.test_trial import situation
 
 MASK = 1000.0
@@ -62,6 +73,24 @@ def test_paper_names_each_featurizers_own_reward_and_unknown_names_are_refused()
     with pytest.raises(ValueError, match="unknown featurizer 'pixels'"):
         featurize(scenario(), sense(scenario(), arena()), "pixels")
     assert {name for name, r in REWARDS.items() if r.per_decision} == {"difference-decision"}
+
+
+def test_a_formulation_is_resolved_by_name_with_explicit_parts_over_it() -> None:
+    assert resolve_formulation(DEFAULT_FORMULATION) == FORMULATIONS["shared-difference"]
+    assert resolve_formulation("shared-difference") == Formulation("shared8d", "difference", 1, "compass")
+    assert resolve_formulation("paper", featurizer="local2d") == Formulation("local2d", "eq2")
+    assert resolve_formulation("paper", featurizer="local2d", reward="paper") == Formulation("local2d", "observed")
+    assert resolve_formulation("shared-difference", act_every=5).act_every == 5
+    for kwargs, error in [
+        ({"name": "pixels-first"}, "unknown formulation 'pixels-first'; known: paper, shared-difference"),
+        ({"name": "paper", "featurizer": "pixels"}, "unknown featurizer 'pixels'"),
+        ({"name": "paper", "reward": "money"}, "unknown reward 'money'"),
+        ({"name": "paper", "act_every": 0}, "act_every must be at least 1"),
+    ]:
+        with pytest.raises(ValueError, match=error):
+            resolve_formulation(**kwargs)
+    with pytest.raises(ValueError, match="unknown action set 'joystick'; known: compass"):
+        Formulation("collab6d", "eq2", actions="joystick")
 
 
 def _two_robots(reward: str, steps: int, hold: int | None = None) -> list[TrialStep]:

@@ -17,25 +17,30 @@ paper's figure for the method, so a result is read beside what the hand-made con
 
 from __future__ import annotations
 
+import argparse
 import itertools
-import json
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from algorithm.experiments import METHODS, Budget
+from algorithm.experiments import METHODS, Budget, Outcome
 from algorithm.policy import LostBehaviour
-from algorithm.policy_file import save_policy
-from ennc_ql.config import ConfigError, parse_setting, replace_setting
+from ennc_ql.command import emit, fail
+from ennc_ql.config import ConfigError, parse_setting, positive, replace_setting
+from ennc_ql.experiments.jobs import Job, JobsBar, learn
+from ennc_ql.experiments.reproduce import PAPER
+from ennc_ql.experiments.results import write_results
 from ennc_ql.progress import ProgressBar
-from ennc_ql.reproduce import PAPER, Job, JobsBar, learn
 from monitor.style import REFERENCES as STYLES
 from sim import FEATURIZERS, HAND_MADE, ScenarioConfig, evaluate
 from sim.features import REWARD_NAMES
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 Sweep = list[tuple[str, list[Any]]]
 REFERENCES = ("a-cmommt", "force-6d", "force-6d-shared")
@@ -98,6 +103,15 @@ def _label(overrides: dict[str, Any]) -> str:
     return ", ".join(f"{k}={v}" for k, v in overrides.items()) or "as configured"
 
 
+TestTrials = tuple[ScenarioConfig, int, int, int]
+"""What a variant's test trials are: its scenario, and the budget's test trials, steps and seed."""
+
+
+def _trials(setup: Setup) -> TestTrials:
+    budget = setup.budget
+    return setup.scenario, budget.test_trials, budget.test_steps, budget.test_seed
+
+
 def ablate(method: str, sweep: Sweep, base: Setup, processes: int, out_dir: Path, jobs: int = 1) -> dict[str, Any]:
     """Run every variant ``processes`` times; write ``results.json``, ``results.md``, ``ablation.png`` and each
     policy under ``out_dir``; return the report."""
@@ -105,6 +119,7 @@ def ablate(method: str, sweep: Sweep, base: Setup, processes: int, out_dir: Path
         raise ConfigError(f"unknown method {method!r}; learned methods: {', '.join(METHODS)}")
     start = time.perf_counter()
     setups = variants(base, sweep)
+    out_dir.mkdir(parents=True, exist_ok=True)  # a folder that cannot be written fails now, not after the runs
     todo = [
         Job(
             method,
@@ -120,47 +135,17 @@ def ablate(method: str, sweep: Sweep, base: Setup, processes: int, out_dir: Path
         for i, (_, setup) in enumerate(setups)
         for seed in range(processes)
     ]
-    references: dict[tuple[ScenarioConfig, int, int, int], dict[str, float]] = {}
-    out_dir.mkdir(parents=True, exist_ok=True)
     with ProgressBar("ablate", total=len(todo) + len(setups), unit="jobs") as bar:
         progress = JobsBar(bar)
         results = learn(todo, jobs, progress)
-        for _, setup in setups:
-            b = setup.budget
-            key = (setup.scenario, b.test_trials, b.test_steps, b.test_seed)
-            if key not in references:
-                progress.running("the references on the variant's test trials")
-                references[key] = {
-                    name: round(
-                        evaluate(
-                            setup.scenario, HAND_MADE[name], b.test_trials, b.test_steps, b.test_seed
-                        ).coverage_mean,
-                        3,
-                    )
-                    for name in REFERENCES
-                }
-            progress.finished(", ".join(f"{name} {value:.2f}%" for name, value in references[key].items()))
-    rows: list[dict[str, Any]] = []
-    for i, (overrides, setup) in enumerate(setups, start=1):
-        runs = sorted((o for job, o in results if job.variant == i), key=lambda o: o.seed)
-        for outcome in runs:
-            save_policy(outcome.policy, setup.scenario, out_dir / "policies" / f"v{i}-{outcome.seed}.npz")
-        coverage = np.array([o.coverage_mean for o in runs])
-        b = setup.budget
-        rows.append(
-            {
-                "variant": i,
-                "overrides": dict(overrides),
-                "label": _label(overrides),
-                "coverage_mean": round(float(coverage.mean()), 3),
-                "coverage_std": round(float(coverage.std()), 3),
-                "coverage_per_run": [round(float(c), 3) for c in coverage],
-                "states_per_run": [round(o.states, 2) for o in runs],
-                "tuples_per_run": [o.tuples for o in runs],
-                "seconds_per_run": [round(o.seconds, 1) for o in runs],
-                "references": references[(setup.scenario, b.test_trials, b.test_steps, b.test_seed)],
-            }
-        )
+        references = _references([setup for _, setup in setups], progress)
+    runs = {
+        i: sorted((o for job, o in results if job.variant == i), key=lambda o: o.seed)
+        for i in range(1, len(setups) + 1)
+    }
+    rows = [
+        _row(i, overrides, runs[i], references[_trials(setup)]) for i, (overrides, setup) in enumerate(setups, start=1)
+    ]
     report = {
         "method": method,
         "processes": processes,
@@ -173,10 +158,42 @@ def ablate(method: str, sweep: Sweep, base: Setup, processes: int, out_dir: Path
         "variants": rows,
         "seconds": round(time.perf_counter() - start, 1),
     }
-    (out_dir / "results.json").write_text(json.dumps(report, indent=2))
-    (out_dir / "results.md").write_text(markdown_table(report))
-    chart(report, out_dir / "ablation.png")
+    policies = {
+        f"v{i}-{o.seed}": (o.policy, setup.scenario) for i, (_, setup) in enumerate(setups, start=1) for o in runs[i]
+    }
+    write_results(out_dir, report, markdown_table(report), chart(report), "ablation.png", policies)
     return report
+
+
+def _references(setups: list[Setup], progress: JobsBar) -> dict[TestTrials, dict[str, float]]:
+    """:data:`REFERENCES` on each variant's test trials, measured once per distinct set of trials."""
+    references: dict[TestTrials, dict[str, float]] = {}
+    for setup in setups:
+        trials = _trials(setup)
+        if trials not in references:
+            progress.running("the references on the variant's test trials")
+            cfg, n, steps, seed = trials
+            references[trials] = {
+                name: round(evaluate(cfg, HAND_MADE[name], n, steps, seed).coverage_mean, 3) for name in REFERENCES
+            }
+        progress.finished(", ".join(f"{name} {value:.2f}%" for name, value in references[trials].items()))
+    return references
+
+
+def _row(i: int, overrides: dict[str, Any], runs: list[Outcome], references: dict[str, float]) -> dict[str, Any]:
+    coverage = np.array([o.coverage_mean for o in runs])
+    return {
+        "variant": i,
+        "overrides": dict(overrides),
+        "label": _label(overrides),
+        "coverage_mean": round(float(coverage.mean()), 3),
+        "coverage_std": round(float(coverage.std()), 3),
+        "coverage_per_run": [round(float(c), 3) for c in coverage],
+        "states_per_run": [round(o.states, 2) for o in runs],
+        "tuples_per_run": [o.tuples for o in runs],
+        "seconds_per_run": [round(o.seconds, 1) for o in runs],
+        "references": references,
+    }
 
 
 def markdown_table(report: dict[str, Any]) -> str:
@@ -202,15 +219,14 @@ def markdown_table(report: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def chart(report: dict[str, Any], path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def chart(report: dict[str, Any]) -> Figure:
+    """Every variant's coverage (mean ± std over its processes) beside the references' and the paper's."""
+    from matplotlib.figure import Figure  # matplotlib loads only when a chart is drawn
 
     rows = report["variants"]
     x = np.arange(len(rows))
-    fig, ax = plt.subplots(figsize=(max(6.0, 1.6 * len(rows) + 2), 5))
+    fig = Figure(figsize=(max(6.0, 1.6 * len(rows) + 2), 5))
+    ax = fig.subplots()
     means = [r["coverage_mean"] for r in rows]
     ax.bar(x, means, 0.6, yerr=[r["coverage_std"] for r in rows], color="#3b7dd8", capsize=4)
     for i, row in enumerate(rows):
@@ -232,5 +248,40 @@ def chart(report: dict[str, Any], path: Path) -> None:
     ax.set_title(f"{report['method']}: {report['processes']} learning process(es) per variant")
     ax.legend(loc="upper left", fontsize="small")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
+
+
+def add_ablate_parser(sub: Any) -> None:
+    p = sub.add_parser(
+        "ablate", help="one method under parameter overrides (a sweep), K learning processes per variant, same tests"
+    )
+    p.add_argument("method", choices=list(METHODS), help="the learned method")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=V1[,V2...]",
+        help="override a field of the setup by dotted path (budget.phase2.alpha, budget.phase1.max_classes, "
+        "scenario.action_steps, lost_behaviour, ...); several values sweep it, several --set sweep their product",
+    )
+    p.add_argument("--processes", type=positive(int), default=3, help="learning processes per variant (default 3)")
+    p.add_argument("--jobs", type=positive(int), default=1, help="learning processes run at once (default 1)")
+    p.add_argument("--quick", action="store_true", help="reproduce's reduced budget as the base")
+    p.add_argument("--out", help="output folder (default runs/ablate-METHOD)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=cmd_ablate)
+
+
+def cmd_ablate(args: argparse.Namespace) -> int:
+    out_dir = Path(args.out) if args.out else Path("runs") / f"ablate-{args.method}"
+    try:
+        sweep = parse_sets(args.set)
+        base = Setup(budget=Budget.quick() if args.quick else Budget())
+        report = ablate(args.method, sweep, base, args.processes, out_dir, jobs=args.jobs)
+    except ConfigError as exc:
+        fail("ablate", str(exc))
+    report["output"] = str(out_dir)
+    emit(
+        report, args.json, markdown_table(report) + f"\nwritten to {out_dir}/ (results.md, results.json, ablation.png)"
+    )
+    return 0

@@ -1,31 +1,25 @@
-"""The cluster chaos runs and watches: how every process joins the run through the router (:class:`Wiring`), the
-OS processes (:class:`Children`), chaos's read-only session (:class:`Observer`), the RSS samples
-(:class:`RssSampler`), and the waiting for what a fault expects."""
+"""What chaos watches of its cluster (started with :mod:`ennc_ql.cluster`'s pieces): chaos's read-only session
+(:class:`Observer`), the RSS samples (:class:`RssSampler`), the children's last words, and the waiting for what a
+fault expects."""
 
 from __future__ import annotations
 
 import json
 import logging
-import signal
 import socket
-import subprocess
 import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
 import psutil
 import zenoh
 
-from ennc_ql.launch import log_tail, spawn_child
-from ennc_ql.secure import SecureSet, write_secure_set
-from ennc_ql.system import free_port
-from protocol import KeySpace, PolicyUpdate, Status, ZenohTransport, zenoh_config
-from protocol.security import ROUTER
+from ennc_ql.cluster import Children
+from protocol import KeySpace, PolicyUpdate, Status, ZenohTransport
 
 log = logging.getLogger("ennc_ql.chaos")  # one name for the package: its lines read "ennc_ql.chaos: ..."
 
@@ -72,131 +66,6 @@ def listening(port: int) -> bool:
 def since(t: float) -> float:
     """Seconds from monotonic time ``t`` to now, rounded for the figures."""
     return round(time.monotonic() - t, 1)
-
-
-# -- the processes ----------------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True)
-class Wiring:
-    """How every process joins the run through the router on ``port``; ``secure`` holds the identities' files
-    (None: plain TCP, nobody authenticated)."""
-
-    port: int
-    namespace: str
-    secure: SecureSet | None
-
-    @property
-    def endpoint(self) -> str:
-        return f"tls/localhost:{self.port}" if self.secure else f"tcp/127.0.0.1:{self.port}"
-
-    def router_flags(self) -> list[str]:
-        if self.secure:
-            return ["--zenoh-config", str(self.secure.config(ROUTER))]
-        return ["--listen", f"tcp/127.0.0.1:{self.port}"]
-
-    def client_flags(self, ident: str) -> list[str]:
-        flags = ["--zenoh-config", str(self.secure.config(ident))] if self.secure else ["--connect", self.endpoint]
-        return [*flags, "--mode", "client", "--namespace", self.namespace, "--no-multicast-scouting"]
-
-    def session(self, ident: str) -> zenoh.Config:
-        """The configuration of a session of chaos's own as ``ident`` (observer, mallory; any id when plain)."""
-        if self.secure:
-            return zenoh_config(config_file=str(self.secure.config(ident)))
-        return zenoh_config(connect=[self.endpoint], mode="client")
-
-    def hostile(self, plain_id: str) -> str:
-        """The id of a hostile peer: the authenticated mallory in a secure run, ``plain_id`` in a plain one."""
-        return MALLORY if self.secure else plain_id
-
-    def client_dict(self, ident: str) -> dict[str, Any]:
-        """``ident``'s zenoh configuration as a dict, to derive broken ones from (secure runs only)."""
-        assert self.secure is not None
-        text = self.secure.config(ident).read_text()
-        # write_secure_set writes a comment line, then plain JSON.
-        conf: dict[str, Any] = json.loads("\n".join(ln for ln in text.splitlines() if not ln.startswith("//")))
-        return conf
-
-
-def make_wiring(run_dir: Path, namespace: str, learner_id: str, actor_ids: list[str], secure: bool) -> Wiring:
-    port = free_port()
-    if not secure:
-        return Wiring(port, namespace, None)
-    spec = SecureSet(
-        folder=run_dir / "secure",
-        actor_ids=(*actor_ids, MALLORY),
-        learner_id=learner_id,
-        namespace=namespace,
-        listen=(f"tls/127.0.0.1:{port}",),
-        connect=(f"tls/localhost:{port}",),
-    )
-    write_secure_set(spec)
-    return Wiring(port, namespace, spec)
-
-
-class Children:
-    """The run's OS processes by name (``router``, the learner id, each actor id), started again under the same name
-    after a fault; :meth:`close` kills every one still running, whatever happened. Each child's stderr is appended
-    to ``RUN/<name>.log``, each incarnation's stdout goes to ``RUN/<name>.<k>.out``."""
-
-    def __init__(self, run_dir: Path) -> None:
-        self.run_dir = run_dir
-        self.started: dict[str, float] = {}
-        """Monotonic start time of each name's current incarnation."""
-        self._procs: dict[str, subprocess.Popen[bytes]] = {}
-        self._incarnations: dict[str, int] = {}
-        self._lock = threading.Lock()  # the RSS sampler reads the processes from its own thread
-
-    def start(self, name: str, argv: list[str], nice: int = 0) -> None:
-        k = self._incarnations.get(name, 0) + 1
-        with open(self.run_dir / f"{name}.log", "a") as err, open(self.stdout(name, k), "w") as out:
-            proc = spawn_child(argv, err, nice=nice, stdout=out)
-        with self._lock:
-            self._procs[name] = proc
-            self._incarnations[name] = k
-            self.started[name] = time.monotonic()
-
-    def stdout(self, name: str, k: int | None = None) -> Path:
-        return self.run_dir / f"{name}.{k or self._incarnations[name]}.out"
-
-    def running(self) -> dict[str, int]:
-        """Name -> pid of every child running now."""
-        with self._lock:
-            return {name: p.pid for name, p in self._procs.items() if p.poll() is None}
-
-    def signal(self, name: str, sig: int) -> None:
-        if self._procs[name].poll() is None:
-            self._procs[name].send_signal(sig)
-
-    def kill(self, name: str) -> None:
-        self._procs[name].kill()
-        self._procs[name].wait()
-
-    def wait(self, name: str, timeout: float) -> int:
-        """The exit status of ``name`` within ``timeout`` seconds, SIGKILLed past it (then -9)."""
-        try:
-            return self._procs[name].wait(timeout)
-        except subprocess.TimeoutExpired:
-            log.error(
-                "%s still running %.0f s after SIGTERM: killed; its log ends:\n%s", name, timeout, self.tail(name)
-            )
-            self.kill(name)
-            return self._procs[name].returncode
-
-    def exited(self) -> list[str]:
-        """The children that are not running any more (none should be, between the faults)."""
-        with self._lock:
-            return [name for name, p in self._procs.items() if p.poll() is not None]
-
-    def tail(self, name: str) -> str:
-        return log_tail(self.run_dir / f"{name}.log")
-
-    def close(self) -> None:
-        for proc in self._procs.values():
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGCONT)  # a stopped child would not even die before it is continued
-                proc.kill()
-            proc.wait()
 
 
 def last_json(path: Path) -> dict[str, Any] | None:

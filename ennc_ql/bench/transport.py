@@ -21,16 +21,14 @@ cannot apply. On one host zenoh would hand the raw payloads over through shared 
 6-11 GB/s, 25-50 k payloads of 230 kB per second), a baseline that no path which decodes, validates and copies
 each batch comes near; ``shared_memory=True`` measures that case.
 
-The publishers are ``python -m ennc_ql.bench_transport --publisher ...`` subprocesses driven by one line per
-command on stdin (``protocol SECONDS`` or ``raw SECONDS``); they answer ``ready`` once the receiver matches and
-``sent BATCHES`` after each phase, and exit when stdin closes. The parent starts each phase in all of them at once.
+The publishers are :mod:`ennc_ql.bench.publisher` subprocesses driven through their stdin; the parent starts each
+phase in all of them at once. Their batches are stamped with the paper's formulation (collab6d, d = 6), the state
+every figure of this benchmark was measured with.
 """
 
 from __future__ import annotations
 
 import argparse
-import logging
-import secrets
 import subprocess
 import sys
 import tempfile
@@ -38,139 +36,29 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import zenoh
 
-from ennc_ql.allocator import keep_freed_memory
+from ennc_ql.bench.publisher import RAW_KEY, STARTUP_TIMEOUT_S, bench_zenoh_config, template_batch
 from ennc_ql.config import positive
 from ennc_ql.progress import ProgressBar
 from ennc_ql.secure import SecureSet, write_secure_set
 from ennc_ql.system import free_port
-from protocol import DEFAULT_KEYS, N_ACTIONS, ExperienceBatch, ZenohTransport, encode, zenoh_config
+from learner.intake import ExperienceIntake
+from protocol import DEFAULT_KEYS, ExperienceBatch, ZenohTransport, encode
 from protocol.security import ROUTER
+from sim.features import FEATURIZERS, FORMULATIONS
 
-log = logging.getLogger(__name__)
-
-DIM = 6
-"""State dimension of collab6d, the featurizer the learner trains on."""
-RAW_KEY = "enncql-bench/raw"
-"""Outside the protocol's key space: the raw payloads are not messages."""
+FORMULATION = FORMULATIONS["paper"]
+"""What the batches are stamped with and the receiver stores: collab6d (d = 6), as in every figure measured so far."""
+DIM = FEATURIZERS[FORMULATION.featurizer]
 STORE_CAPACITY = 1 << 20
 """Tuples the receiver's store keeps (the learner's default is of the same order)."""
 TARGET = {"tuples_per_s": 5e6, "ratio": 0.5, "lost": 0}
-_STARTUP_TIMEOUT_S = 60.0
 _DRAIN_TIMEOUT_S = 30.0
-
-
-def template_batch(actor_id: str, incarnation: int, batch_size: int, seed: int = 0) -> ExperienceBatch:
-    """A batch of ``batch_size`` random valid tuples with seq 0; publishers send it again under each seq."""
-    rng = np.random.default_rng(seed)
-    return ExperienceBatch(
-        actor_id=actor_id,
-        incarnation=incarnation,
-        seq=0,
-        policy_version=0,
-        robot=rng.integers(0, 10, batch_size, dtype=np.int16),
-        state=rng.random((batch_size, DIM), dtype=np.float32),
-        action=rng.integers(0, N_ACTIONS, batch_size, dtype=np.uint8),
-        reward=rng.random(batch_size, dtype=np.float32),
-        next_state=rng.random((batch_size, DIM), dtype=np.float32),
-        done=rng.random(batch_size) < 0.01,
-    )
-
-
-def _config(shared_memory: bool, **kwargs: Any) -> zenoh.Config:
-    conf = zenoh_config(**kwargs)
-    conf.insert_json5("transport/shared_memory/enabled", "true" if shared_memory else "false")
-    return conf
-
-
-# --- publisher subprocess ------------------------------------------------------------------------------------
-
-
-def _publish_protocol(transport: ZenohTransport, template: ExperienceBatch, first_seq: int, seconds: float) -> int:
-    """Publish batches first_seq, first_seq + 1, ... for ``seconds``; how many were sent."""
-    key = transport.keys.experience(template.actor_id)
-    sent = 0
-    deadline = time.perf_counter() + seconds
-    while time.perf_counter() < deadline:
-        # A new message per batch, as an actor sends them: construction and encoding both validate it.
-        batch = ExperienceBatch(
-            actor_id=template.actor_id,
-            incarnation=template.incarnation,
-            seq=first_seq + sent,
-            policy_version=template.policy_version,
-            robot=template.robot,
-            state=template.state,
-            action=template.action,
-            reward=template.reward,
-            next_state=template.next_state,
-            done=template.done,
-        )
-        transport.publish(key, batch)
-        sent += 1
-    return sent
-
-
-def _publish_raw(publisher: zenoh.Publisher, payload: bytes, seconds: float) -> int:
-    sent = 0
-    deadline = time.perf_counter() + seconds
-    while time.perf_counter() < deadline:
-        publisher.put(payload)
-        sent += 1
-    return sent
-
-
-def _answer(line: str) -> None:
-    # stdout is this subprocess's channel to the parent, not a terminal.
-    sys.stdout.write(line + "\n")
-    sys.stdout.flush()
-
-
-def publisher_main(
-    endpoint: str, actor_id: str, batch_size: int, shared_memory: bool, config_file: str | None = None
-) -> int:
-    """Body of a publisher subprocess: serve the parent's commands on stdin until it closes."""
-    template = template_batch(actor_id, secrets.randbits(64), batch_size, seed=secrets.randbits(32))
-    payload = encode(template)
-    conf = _config(shared_memory, connect=[endpoint], config_file=config_file, mode="peer")
-    with ZenohTransport.open(conf) as transport:
-        key = transport.keys.experience(actor_id)
-        raw = transport.session.declare_publisher(
-            f"{RAW_KEY}/{actor_id}",
-            congestion_control=zenoh.CongestionControl.BLOCK,
-            reliability=zenoh.Reliability.RELIABLE,
-        )
-        try:
-            # zenoh 1.10's stub says bool; the value is a MatchingStatus, always truthy.
-            raw_status: Any = raw.matching_status
-            deadline = time.monotonic() + _STARTUP_TIMEOUT_S
-            while not (transport.has_subscribers(key) and raw_status.matching):
-                if time.monotonic() > deadline:
-                    log.error("publisher %s: no receiver matched in %.0f s", actor_id, _STARTUP_TIMEOUT_S)
-                    return 1
-                time.sleep(0.01)
-                raw_status = raw.matching_status
-            _answer("ready")
-            seq = 0
-            for line in sys.stdin:
-                phase, seconds = line.split()
-                cpu = time.process_time()
-                if phase == "protocol":
-                    sent = _publish_protocol(transport, template, seq, float(seconds))
-                    seq += sent
-                else:
-                    sent = _publish_raw(raw, payload, float(seconds))
-                _answer(f"sent {sent} {time.process_time() - cpu}")
-        finally:
-            raw.undeclare()
-    return 0
-
-
-# --- driver and receiver -------------------------------------------------------------------------------------
 
 
 class _Publishers:
@@ -195,7 +83,7 @@ class _Publishers:
 
     def wait_ready(self) -> None:
         for proc in self.procs:
-            self._answer(proc, _STARTUP_TIMEOUT_S, "ready")
+            self._answer(proc, STARTUP_TIMEOUT_S, "ready")
 
     def run_phase(self, phase: str, seconds: float) -> tuple[int, float]:
         """Start ``phase`` in every publisher at once; the batches they sent and the CPU seconds they used, in all."""
@@ -213,14 +101,15 @@ def _publishers(
 ) -> Iterator[_Publishers]:
     procs: list[subprocess.Popen[str]] = []
     shm_flag = "--shared-memory" if shared_memory else "--no-shared-memory"
+    stamp = [FORMULATION.featurizer, FORMULATION.reward, FORMULATION.actions]
     try:
         for i in range(actors):
-            argv = ["--publisher", endpoint, f"bench-{i}", str(batch_size), shm_flag]
+            argv = [endpoint, f"bench-{i}", str(batch_size), "--stamp", *stamp, "--dim", str(DIM), shm_flag]
             if secure is not None:
                 argv += ["--zenoh-config", str(secure.config(f"bench-{i}"))]
             procs.append(
                 subprocess.Popen(
-                    [sys.executable, "-m", "ennc_ql.bench_transport", *argv],
+                    [sys.executable, "-m", "ennc_ql.bench.publisher", *argv],
                     stdin=subprocess.PIPE,
                     stdout=subprocess.PIPE,
                     text=True,
@@ -280,11 +169,11 @@ def _secure_set(folder: str, actors: int) -> SecureSet:
 
 def _receiver_config(shared_memory: bool, endpoint: str, secure: SecureSet | None) -> zenoh.Config:
     if secure is None:
-        return _config(shared_memory, listen=[endpoint])
+        return bench_zenoh_config(shared_memory, listen=[endpoint])
     # The router's TLS and credentials on the receiving peer: the publishers' links are those of a secure run.
     # Access control stays off because the raw phase's key is outside the protocol; it is one key-expression
     # lookup per message at the router, beside TLS's encryption of every byte.
-    conf = _config(shared_memory, config_file=str(secure.config(ROUTER)), mode="peer")
+    conf = bench_zenoh_config(shared_memory, config_file=str(secure.config(ROUTER)), mode="peer")
     conf.insert_json5("access_control/enabled", "false")
     return conf
 
@@ -297,13 +186,10 @@ def bench_transport(
     ``secure``: every link is mutual TLS with user/password authentication, as in a secure run
     (``ennc-ql secure init``'s files, in a temporary folder).
     """
-    # Imported here, not at the top: the publisher subprocesses run this module and need no learner.
-    from learner.intake import ExperienceIntake
-
     folder = tempfile.TemporaryDirectory(prefix="enncql-bench-") if secure else None
     spec = _secure_set(folder.name, actors) if folder is not None else None
     endpoint = spec.connect[0] if spec is not None else f"tcp/127.0.0.1:{free_port()}"
-    ingest = ExperienceIntake(STORE_CAPACITY, DIM)
+    ingest = ExperienceIntake(STORE_CAPACITY, FORMULATION)
     stored, raw = _Arrivals(), _Arrivals()
 
     def on_experience(msg: ExperienceBatch) -> None:
@@ -322,50 +208,75 @@ def bench_transport(
         publishers = stack.enter_context(_publishers(endpoint, actors, batch_size, shared_memory, spec))
         publishers.wait_ready()
         bar.mark(f"{actors} publishers matched", n=1)
-
-        bar.show(status=f"protocol path, {seconds:g} s")
-        start, cpu = time.perf_counter(), time.process_time()
-        sent, publisher_cpu = publishers.run_phase("protocol", seconds)
-        _wait_until(lambda: stored.count >= sent, _DRAIN_TIMEOUT_S)
-        tuples_per_s = stored.rate(start, batch_size)
-        receiver_cpu = time.process_time() - cpu
+        protocol = _phase(publishers, "protocol", seconds, stored, batch_size, bar)
         bar.mark(
-            f"protocol path: {tuples_per_s / 1e6:.2f} M tuples/s, {sent - ingest.figures().accepted} batches lost", n=2
+            f"protocol path: {protocol.tuples_per_s / 1e6:.2f} M tuples/s, "
+            f"{protocol.sent - ingest.figures().accepted} batches lost",
+            n=2,
         )
+        plain = _phase(publishers, "raw", seconds, raw, batch_size, bar)
+        bar.mark(f"raw zenoh: {plain.tuples_per_s / 1e6:.2f} M tuples/s", n=3)
+    return _figures(actors, batch_size, seconds, shared_memory, secure, ingest, protocol, plain, raw.count)
 
-        bar.show(status=f"raw zenoh, {seconds:g} s")
-        start, cpu = time.perf_counter(), time.process_time()
-        raw_sent, raw_publisher_cpu = publishers.run_phase("raw", seconds)
-        _wait_until(lambda: raw.count >= raw_sent, _DRAIN_TIMEOUT_S)
-        raw_tuples_per_s = raw.rate(start, batch_size)
-        raw_receiver_cpu = time.process_time() - cpu
-        bar.mark(f"raw zenoh: {raw_tuples_per_s / 1e6:.2f} M tuples/s", n=3)
 
+@dataclass(frozen=True, slots=True)
+class _Phase:
+    """What one phase measured: batches sent, tuples/s arrived, and the CPU seconds of each side."""
+
+    sent: int
+    tuples_per_s: float
+    publisher_cpu: float
+    receiver_cpu: float
+
+
+def _phase(
+    publishers: _Publishers, phase: str, seconds: float, arrivals: _Arrivals, batch_size: int, bar: ProgressBar
+) -> _Phase:
+    """``phase`` in every publisher at once, until everything they sent arrived (or the drain timed out)."""
+    bar.show(status=f"{'protocol path' if phase == 'protocol' else 'raw zenoh'}, {seconds:g} s")
+    start, cpu = time.perf_counter(), time.process_time()
+    sent, publisher_cpu = publishers.run_phase(phase, seconds)
+    _wait_until(lambda: arrivals.count >= sent, _DRAIN_TIMEOUT_S)
+    return _Phase(sent, arrivals.rate(start, batch_size), publisher_cpu, time.process_time() - cpu)
+
+
+def _figures(
+    actors: int,
+    batch_size: int,
+    seconds: float,
+    shared_memory: bool,
+    secure: bool,
+    ingest: ExperienceIntake,
+    protocol: _Phase,
+    plain: _Phase,
+    raw_received: int,
+) -> dict[str, Any]:
     figures = ingest.figures()
+    stamp = (FORMULATION.featurizer, FORMULATION.reward, FORMULATION.actions)
     return {
         "actors": actors,
         "batch_size": batch_size,
-        "payload_bytes": len(encode(template_batch("bench-0", 0, batch_size))),
+        "payload_bytes": len(encode(template_batch("bench-0", 0, batch_size, stamp, DIM))),
         "seconds": seconds,
         "shared_memory": shared_memory,
         "secure": secure,
-        "tuples_per_s": round(tuples_per_s),
-        "raw_zenoh_tuples_per_s": round(raw_tuples_per_s),
-        "ratio": round(tuples_per_s / raw_tuples_per_s, 3) if raw_tuples_per_s else 0.0,
-        "lost": sent - figures.accepted,
-        "batches_sent": sent,
+        "tuples_per_s": round(protocol.tuples_per_s),
+        "raw_zenoh_tuples_per_s": round(plain.tuples_per_s),
+        "ratio": round(protocol.tuples_per_s / plain.tuples_per_s, 3) if plain.tuples_per_s else 0.0,
+        "lost": protocol.sent - figures.accepted,
+        "batches_sent": protocol.sent,
         "tuples_stored": figures.tuples_received,
         "gaps": figures.gaps,
         "duplicates": figures.duplicates,
-        "raw_batches_sent": raw_sent,
-        "raw_batches_received": raw.count,
+        "raw_batches_sent": plain.sent,
+        "raw_batches_received": raw_received,
         # CPU time per batch of each side (all threads, zenoh's included): what the rates cost, whatever else
         # the machine was doing meanwhile.
         "cpu_us_per_batch": {
-            "receiver": _per_batch(receiver_cpu, sent),
-            "publishers": _per_batch(publisher_cpu, sent),
-            "raw_receiver": _per_batch(raw_receiver_cpu, raw_sent),
-            "raw_publishers": _per_batch(raw_publisher_cpu, raw_sent),
+            "receiver": _per_batch(protocol.receiver_cpu, protocol.sent),
+            "publishers": _per_batch(protocol.publisher_cpu, protocol.sent),
+            "raw_receiver": _per_batch(plain.receiver_cpu, plain.sent),
+            "raw_publishers": _per_batch(plain.publisher_cpu, plain.sent),
         },
         "target": TARGET,
     }
@@ -402,19 +313,3 @@ def add_bench_transport_args(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="transport: mutual TLS and password authentication on every link, as in a secure run",
     )
-
-
-def _publisher_entry(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="python -m ennc_ql.bench_transport", description="bench publisher")
-    parser.add_argument("--publisher", nargs=3, metavar=("ENDPOINT", "ACTOR_ID", "BATCH_SIZE"), required=True)
-    parser.add_argument("--shared-memory", action=argparse.BooleanOptionalAction, default=False)
-    parser.add_argument("--zenoh-config", help="the publisher's zenoh configuration (a secure run's)")
-    args = parser.parse_args(argv)
-    endpoint, actor_id, batch_size = args.publisher
-    logging.basicConfig(level=logging.WARNING, stream=sys.stderr, format="%(asctime)s %(name)s: %(message)s")
-    keep_freed_memory()  # as every ennc-ql process does: the publishers stand for actors
-    return publisher_main(endpoint, actor_id, int(batch_size), args.shared_memory, args.zenoh_config)
-
-
-if __name__ == "__main__":
-    sys.exit(_publisher_entry(sys.argv[1:]))

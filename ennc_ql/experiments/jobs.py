@@ -1,0 +1,104 @@
+"""The learning processes ``reproduce`` and ``ablate`` run: one :class:`Job` per process, run one at a time or in
+worker processes, with a progress bar over them::
+
+    with ProgressBar("reproduce", total=len(todo), unit="jobs") as bar:
+        outcomes = learn(todo, jobs=2, progress=JobsBar(bar))      # [(job, outcome), ...]
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import multiprocessing
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from algorithm.experiments import METHODS, Budget, Outcome, Progress, train
+from algorithm.policy import LostBehaviour
+from ennc_ql.progress import ProgressBar
+from sim import ScenarioConfig
+
+
+@dataclass(frozen=True, slots=True)
+class Job:
+    """One learning process to run: a method under a budget and scenario, tested with a lost-robot behaviour."""
+
+    method: str
+    budget: Budget
+    seed: int
+    scenario: ScenarioConfig
+    lost_behaviour: LostBehaviour = "wander"
+    variant: int = 0
+    """Which of a sweep's variants this process belongs to (``ennc-ql ablate``)."""
+    featurizer: str | None = None
+    """The learners' state instead of the method's own, if given."""
+    reward: str | None = None
+    """The learners' reward instead of the method's own, if given."""
+    act_every: int | None = None
+    """Steps between decisions in the test trials (None: ``action_steps``)."""
+
+    @property
+    def label(self) -> str:
+        return f"{self.method}[{self.seed}]" if not self.variant else f"{self.method} v{self.variant}[{self.seed}]"
+
+    def run(self, progress: Progress | None = None) -> Outcome:
+        spec = METHODS[self.method]
+        if self.featurizer is not None:
+            spec = dataclasses.replace(spec, featurizer=self.featurizer)
+        if self.reward is not None:
+            spec = dataclasses.replace(spec, reward=self.reward)
+        return train(
+            spec,
+            self.budget,
+            self.seed,
+            self.scenario,
+            progress,
+            lost_behaviour=self.lost_behaviour,
+            act_every=self.act_every,
+        )
+
+
+def _train_job(job: Job) -> tuple[Job, Outcome]:
+    """One learning process in a worker: one torch thread each, so jobs share the cores instead of fighting."""
+    import torch  # here, in the worker: every command line builds this command's parser, and most never fit
+
+    torch.set_num_threads(1)
+    return job, job.run()
+
+
+class JobsBar:
+    """The bar's state: jobs finished, the running job's stage and the latest coverage measured."""
+
+    def __init__(self, bar: ProgressBar) -> None:
+        self.bar = bar
+        self.done = 0
+        self.latest = ""
+
+    def running(self, status: str) -> None:
+        self.bar.show(status=status + (f"; latest {self.latest}" if self.latest else ""))
+
+    def finished(self, message: str) -> None:
+        self.done += 1
+        self.latest = message
+        self.bar.mark(message, n=self.done)
+
+
+def learn(todo: Sequence[Job], jobs: int, progress: JobsBar) -> list[tuple[Job, Outcome]]:
+    """Every learning process of ``todo``, ``jobs`` at a time (in worker processes when more than one)."""
+    outcomes: list[tuple[Job, Outcome]] = []
+    if jobs > 1 and todo:
+        progress.running(f"{len(todo)} learning processes on {jobs} workers")
+        with multiprocessing.get_context("spawn").Pool(jobs) as pool:
+            for job, outcome in pool.imap_unordered(_train_job, todo):
+                outcomes.append((job, outcome))
+                progress.finished(f"{job.label}: {outcome.coverage_mean:.2f}%")
+                # Workers report nothing until a process ends: the bar can only count what is left.
+                progress.running(f"{len(todo) - len(outcomes)} learning processes left")
+        return outcomes
+    for job in todo:
+
+        def stage(message: str, label: str = job.label) -> None:
+            progress.running(f"{label}: {message}")
+
+        outcomes.append((job, job.run(stage)))
+        progress.finished(f"{job.label}: {outcomes[-1][1].coverage_mean:.2f}%")
+    return outcomes
