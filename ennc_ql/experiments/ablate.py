@@ -43,9 +43,11 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 Sweep = list[tuple[str, list[Any]]]
-REFERENCES = ("a-cmommt", "force-6d", "force-6d-shared")
-"""Hand-made controllers scored beside every variant: A-CMOMMT, and its force law limited to the 6-D state (without
-and with the shared-observation flags), i.e. what the learned policy's own state allows a hand-made law."""
+REFERENCES = ("a-cmommt", "a-cmommt-oracle", "force-6d", "force-6d-shared")
+"""Hand-made controllers scored beside every variant: A-CMOMMT (on what its robots sense or are told), the same law
+on true target positions no robot senses (the oracle, a labelled reference only), and its force law limited to the
+6-D state (without and with the shared-observation flags), i.e. what the learned policy's own state allows a
+hand-made law."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -231,7 +233,7 @@ def chart(report: dict[str, Any]) -> Figure:
     ax.bar(x, means, 0.6, yerr=[r["coverage_std"] for r in rows], color="#3b7dd8", capsize=4)
     for i, row in enumerate(rows):
         ax.text(i, row["coverage_mean"] + row["coverage_std"] + 1.5, f"{row['coverage_mean']:.1f}", ha="center")
-    for name, style in zip(REFERENCES, ("--", "-.", ":"), strict=True):
+    for name, style in zip(REFERENCES, ("--", (0, (5, 1, 1, 1)), "-.", ":"), strict=True):
         color = tuple(c / 255 for c in STYLES[name][1])
         for value in sorted({r["references"][name] for r in rows}):
             ax.axhline(value, color=color, linestyle=style, linewidth=1)

@@ -31,11 +31,12 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-HAND_MADE_ORDER = ("random", "local", "a-cmommt", "force-6d", "force-6d-shared")
+HAND_MADE_ORDER = ("random", "local", "a-cmommt", "a-cmommt-oracle", "force-6d", "force-6d-shared")
 PAPER: dict[str, dict[str, float | None]] = {
     "random": {"coverage": None, "states": None},
     "local": {"coverage": None, "states": None},
     "a-cmommt": {"coverage": 71.0, "states": None},
+    "a-cmommt-oracle": {"coverage": None, "states": None},
     "force-6d": {"coverage": None, "states": None},
     "force-6d-shared": {"coverage": None, "states": None},
     "vqql-local-16": {"coverage": 59.0, "states": 16},
