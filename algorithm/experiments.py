@@ -21,6 +21,7 @@ import numpy as np
 
 from algorithm.agent import Phase2Config, TabularAgent
 from algorithm.discretization import Discretization
+from algorithm.fqi import FQIConfig, NetworkController, QNetwork, collect, fit_q
 from algorithm.phase1 import CMOMMT_PHASE1, Phase1Config, phase1
 from algorithm.policy import ActionMode, LostBehaviour, Policy, PolicyController
 from algorithm.transitions import Transitions
@@ -38,7 +39,7 @@ class MethodSpec:
 
     name: str
     algorithm: str
-    """``enncql`` or ``vqql``."""
+    """``enncql``, ``vqql``, or ``fqi`` (the neural fitted-Q reference of :mod:`algorithm.fqi`, not the paper's)."""
     featurizer: str
     """``local2d`` or ``collab6d``."""
     learning_robots: int
@@ -70,6 +71,7 @@ METHODS: dict[str, MethodSpec] = {
         MethodSpec("ennc-ql-local", "enncql", "local2d", 1, False),
         MethodSpec("ennc-ql-collab-option1", "enncql", "collab6d", 10, False),
         MethodSpec("ennc-ql-collab-option2", "enncql", "collab6d", 10, True),
+        MethodSpec("fqi-mlp", "fqi", "collab6d", 10, False),
     ]
 }
 
@@ -95,6 +97,9 @@ class Budget:
     discretization, its targets bootstrapped from the learned tables, which then carry over [beyond the paper]."""
     refit_tuples: int = 600_000
     """Tuples of a refit (the newest of its part of phase 2)."""
+    fqi: FQIConfig = field(default_factory=FQIConfig)
+    """The neural fitted-Q reference (method ``fqi-mlp``): it explores as phase 0 and learns on as many batches of
+    learning trials as phase 2, in ``fqi.rounds`` rounds."""
     test_trials: int = 10
     test_steps: int = 1000
     test_seed: int = 0
@@ -115,7 +120,8 @@ class Budget:
 class Outcome:
     method: str
     seed: int
-    policy: Policy
+    policy: Policy | None
+    """The learned policy (None for the neural reference, which has no policy file)."""
     coverage_per_trial: np.ndarray
     states: float
     """Mean prototypes per action (ENNC-QL) or codebook size (VQQL)."""
@@ -138,6 +144,37 @@ def _discretize(spec: MethodSpec, data: Transitions, budget: Budget, seed: int) 
         return Discretization.shared(lbg(sample, spec.codebook, seed=seed, max_iter=30), N_ACTIONS), "until_change"
     result = phase1(data, N_ACTIONS, budget.phase1, seed=seed)
     return result.discretization, "fixed"
+
+
+def _train_fqi(
+    spec: MethodSpec, budget: Budget, seed: int, base: ScenarioConfig, say: Progress, act_every: int | None
+) -> tuple[NetworkController, int]:
+    """The neural reference learning process: exploration, fitted-Q iterations, on-policy rounds."""
+    c = budget.fqi
+    cfg = base.replace(n_robots=spec.learning_robots)
+    rng = np.random.default_rng([seed, sum(spec.name.encode())])
+    reward = resolve_reward(spec.featurizer, spec.reward)
+    data = Transitions.concat(
+        [
+            collect(cfg, None, spec.featurizer, reward, spec.actions, budget.arenas, 0.0, rng)
+            for _ in range(budget.explore_trials)
+        ]
+    )
+    tuples = len(data)
+    q = QNetwork.for_states(data.state, c, seed)
+    fit_q(q, data, c, c.iterations, rng)
+    per_round = max(1, round(budget.phase2_trials / c.rounds))
+    for r in range(c.rounds):
+        fresh = [
+            collect(cfg, q, spec.featurizer, reward, spec.actions, budget.arenas, c.epsilon, rng)
+            for _ in range(per_round)
+        ]
+        tuples += sum(len(t) for t in fresh)
+        data = Transitions.concat([data, *fresh])
+        data = data.take(slice(max(0, len(data) - c.buffer), None))
+        fit_q(q, data, c, c.round_iterations, rng)
+        say(f"round {r + 1}/{c.rounds}: {tuples} tuples")
+    return NetworkController(q, spec.featurizer, spec.actions, act_every=act_every or base.action_steps), tuples
 
 
 def _refit(agent: TabularAgent, data: Transitions, budget: Budget, seed: int) -> tuple[TabularAgent, Discretization]:
@@ -165,6 +202,11 @@ def train(
     start = time.perf_counter()
     base = base or scenario()
     say = progress or (lambda message: log.info("%s[%d]: %s", spec.name, seed, message))
+    if spec.algorithm == "fqi":
+        network, tuples = _train_fqi(spec, budget, seed, base, say, act_every)
+        result = evaluate(base, network, budget.test_trials, budget.test_steps, seed=budget.test_seed)
+        say(f"test coverage {result.coverage_mean:.2f}%")
+        return Outcome(spec.name, seed, None, result.coverage_per_trial, 0.0, tuples, time.perf_counter() - start)
     learn_cfg = base.replace(n_robots=spec.learning_robots)
     seeds = np.random.SeedSequence([seed, sum(spec.name.encode())]).spawn(2)
     explorer = ExperienceSlice(

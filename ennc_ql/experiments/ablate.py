@@ -37,6 +37,7 @@ from ennc_ql.experiments.results import write_results
 from ennc_ql.progress import ProgressBar
 from monitor.style import REFERENCES as STYLES
 from sim import FEATURIZERS, HAND_MADE, ScenarioConfig, evaluate
+from sim.actions import ACTION_SETS
 from sim.features import REWARD_NAMES
 
 if TYPE_CHECKING:
@@ -64,8 +65,12 @@ class Setup:
     """The learners' reward (:data:`sim.features.REWARDS`, or ``paper``); None: the method's own."""
     act_every: int | None = None
     """Steps between a robot's decisions in the test trials; None: ``action_steps``, as it learned."""
+    actions: str | None = None
+    """The action set (:data:`sim.actions.ACTION_SETS`); None: the method's own."""
 
     def __post_init__(self) -> None:
+        if self.actions is not None and self.actions not in ACTION_SETS:
+            raise ConfigError(f"actions {self.actions!r}: known: {', '.join(ACTION_SETS)}")
         if self.featurizer is not None and self.featurizer not in FEATURIZERS:
             raise ConfigError(f"featurizer {self.featurizer!r}: known: {', '.join(FEATURIZERS)}")
         if self.reward is not None and self.reward not in REWARD_NAMES:
@@ -133,6 +138,7 @@ def ablate(method: str, sweep: Sweep, base: Setup, processes: int, out_dir: Path
             featurizer=setup.featurizer,
             reward=setup.reward,
             act_every=setup.act_every,
+            actions=setup.actions,
         )
         for i, (_, setup) in enumerate(setups)
         for seed in range(processes)
@@ -154,8 +160,8 @@ def ablate(method: str, sweep: Sweep, base: Setup, processes: int, out_dir: Path
         "test_trials": base.budget.test_trials,
         "test_steps": base.budget.test_steps,
         "test_seed": base.budget.test_seed,
-        "paper_coverage": PAPER[method]["coverage"],
-        "paper_states": PAPER[method]["states"],
+        "paper_coverage": PAPER.get(method, {}).get("coverage"),
+        "paper_states": PAPER.get(method, {}).get("states"),
         "sweep": [[k, vs] for k, vs in sweep],
         "variants": rows,
         "seconds": round(time.perf_counter() - start, 1),

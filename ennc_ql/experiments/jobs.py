@@ -35,6 +35,8 @@ class Job:
     """The learners' reward instead of the method's own, if given."""
     act_every: int | None = None
     """Steps between decisions in the test trials (None: ``action_steps``)."""
+    actions: str | None = None
+    """The action set instead of the method's own, if given."""
 
     @property
     def label(self) -> str:
@@ -46,6 +48,8 @@ class Job:
             spec = dataclasses.replace(spec, featurizer=self.featurizer)
         if self.reward is not None:
             spec = dataclasses.replace(spec, reward=self.reward)
+        if self.actions is not None:
+            spec = dataclasses.replace(spec, actions=self.actions)
         return train(
             spec,
             self.budget,

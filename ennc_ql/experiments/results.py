@@ -27,12 +27,14 @@ def write_results(
     markdown: str,
     chart: Figure,
     chart_name: str,
-    policies: Mapping[str, tuple[Policy, ScenarioConfig]],
+    policies: Mapping[str, tuple[Policy | None, ScenarioConfig]],
 ) -> None:
-    """``results.json``, ``results.md``, the chart as ``chart_name`` and each policy as ``policies/<name>.npz``."""
+    """``results.json``, ``results.md``, the chart as ``chart_name`` and each policy as ``policies/<name>.npz`` (a
+    learning process with no policy file, the neural reference, has none)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     for name, (policy, cfg) in policies.items():
-        save_policy(policy, cfg, out_dir / "policies" / f"{name}.npz")
+        if policy is not None:
+            save_policy(policy, cfg, out_dir / "policies" / f"{name}.npz")
     (out_dir / "results.json").write_text(json.dumps(report, indent=2))
     (out_dir / "results.md").write_text(markdown)
     chart.savefig(out_dir / chart_name, dpi=CHART_DPI)

@@ -107,3 +107,24 @@ def test_a_tiny_sweep_scores_every_variant_on_the_same_trials_and_saves_the_over
     table = (tmp_path / "results.md").read_text().splitlines()
     assert len([line for line in table if line.startswith("| lost_behaviour=")]) == 2
     assert (tmp_path / "ablation.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_neural_reference_is_scored_beside_without_a_policy_file(tmp_path: Path) -> None:
+    from algorithm.fqi import FQIConfig
+
+    budget = Budget(
+        arenas=6,
+        explore_trials=1,
+        phase2_trials=2,
+        fqi=FQIConfig(hidden=8, iterations=2, round_iterations=1, steps=5, rounds=2),
+        test_trials=2,
+        test_steps=60,
+    )
+    sweep = parse_sets(["featurizer=frame9d", "actions=relative", "reward=difference-decision"])
+    report = ablate("fqi-mlp", sweep, Setup(budget=budget), processes=1, out_dir=tmp_path)
+    (row,) = report["variants"]
+    assert len(row["coverage_per_run"]) == 1 and 0.0 <= row["coverage_mean"] <= 100.0
+    honest = evaluate(scenario(), HAND_MADE["a-cmommt"], 2, 60).coverage_mean
+    assert row["references"]["a-cmommt"] == pytest.approx(honest, abs=1e-3)
+    assert report["paper_coverage"] is None
+    assert not (tmp_path / "policies").exists()  # the network is a reference, not a policy file
