@@ -50,6 +50,11 @@ class Phase1Config:
     """How q values are binned when there are too many: equal-count or equal-width bins [choice]."""
     max_patterns: int | None = None
     """Fit each action's ENNC on at most this many tuples (a uniform sample); None = all [choice]."""
+    seed_prototypes: int = 0
+    """0: each ENNC starts from one prototype [paper]. P > 0: from P of the action's training states (a uniform
+    sample), each with the majority class of its region, so that the discretization starts as fine as P cells spread
+    with the states and ENNC refines it where the classes mix [beyond the paper: the class boundaries alone leave
+    the rest of the space in a few large cells]."""
     smooth_k: int = 0
     """0: ENNC fits each tuple's own target q [paper]. k > 0: it fits the mean target of the tuple's k nearest
     tuples of the same action (standardized states), an estimate of Q(s, a) = E[q | s, a]: the targets of a
@@ -224,6 +229,10 @@ def phase1(
                     init_prototypes=warm_start.prototypes[lo:hi] / unit,
                     init_labels=index[rows.size :],
                 )
+            elif config.seed_prototypes > 0:
+                q_values, index = np.unique(classes, return_inverse=True)
+                start = rng.choice(rows.size, min(config.seed_prototypes, rows.size), replace=False)
+                model.fit(states[rows] / unit, index, init_prototypes=states[rows[np.sort(start)]] / unit)
             else:
                 q_values, index = np.unique(classes, return_inverse=True)
                 model.fit(states[rows] / unit, index)

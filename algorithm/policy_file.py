@@ -34,8 +34,8 @@ import numpy as np
 from algorithm.discretization import Discretization
 from algorithm.files import save_npz_atomic
 from algorithm.policy import Policy
-from sim import COMPASS, FEATURIZERS, ScenarioConfig
-from sim.controllers import COMPASS_NAMES
+from sim import FEATURIZERS, ScenarioConfig
+from sim.actions import action_set
 from sim.features import FEATURIZER_REGISTRY, REWARDS, resolve_reward
 
 FORMAT = "ennc-ql-policy"
@@ -47,6 +47,7 @@ class PolicyFileError(ValueError):
 
 
 def header_for(policy: Policy, cfg: ScenarioConfig) -> dict[str, Any]:
+    moves = action_set(policy.actions)
     return {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
@@ -61,9 +62,13 @@ def header_for(policy: Policy, cfg: ScenarioConfig) -> dict[str, Any]:
             "mask_value": cfg.mask_value,
             "local_target": cfg.local_target,
         },
+        "action_set": {
+            "name": moves.name,
+            "frame": "target" if moves.relative else "world",
+        },
         "actions": [
-            {"index": i, "name": name, "direction": [float(v) for v in COMPASS[i]]}
-            for i, name in enumerate(COMPASS_NAMES)
+            {"index": i, "name": name, "direction": [float(v) for v in moves.directions[i]]}
+            for i, name in enumerate(moves.moves)
         ],
         "reward": {"name": policy.reward, "per_decision": REWARDS[policy.reward].per_decision},
         "action_steps": policy.action_steps,
@@ -134,6 +139,8 @@ def load_policy(path: str | os.PathLike[str]) -> tuple[Policy, dict[str, Any]]:
             reward=header["reward"]["name"]
             if "reward" in header
             else resolve_reward(header["featurizer"]["name"], "paper"),
+            # Files written before action sets were named all used the compass.
+            actions=header.get("action_set", {"name": "compass"})["name"],
         )
     except (KeyError, TypeError, ValueError) as exc:
         raise PolicyFileError(f"{path}: inconsistent policy file ({exc})") from exc

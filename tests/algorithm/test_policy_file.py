@@ -74,6 +74,22 @@ def test_the_header_names_the_reward_and_a_file_without_one_had_its_featurizers_
         dataclasses.replace(policy, reward="money")
 
 
+def test_the_header_names_the_action_set_and_a_file_without_one_used_the_compass(tmp_path: Path) -> None:
+    policy = dataclasses.replace(make_policy(np.random.default_rng(0)), actions="relative")
+    path = save_policy(policy, scenario(), tmp_path / "p.npz")
+    loaded, header = load_policy(path)
+    assert header["action_set"] == {"name": "relative", "frame": "target"} and loaded.actions == "relative"
+    assert [a["name"] for a in header["actions"]][:3] == ["toward", "toward-left", "left"]
+    assert header["actions"][2]["direction"] == pytest.approx([0.0, 1.0])  # left: +y of the target frame
+    with np.load(path) as data:
+        arrays = {name: data[name] for name in data.files}
+    old = json.loads(arrays["header"].tobytes())
+    del old["action_set"]
+    arrays["header"] = np.frombuffer(json.dumps(old).encode(), np.uint8)
+    np.savez(tmp_path / "old.npz", **arrays)
+    assert load_policy(tmp_path / "old.npz")[0].actions == "compass"
+
+
 def test_the_file_is_a_plain_npz_with_a_json_header(tmp_path: Path) -> None:
     path = save_policy(make_policy(np.random.default_rng(0)), scenario(), tmp_path / "p.npz")
     with zipfile.ZipFile(path) as zf:

@@ -229,3 +229,24 @@ def test_phase1_bootstraps_from_learned_values_of_a_warm_start() -> None:
     np.testing.assert_allclose(plain.discretization.labels, 0.0)
     with pytest.raises(ValueError, match="warm start"):
         phase1(data, 1, config, values=np.array([1.0, 2.0]))
+
+
+def test_seeded_phase1_starts_from_training_states_and_keeps_them_where_classes_are_pure() -> None:
+    # One class everywhere: ENNC from one prototype has nothing to split and stays at one; seeded with 20 of the
+    # training states it keeps them (each region pure, each pulling its share of the patterns), at their centroids.
+    rng = np.random.default_rng(4)
+    x = rng.uniform(-1, 1, (1000, 2)).astype(np.float32)
+    data = Transitions(
+        robot=np.zeros(1000, np.int16),
+        state=x,
+        action=np.zeros(1000, np.uint8),
+        reward=np.zeros(1000, np.float32),
+        next_state=x,
+        done=np.ones(1000, bool),
+    )
+    plain = phase1(data, 1, Phase1Config(n_cycles=20, max_iterations=1), seed=0)
+    seeded = phase1(data, 1, Phase1Config(n_cycles=20, max_iterations=1, seed_prototypes=20), seed=0)
+    assert plain.discretization.size == 1
+    assert seeded.discretization.size == 20
+    cells = seeded.discretization.cells(x)[:, 0]
+    assert np.bincount(cells, minlength=20).min() > 0  # every seeded cell holds training states
