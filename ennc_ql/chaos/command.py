@@ -14,7 +14,7 @@ from types import FrameType
 from typing import Any
 
 from ennc_ql.chaos.checks import results_table
-from ennc_ql.chaos.network import unavailable
+from ennc_ql.chaos.network import NetworkError, unavailable
 from ennc_ql.chaos.observe import WaitTimeout
 from ennc_ql.chaos.options import (
     DEFAULT_DURATION_S,
@@ -63,7 +63,7 @@ def cmd_chaos(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print("ennc-ql chaos: interrupted; every child process was killed", file=sys.stderr)
         return 130
-    except WaitTimeout as exc:
+    except (WaitTimeout, NetworkError) as exc:
         print(f"ennc-ql chaos: the cluster did not start: {exc}; see the logs in {run_dir}", file=sys.stderr)
         return 1
     (run_dir / "chaos.json").write_text(json.dumps(out, indent=2))
@@ -80,7 +80,7 @@ def without_unavailable_network(options: ChaosOptions) -> tuple[ChaosOptions, di
         return options, {}
     rest = tuple(f for f in options.faults if f not in NETWORK_FAULTS)
     if not rest:
-        fail("chaos", f"--faults: {', '.join(wanted)} need network namespaces: {reason}")
+        fail("chaos", f"--faults: network namespaces are needed for {', '.join(wanted)}: {reason}")
     print(f"ennc-ql chaos: skipping {', '.join(wanted)}: {reason}", file=sys.stderr)
     return dataclasses.replace(options, faults=rest), dict.fromkeys(wanted, reason)
 

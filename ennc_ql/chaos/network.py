@@ -32,8 +32,14 @@ _CLONE_NEWNET = 0x40000000
 _NETNS_DIR = Path("/run/netns")
 
 
+class NetworkError(RuntimeError):
+    """A namespace, link or rule that could not be made (the run cannot start)."""
+
+
 def _ip(*args: str) -> None:
-    subprocess.run(["ip", *args], check=True, capture_output=True, text=True, timeout=10)
+    done = subprocess.run(["ip", *args], capture_output=True, text=True, timeout=10, check=False)
+    if done.returncode != 0:
+        raise NetworkError(f"`ip {' '.join(args)}` failed: {done.stderr.strip()}")
 
 
 def unavailable() -> str | None:
@@ -44,8 +50,8 @@ def unavailable() -> str | None:
     probe = f"{PREFIX}-{os.getpid()}-probe"
     try:
         _ip("netns", "add", probe)
-    except subprocess.CalledProcessError as exc:
-        return f"cannot create network namespaces (needs root or CAP_SYS_ADMIN): {exc.stderr.strip()}"
+    except NetworkError as exc:
+        return f"cannot create network namespaces (needs root or CAP_SYS_ADMIN): {exc}"
     try:
         subprocess.run(
             ["ip", "netns", "exec", probe, "iptables", "-S"], check=True, capture_output=True, text=True, timeout=10
@@ -137,4 +143,6 @@ class Network:
         self._iptables(host, "-F")
 
     def _iptables(self, host: str, *args: str) -> None:
-        subprocess.run(self.on(host, ["iptables", *args]), check=True, capture_output=True, text=True, timeout=10)
+        done = subprocess.run(self.on(host, ["iptables", *args]), capture_output=True, text=True, timeout=10)
+        if done.returncode != 0:
+            raise NetworkError(f"`iptables {' '.join(args)}` on {host} failed: {done.stderr.strip()}")

@@ -17,7 +17,7 @@ import zenoh
 
 from ennc_ql.chaos.checks import Evidence, figures_and_checks
 from ennc_ql.chaos.faults import Faults
-from ennc_ql.chaos.network import Network
+from ennc_ql.chaos.network import Network, NetworkError
 from ennc_ql.chaos.observe import (
     MALLORY,
     RECOVERY_TIMEOUT_S,
@@ -238,7 +238,7 @@ class Chaos:
         log.info("fault %s at t=%.0fs", name, t)
         try:
             ok, figures = self.faults.apply[name]()
-        except (WaitTimeout, zenoh.ZError) as exc:
+        except (WaitTimeout, NetworkError, zenoh.ZError) as exc:
             ok, figures = False, {"error": str(exc)}
         record = {"name": name, "t_s": t, "ok": ok, **figures}
         (log.info if ok else log.error)("fault %s %s: %s", name, "held" if ok else "FAILED", json.dumps(figures))

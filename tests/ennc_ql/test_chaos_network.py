@@ -171,3 +171,21 @@ def test_with_network_faults_every_process_runs_on_its_host_through_its_link(sec
         cert = x509.load_pem_x509_certificate((tmp_path / "secure" / "router.pem").read_bytes())
         names = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
         assert router in [str(a) for a in names.get_values_for_type(x509.IPAddress)]
+
+
+def test_without_namespaces_the_network_faults_are_skipped_saying_why(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from ennc_ql.chaos import ChaosOptions, command
+
+    why = "cannot create network namespaces (needs root)"
+    monkeypatch.setattr(command, "unavailable", lambda: why)
+    mixed = ChaosOptions(60.0, True, 5.0, ("learner-kill", "partition", "delay", "oversize"), 5.0)
+    options, skipped = command.without_unavailable_network(mixed)
+    assert options.faults == ("learner-kill", "oversize")
+    assert skipped == dict.fromkeys(("partition", "delay"), why)
+    assert capsys.readouterr().err == f"ennc-ql chaos: skipping partition, delay: {why}\n"
+    with pytest.raises(SystemExit) as exited:
+        command.without_unavailable_network(ChaosOptions(60.0, True, 5.0, ("loss",), 5.0))
+    assert exited.value.code == 2
+    assert capsys.readouterr().err == f"ennc-ql chaos: error: --faults: network namespaces are needed for loss: {why}\n"
