@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 PYTHON ?= python3
 LIBS   := sim algorithm learner actors protocol monitor ennc_ql
 
-.PHONY: run test lint typecheck clean
+.PHONY: run test lint typecheck clean image-test
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -28,6 +28,11 @@ typecheck: $(STAMP)
 
 test: lint typecheck
 	$(VENV)/bin/pytest -q
+
+# The Dockerfile built with podman and compose's topologies trained in its containers (root, podman, runc and
+# debootstrap; about 10 minutes on 2 cores): scripts/image_check.py.
+image-test: $(STAMP)
+	$(PY) scripts/image_check.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import sys
 import threading
 from typing import Any
 
@@ -60,7 +61,12 @@ def cmd_router(args: argparse.Namespace) -> int:
     # argparse's append action would add to a non-empty default instead of replacing it, hence the default here.
     if not args.listen and not args.zenoh_config:
         args.listen = [DEFAULT_LISTEN]
-    conf = config_from_args(args)
+    try:
+        conf = config_from_args(args)
+    except (ValueError, OSError, zenoh.ZError) as exc:
+        # ennc_ql.command's fail() says the same, but importing it would load the monitoring the router keeps out.
+        print(f"ennc-ql router: error: zenoh configuration: {exc}", file=sys.stderr)
+        return 2
     run_router(conf, stop_on_signals())
     return 0
 

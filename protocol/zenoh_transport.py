@@ -77,6 +77,11 @@ def zenoh_config(
     """
     if mode is not None and mode not in MODES:
         raise ValueError(f"mode {mode!r} not one of {MODES}")
+    if config_file:
+        # Zenoh's own error for an unreadable file names neither the file nor, in words, the cause: opening it here
+        # first makes it an OSError that names both (a container user that cannot read a mounted secret, say).
+        with open(config_file, "rb"):
+            pass
     conf = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
     if mode is not None or not config_file:
         conf.insert_json5("mode", json.dumps(mode or "peer"))

@@ -20,6 +20,9 @@ log = logging.getLogger("ennc_ql.chaos")  # one name for the package: its lines 
 
 OVERSIZE_RISE_LIMIT_MB = 100.0
 """What the oversize put may add to the learner's or the router's RSS: the cap, not the 160 MiB, bounds it."""
+MIN_LINK_BYTES_PER_TUPLE = 24
+"""What the smallest formulation's tuple takes on the wire in arrays alone: two float32 states of 2 values (16 B), a
+float32 reward, a uint8 action, an int16 robot and a bool done."""
 RSS_GROWTH_FACTOR, RSS_MARGIN_MB = 2.0, 300.0
 """Bound on each process's RSS over the run: this factor times its RSS when the faults began, plus this margin.
 A healthy process of any role stays well within it (its store and queues are bounded); a leak per message, per
@@ -50,6 +53,9 @@ class Evidence:
     rss_baseline: dict[str, float]
     ended: dict[str, Any]
     """Each process: whether it was still running at the end, and its exit status after SIGTERM."""
+    learner_id: str = "learner"
+    relayed: dict[str, dict[str, int]] | None = None
+    """With network faults: bytes each client's link relayed, ``up`` to the router and ``down`` from it."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -208,6 +214,28 @@ def check_faults(ev: Evidence) -> Check:
     return Check("faults held", not problems, "; ".join(problems) or done)
 
 
+def check_links(ev: Evidence) -> Check | None:
+    """With network faults, the experience crossed the emulated links: each actor's link carried up, and the
+    learner's down, at least MIN_LINK_BYTES_PER_TUPLE per tuple stored (shared memory, which the hosts' common
+    /dev/shm would allow, would have carried it past them)."""
+    if ev.relayed is None:
+        return None
+    stored = (ev.report or {}).get("tuples_by_actor", {})
+    floors = {actor: MIN_LINK_BYTES_PER_TUPLE * stored.get(actor, 0) for actor in ev.actor_ids}
+    problems = [
+        f"{actor}'s link carried {ev.relayed[actor]['up']} B up < {floor} B"
+        for actor, floor in floors.items()
+        if ev.relayed[actor]["up"] < floor
+    ]
+    down, floor = ev.relayed[ev.learner_id]["down"], sum(floors.values())
+    if down < floor:
+        problems.append(f"the learner's link carried {down} B down < {floor} B")
+    shown = ", ".join(
+        f"{name} {d['up'] / 1e6:.1f} MB up / {d['down'] / 1e6:.1f} MB down" for name, d in ev.relayed.items()
+    )
+    return Check("traffic on the links", not problems and bool(floors), "; ".join(problems) or shown)
+
+
 def check_processes(ev: Evidence) -> Check:
     problems = [
         f"{name} {'had exited before the end' if not e['running'] else 'exited with status ' + str(e.get('code'))}"
@@ -231,6 +259,7 @@ def figures_and_checks(ev: Evidence, summary: dict[str, Any]) -> dict[str, Any]:
         check_poison(ev),
         check_hostile(ev),
         check_rss(ev, peaks),
+        check_links(ev),
     ]
     held = [c for c in checks if c is not None]
     report = ev.report or {}
@@ -249,6 +278,7 @@ def figures_and_checks(ev: Evidence, summary: dict[str, Any]) -> dict[str, Any]:
         "versions": {"seen": ev.versions, "restarts": ev.restarts},
         "learner": {k: report.get(k) for k in learner_keys},
         "processes": ev.ended,
+        "links": ev.relayed,
         "rss": {"samples": ev.rss_samples, "baseline_mb": ev.rss_baseline, "max_mb": peaks, "bound_mb": rss_bounds(ev)},
     }
 
@@ -284,6 +314,7 @@ def results_table(out: dict[str, Any]) -> str:
             f"{a['visits_acked']!s:>14}{a['held']!s:>6}  {killed}"
         )
     lines += ["", "faults", *map(_fault_line, out["faults"])]
+    lines += [f"  skipped {name}: {why}" for name, why in out.get("skipped", {}).items()]
     rejected = out["learner"]["rejected_by_type"] or {}
     lines += ["", f"rejected by class: {', '.join(f'{k} {v}' for k, v in rejected.items()) or 'none'}"]
     lines.append(f"RSS max (MB): {', '.join(f'{k} {v:.0f}' for k, v in out['rss']['max_mb'].items())}")

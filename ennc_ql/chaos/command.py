@@ -14,13 +14,16 @@ from types import FrameType
 from typing import Any
 
 from ennc_ql.chaos.checks import results_table
+from ennc_ql.chaos.network import NetworkError, unavailable
 from ennc_ql.chaos.observe import WaitTimeout
 from ennc_ql.chaos.options import (
     DEFAULT_DURATION_S,
     DEFAULT_FAULT_INTERVAL_S,
     DEFAULT_RSS_INTERVAL_S,
     FAULTS,
+    NETWORK_FAULTS,
     SOAK_RSS_INTERVAL_S,
+    ChaosOptions,
     chaos_options,
 )
 from ennc_ql.chaos.run import Chaos
@@ -41,6 +44,7 @@ def _interrupted(signum: int, _frame: FrameType | None) -> None:
 
 def cmd_chaos(args: argparse.Namespace) -> int:
     options = chaos_options(args)
+    options, skipped = without_unavailable_network(options)
     config: UpConfig = configure(UpConfig, args, "chaos", defaults=UP_PRESETS)
     config = dataclasses.replace(config, duration=options.duration + LEARNER_EXTRA_S)
     run_id = args.run_id or time.strftime("chaos-%Y%m%d-%H%M%S")
@@ -55,16 +59,30 @@ def cmd_chaos(args: argparse.Namespace) -> int:
     run_dir = writable_dir(args.runs / run_id, "chaos", "--runs")
     signal.signal(signal.SIGTERM, _interrupted)
     try:
-        out = Chaos(options, config, run_dir, run_id, namespace).run()
+        out = Chaos(options, config, run_dir, run_id, namespace, skipped).run()
     except KeyboardInterrupt:
         print("ennc-ql chaos: interrupted; every child process was killed", file=sys.stderr)
         return 130
-    except WaitTimeout as exc:
+    except (WaitTimeout, NetworkError) as exc:
         print(f"ennc-ql chaos: the cluster did not start: {exc}; see the logs in {run_dir}", file=sys.stderr)
         return 1
     (run_dir / "chaos.json").write_text(json.dumps(out, indent=2))
     print(json.dumps(out) if args.json else results_table(out))
     return 0 if out["passed"] else 1
+
+
+def without_unavailable_network(options: ChaosOptions) -> tuple[ChaosOptions, dict[str, str]]:
+    """The options without the network faults if namespaces cannot be made here, and each one skipped with why; a
+    one-line error if nothing else was asked for."""
+    wanted = [f for f in options.faults if f in NETWORK_FAULTS]
+    reason = unavailable() if wanted else None
+    if reason is None:
+        return options, {}
+    rest = tuple(f for f in options.faults if f not in NETWORK_FAULTS)
+    if not rest:
+        fail("chaos", f"--faults: network namespaces are needed for {', '.join(wanted)}: {reason}")
+    print(f"ennc-ql chaos: skipping {', '.join(wanted)}: {reason}", file=sys.stderr)
+    return dataclasses.replace(options, faults=rest), dict.fromkeys(wanted, reason)
 
 
 def add_chaos_parser(sub: Any) -> None:

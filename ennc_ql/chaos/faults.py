@@ -27,7 +27,8 @@ import zenoh
 from ennc_ql.chaos.checks import OVERSIZE_RISE_LIMIT_MB
 from ennc_ql.chaos.observe import MALLORY, RECOVERY_TIMEOUT_S, Sighting, WaitTimeout, live_actors, since
 from ennc_ql.chaos.peers import INTRUDER_TUPLES, REFUSAL_TIMEOUT_MS, SPOOF_PUTS, Peer, Replies, opens, poisoned
-from ennc_ql.cluster import ACTOR_NICENESS, ennc_ql_argv
+from ennc_ql.chaos.proxy import Shaping
+from ennc_ql.cluster import ACTOR_NICENESS
 from ennc_ql.secure import write_secure_set
 from learner.checkpoint import VersionMark
 from protocol import encode
@@ -44,6 +45,15 @@ OVERSIZE_SETTLE_S = 4.0
 """RSS is sampled this long after the put returned: the router may still be reassembling then dropping it."""
 STATUS_SETTLE_S = 1.0
 """After a SIGKILL, a status the dead process had already sent still lands within this."""
+PARTITION_MARGIN_S = 3.0
+"""A partition lasts the zenoh lease plus this: long enough for the router to drop the cut-off session."""
+NETWORK_WINDOW_S = 8.0
+"""How long the delay and loss faults shape every link."""
+DELAY_S = 0.025
+"""Added each way on every client's link: 50 ms round trip between a client and the router, 100 ms between an actor
+and the learner (through the router)."""
+LOSS = 0.02
+"""Share of the relayed chunks (up to 64 KiB each) held back one retransmission timeout."""
 
 Fault = Callable[[], tuple[bool, dict[str, Any]]]
 
@@ -64,6 +74,7 @@ class Faults:
         """Batches sent under another actor's id."""
         self._victims: dict[str, Iterator[str]] = {
             "actor-stop": itertools.cycle(self.actor_ids),
+            "partition": itertools.cycle(self.actor_ids),
             # actor-0 is never killed while there are others: its exact count proves the spoofed tuples were not stored.
             "actor-kill": itertools.cycle(self.actor_ids[1:] or self.actor_ids),
         }
@@ -72,6 +83,9 @@ class Faults:
             "router-restart": self._router_restart,
             "actor-stop": self._actor_stop,
             "actor-kill": self._actor_kill,
+            "partition": self._partition,
+            "delay": partial(self._shaped, Shaping(delay_s=DELAY_S)),
+            "loss": partial(self._shaped, Shaping(loss=LOSS)),
             "poison": self._poison,
             "spoof": self._spoof,
             "unauthenticated": self._unauthenticated,
@@ -120,7 +134,7 @@ class Faults:
     def _router_restart(self) -> tuple[bool, dict[str, Any]]:
         self.children.kill(ROUTER)
         down = time.monotonic()
-        self.children.start(ROUTER, ennc_ql_argv("router", *self.endpoints.router_flags()))
+        self.children.start(ROUTER, self.run.router_argv())
         back: dict[str, float] = {}
         for sender in (self.learner_id, *self.actor_ids):
             what = f"a status of {sender} through the new router"
@@ -128,20 +142,23 @@ class Faults:
             back[sender] = round(arrived - down, 1)
         return True, {"recovered_s": back[self.learner_id], "status_back_s": back}
 
+    def _live(self, after: float, below: bool) -> Sighting | None:
+        """The learner's first status after ``after`` counting fewer live actors than the run has (``below``), or
+        all of them."""
+        n = len(self.actor_ids)
+        return next((s for s in self.observer.sightings(self.learner_id, after) if (live_actors(s) < n) == below), None)
+
+    def _full_house(self) -> None:
+        """Until the learner counts every actor live (an earlier fault may still be settling), so that the drop a
+        fault sees next is its own."""
+        self.run.wait(
+            "the learner to count every actor live", RECOVERY_TIMEOUT_S, partial(self._live, time.monotonic(), False)
+        )
+
     def _actor_stop(self) -> tuple[bool, dict[str, Any]]:
         actor = next(self._victims["actor-stop"])
         pause = self.lease_s + 3.0
-        n = len(self.actor_ids)
-
-        def live(after: float, below: bool) -> Sighting | None:
-            return next(
-                (s for s in self.observer.sightings(self.learner_id, after) if (live_actors(s) < n) == below), None
-            )
-
-        # From a full house (an earlier fault may still be settling), so the drop seen next is this stop's.
-        self.run.wait(
-            "the learner to count every actor live", RECOVERY_TIMEOUT_S, partial(live, time.monotonic(), False)
-        )
+        self._full_house()
         self.children.signal(actor, signal.SIGSTOP)
         stopped = time.monotonic()
         try:
@@ -150,10 +167,10 @@ class Faults:
             self.children.signal(actor, signal.SIGCONT)
         resumed = time.monotonic()
         dropped = self.run.wait(
-            f"the learner to count {actor} gone", RECOVERY_TIMEOUT_S, lambda: live(stopped, below=True)
+            f"the learner to count {actor} gone", RECOVERY_TIMEOUT_S, lambda: self._live(stopped, below=True)
         )
         back = self.run.wait(
-            f"the learner to count {actor} back", RECOVERY_TIMEOUT_S, lambda: live(dropped[0], below=False)
+            f"the learner to count {actor} back", RECOVERY_TIMEOUT_S, lambda: self._live(dropped[0], below=False)
         )
         figures = {
             "actor": actor,
@@ -178,6 +195,94 @@ class Faults:
         what = f"a status of the new incarnation of {actor}"
         arrived, _ = self.run.wait(what, RECOVERY_TIMEOUT_S, lambda: self.observer.first(actor, restarted))
         return True, {"actor": actor, "last_seen": counters, "recovered_s": round(arrived - restarted, 1)}
+
+    def _partition(self) -> tuple[bool, dict[str, Any]]:
+        """One actor's host cut off (every packet on its link dropped) past the lease, then healed: the learner
+        counts it gone, then back, and its acknowledgements flow again (its outbox re-sends what was cut off)."""
+        assert self.run.network is not None
+        actor = next(self._victims["partition"])
+        self._full_house()
+        last = self.observer.latest(actor)
+        resent = int(last[1].get("resent", 0)) if last else 0
+        self.run.network.partition(actor)
+        cut = time.monotonic()
+        try:
+            dropped = self.run.wait(
+                f"the learner to count {actor} gone", RECOVERY_TIMEOUT_S, lambda: self._live(cut, below=True)
+            )
+            time.sleep(max(0.0, cut + self.lease_s + PARTITION_MARGIN_S - time.monotonic()))
+        finally:
+            self.run.network.heal(actor)
+        healed = time.monotonic()
+        back = self.run.wait(
+            f"the learner to count {actor} back", RECOVERY_TIMEOUT_S, lambda: self._live(healed, below=False)
+        )
+        acked = self._acks_moving(actor, healed)
+        figures = {
+            "actor": actor,
+            "partitioned_s": round(healed - cut, 1),
+            "live_actors_min": min(live_actors(s) for s in self.observer.sightings(self.learner_id, cut)),
+            "gone_after_s": round(dropped[0] - cut, 1),
+            "recovered_s": round(back[0] - healed, 1),
+            "acks_resumed_s": round(acked - healed, 1),
+            "resent": int((self.observer.latest(actor) or (0.0, {}))[1].get("resent", 0)) - resent,
+        }
+        return True, figures
+
+    def _acks_moving(self, actor: str, after: float) -> float:
+        """When ``actor``'s first status after ``after`` arrived whose acknowledged tuples are above the last seen
+        before it."""
+        last = self.observer.latest(actor, 0.0)
+        before = int(last[1].get("tuples_acked", 0)) if last else 0
+
+        def moved() -> float | None:
+            seen = self.observer.sightings(actor, after)
+            return next((t for t, c in seen if int(c.get("tuples_acked", 0)) > before), None)
+
+        return self.run.wait(f"acknowledgements to {actor} to move", RECOVERY_TIMEOUT_S, moved)
+
+    def _shaped(self, shaping: Shaping) -> tuple[bool, dict[str, Any]]:
+        """Every link delayed or lossy for NETWORK_WINDOW_S: the streams must keep flowing (each actor's
+        acknowledged tuples rise during it, every actor stays live), and once it is lifted acknowledgements move on."""
+        proxies = self.run.proxies
+        assert proxies is not None
+        self._full_house()
+
+        def acked(actor: str) -> int:
+            last = self.observer.latest(actor)
+            return int(last[1].get("tuples_acked", 0)) if last else 0
+
+        def rate(after: float) -> float:
+            rates = [c.get("tuples_per_s", 0.0) for _, c in self.observer.sightings(self.learner_id, after)]
+            return round(sum(rates) / len(rates)) if rates else 0.0
+
+        before = {a: acked(a) for a in self.actor_ids}
+        relayed_before = sum(d["up"] + d["down"] for d in proxies.relayed().values())
+        window_start = time.monotonic()
+        rate_before = rate(window_start - NETWORK_WINDOW_S)
+        proxies.shape(shaping)
+        try:
+            time.sleep(NETWORK_WINDOW_S)
+        finally:
+            proxies.shape(Shaping())
+        lifted = time.monotonic()
+        during = {a: acked(a) - before[a] for a in self.actor_ids}
+        relayed = sum(d["up"] + d["down"] for d in proxies.relayed().values()) - relayed_before
+        live_min = min((live_actors(s) for s in self.observer.sightings(self.learner_id, window_start)), default=0)
+        resumed = max(self._acks_moving(actor, lifted) for actor in self.actor_ids)
+        figures = {
+            "delay_ms_each_way": round(shaping.delay_s * 1000),
+            "loss_per_chunk": shaping.loss,
+            "rto_ms": round(shaping.rto_s * 1000),
+            "window_s": NETWORK_WINDOW_S,
+            "tuples_acked_during": during,
+            "learner_tuples_per_s_before": rate_before,
+            "learner_tuples_per_s_during": rate(window_start),
+            "relayed_mb_during": round(relayed / 1e6, 1),
+            "live_actors_min": live_min,
+            "recovered_s": round(resumed - lifted, 1),
+        }
+        return all(n > 0 for n in during.values()) and live_min == len(self.actor_ids), figures
 
     def _poison(self) -> tuple[bool, dict[str, Any]]:
         ident = self.hostile("poisoner")

@@ -14,6 +14,9 @@ FAULTS = (
     "router-restart",
     "actor-stop",
     "actor-kill",
+    "partition",
+    "delay",
+    "loss",
     "poison",
     "spoof",
     "unauthenticated",
@@ -23,6 +26,8 @@ FAULTS = (
 """Every fault, in the order of the rotation (the table of the package's docstring)."""
 SECURE_ONLY = frozenset({"unauthenticated", "wrong-certificate"})
 """Faults that test TLS and authentication, which a plain run does not have."""
+NETWORK_FAULTS = frozenset({"partition", "delay", "loss"})
+"""Faults between hosts: with any of them in the rotation every process runs in a network namespace of its own."""
 
 DEFAULT_DURATION_S, DEFAULT_FAULT_INTERVAL_S = 120.0, 20.0
 DEFAULT_RSS_INTERVAL_S, SOAK_RSS_INTERVAL_S = 10.0, 60.0

@@ -8,7 +8,8 @@ import json
 import logging
 import signal
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -16,6 +17,7 @@ import zenoh
 
 from ennc_ql.chaos.checks import Evidence, figures_and_checks
 from ennc_ql.chaos.faults import Faults
+from ennc_ql.chaos.network import Network, NetworkError
 from ennc_ql.chaos.observe import (
     MALLORY,
     RECOVERY_TIMEOUT_S,
@@ -26,7 +28,8 @@ from ennc_ql.chaos.observe import (
     listening,
     wait_for,
 )
-from ennc_ql.chaos.options import ChaosOptions
+from ennc_ql.chaos.options import NETWORK_FAULTS, ChaosOptions
+from ennc_ql.chaos.proxy import Proxies
 from ennc_ql.cluster import (
     ACTOR_NICENESS,
     Children,
@@ -58,8 +61,18 @@ class Chaos:
     out = Chaos(options, config, run_dir, run_id, namespace).run()   # the JSON object ``--json`` prints
     """
 
-    def __init__(self, options: ChaosOptions, config: UpConfig, run_dir: Path, run_id: str, namespace: str) -> None:
+    def __init__(
+        self,
+        options: ChaosOptions,
+        config: UpConfig,
+        run_dir: Path,
+        run_id: str,
+        namespace: str,
+        skipped: dict[str, str] | None = None,
+    ) -> None:
         self.options = options
+        self.skipped = skipped or {}
+        """Faults asked for but not applied, with why."""
         self.run_dir = run_dir
         self.run_id = run_id
         self.keys = KeySpace(namespace)
@@ -67,10 +80,29 @@ class Chaos:
         self.learner_id = self.learner.learner_id
         self.actor_ids = [a.actor_id for a in self.actors]
         self.formulation = self.learner.resolved
+        # With network faults every process is a host of its own, the clients reaching the router through chaos's
+        # link proxies on the router's host; the router's certificate then names its address there too.
+        self.network = (
+            Network([ROUTER, self.learner_id, *self.actor_ids]) if NETWORK_FAULTS & set(options.faults) else None
+        )
+        self.proxies: Proxies | None = None
+        self.links: dict[str, int] = {}
+        """Each client's link: the port of its proxy on the router's host."""
         # Every process a client of a router chaos can restart; chaos plays mallory itself in a secure run.
         self.endpoints = make_endpoints(
-            run_dir, namespace, self.learner_id, self.actor_ids, router=True, secure=options.secure, others=(MALLORY,)
+            run_dir,
+            namespace,
+            self.learner_id,
+            self.actor_ids,
+            router=True,
+            secure=options.secure,
+            others=(MALLORY,),
+            hosts=(self.network.address[ROUTER],) if self.network else (),
         )
+        self.no_shared_memory = run_dir / "no-shared-memory.json5"
+        if self.network is not None and not options.secure:  # the secure configurations have it off already
+            # The hosts share /dev/shm: with shared memory on, payloads would bypass the links the faults act on.
+            self.no_shared_memory.write_text(json.dumps({"transport": {"shared_memory": {"enabled": False}}}) + "\n")
         self.lease_s = int(self.endpoints.session(OBSERVER).get_json("transport/link/tx/lease")) / 1000
         self.t0 = time.monotonic()
         # Killed at once on the way out, whatever happened: the drain has stopped them gently if all went well.
@@ -84,31 +116,70 @@ class Chaos:
     def run(self) -> dict[str, Any]:
         """Start the cluster, apply the faults, drain it and return the figures with the checks; every child is
         killed on the way out, whatever happened (an exception, Ctrl-C)."""
-        try:
-            self.children.start(ROUTER, ennc_ql_argv("router", *self.endpoints.router_flags()))
-            # The observer's zenoh.open would wait for the router forever (clients retry it without end).
-            self.wait("the router to listen", RECOVERY_TIMEOUT_S, lambda: listening(self.endpoints.port))
-            with self.observer.watching(self.endpoints.session(OBSERVER), self.keys):
-                self.children.start(self.learner_id, self.learner_argv(resume=False))
-                for actor in self.actor_ids:
-                    self.children.start(actor, self.actor_argv(actor), nice=ACTOR_NICENESS)
-                self.rss.start()
-                try:
-                    self._rotate_faults()
-                finally:
-                    self.rss.stop()
-                finals, codes = self._drain()
-        finally:
-            self.children.close()
-        return self._results(finals, codes)
+        with self._hosts():
+            try:
+                self.children.start(ROUTER, self.router_argv())
+                # The observer's zenoh.open would wait for the router forever (clients retry it without end).
+                self.wait("the router to listen", RECOVERY_TIMEOUT_S, lambda: listening(self.endpoints.port))
+                with self.observer.watching(self.endpoints.session(OBSERVER), self.keys):
+                    self.children.start(self.learner_id, self.learner_argv(resume=False))
+                    for actor in self.actor_ids:
+                        self.children.start(actor, self.actor_argv(actor), nice=ACTOR_NICENESS)
+                    self.rss.start()
+                    try:
+                        self._rotate_faults()
+                    finally:
+                        self.rss.stop()
+                    finals, codes = self._drain()
+            finally:
+                self.children.close()
+            relayed = self.proxies.relayed() if self.proxies else None
+        return self._results(finals, codes, relayed)
+
+    @contextmanager
+    def _hosts(self) -> Iterator[None]:
+        """With network faults: the namespaces, chaos's thread on the router's host (its sessions and proxies
+        there) and a proxy per client; all of it gone on the way out. Without: nothing to do."""
+        if self.network is None:
+            yield
+            return
+        with self.network.built():
+            self.network.enter(ROUTER)
+            self.proxies = Proxies(("127.0.0.1", self.endpoints.port)).start()
+            try:
+                for client in (self.learner_id, *self.actor_ids):
+                    self.links[client] = self.proxies.add(client, self.network.address[ROUTER])
+                yield
+            finally:
+                self.proxies.close()
+
+    def router_argv(self) -> list[str]:
+        flags = self.endpoints.router_flags()
+        if self.network is None:
+            return ennc_ql_argv("router", *flags)
+        shared_memory_off = [] if self.options.secure else ["--zenoh-config", str(self.no_shared_memory)]
+        return self.network.on(ROUTER, ennc_ql_argv("router", *shared_memory_off, *flags))
 
     def learner_argv(self, resume: bool) -> list[str]:
         argv = ["learner", "--config", str(self.run_dir / "learner.toml"), "--run-dir", str(self.run_dir), "--json"]
-        return ennc_ql_argv(*argv, *self.endpoints.flags(self.learner_id), *(["--resume"] if resume else []))
+        return self._on(self.learner_id, [*argv, *(["--resume"] if resume else [])])
 
     def actor_argv(self, actor: str) -> list[str]:
-        argv = ["actor", "--config", str(self.run_dir / f"{actor}.toml"), "--json"]
-        return ennc_ql_argv(*argv, *self.endpoints.flags(actor))
+        return self._on(actor, ["actor", "--config", str(self.run_dir / f"{actor}.toml"), "--json"])
+
+    def _on(self, ident: str, argv: list[str]) -> list[str]:
+        """A learner's or actor's command line with its zenoh flags, on its own host when there are hosts."""
+        flags = self.endpoints.flags(ident)
+        if self.network is None:
+            return ennc_ql_argv(*argv, *flags)
+        link = f"{self.network.address[ROUTER]}:{self.links[ident]}"
+        if self.options.secure:  # the flag overrides the configuration's endpoint
+            flags = [*flags, "--connect", f"tls/{link}"]
+        else:
+            flags = ["--zenoh-config", str(self.no_shared_memory)] + [
+                f"tcp/{link}" if flag == self.endpoints.endpoint else flag for flag in flags
+            ]
+        return self.network.on(ident, ennc_ql_argv(*argv, *flags))
 
     def checkpoint_mtime(self) -> int:
         path = self.run_dir / CHECKPOINT
@@ -167,7 +238,7 @@ class Chaos:
         log.info("fault %s at t=%.0fs", name, t)
         try:
             ok, figures = self.faults.apply[name]()
-        except (WaitTimeout, zenoh.ZError) as exc:
+        except (WaitTimeout, NetworkError, zenoh.ZError) as exc:
             ok, figures = False, {"error": str(exc)}
         record = {"name": name, "t_s": t, "ok": ok, **figures}
         (log.info if ok else log.error)("fault %s %s: %s", name, "held" if ok else "FAILED", json.dumps(figures))
@@ -193,7 +264,12 @@ class Chaos:
             ended[name]["code"] = self.children.wait(name, grace)
         return finals, ended
 
-    def _results(self, finals: dict[str, dict[str, Any] | None], ended: dict[str, Any]) -> dict[str, Any]:
+    def _results(
+        self,
+        finals: dict[str, dict[str, Any] | None],
+        ended: dict[str, Any],
+        relayed: dict[str, dict[str, int]] | None,
+    ) -> dict[str, Any]:
         report_path = self.run_dir / "report.json"
         report = json.loads(report_path.read_text()) if report_path.exists() else None
         evidence = Evidence(
@@ -210,6 +286,8 @@ class Chaos:
             rss_samples=self.rss.samples,
             rss_baseline=self.rss.baseline,
             ended=ended,
+            learner_id=self.learner_id,
+            relayed=relayed,
         )
         return figures_and_checks(evidence, self._summary())
 
@@ -225,4 +303,6 @@ class Chaos:
             "fault_interval_s": self.options.fault_interval,
             "wall_s": self._t(),
             "rss_interval_s": self.options.rss_interval,
+            "skipped": self.skipped,
+            "hosts": self.network.address if self.network else None,
         }

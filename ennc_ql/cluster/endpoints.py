@@ -17,7 +17,7 @@ from typing import Any
 
 import zenoh
 
-from ennc_ql.secure import SecureSet, write_secure_set
+from ennc_ql.secure import DEFAULT_HOSTS, SecureSet, write_secure_set
 from ennc_ql.system import free_port
 from protocol import zenoh_config
 from protocol.security import ROUTER
@@ -77,9 +77,11 @@ def make_endpoints(
     router: bool,
     secure: bool,
     others: tuple[str, ...] = (),
+    hosts: tuple[str, ...] = (),
 ) -> Endpoints:
     """A free loopback port and, ``secure``, every identity's files in ``run_dir/secure``: the learner's, the actors',
-    the router's, the observer's and ``others`` (identities of sessions of our own)."""
+    the router's, the observer's and ``others`` (identities of sessions of our own); the router's certificate is
+    valid for loopback and ``hosts`` (other names or addresses clients dial)."""
     port = free_port()
     if not secure:
         return Endpoints(port, namespace, learner_id, router, None)
@@ -88,6 +90,7 @@ def make_endpoints(
         actor_ids=(*actor_ids, *others),
         learner_id=learner_id,
         namespace=namespace,
+        hosts=(*DEFAULT_HOSTS, *hosts),
         listen=(f"tls/127.0.0.1:{port}",),
         connect=(f"tls/localhost:{port}",),
     )

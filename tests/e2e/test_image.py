@@ -648,3 +648,76 @@ def test_image_commands_import_their_modules_from_the_image(image: Image) -> Non
     assert not failures, "\n\n".join(failures)
     for name, entry in result["commands"].items():
         assert len(entry["modules"]) >= 1, f"{name}: no module of the command was imported"
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The real build (scripts/image_check.py, `make image-test`): what the suite can check without building
+
+
+def arg_defaults(dockerfile: str) -> dict[str, str]:
+    """Each ``ARG NAME=default`` of the Dockerfile, its quotes removed as the builder does."""
+    defaults = {}
+    for step in instructions(dockerfile):
+        if step.keyword == "ARG" and "=" in step.args:
+            name, value = step.args.split("=", 1)
+            defaults[name] = shlex.split(value)[0]
+    return defaults
+
+
+def test_the_dockerfile_builds_for_real_users_by_default() -> None:
+    """The build arguments that let the real build run here default to what a user with a registry needs: the
+    official Python image, and torch from PyTorch's CPU-only index at pyproject's pin."""
+    text = DOCKERFILE.read_text()
+    defaults = arg_defaults(text)
+    assert defaults["BASE"] == "python:3.11-slim"
+    assert [s.args for s in instructions(text) if s.keyword == "FROM"] == ["${BASE}"]
+    assert defaults["TORCH_SOURCE"] == "--index-url https://download.pytorch.org/whl/cpu"
+    pin = next(d for d in tomllib.loads(PYPROJECT.read_text())["project"]["dependencies"] if d.startswith("torch"))
+    torch_runs = [s.args for s in instructions(text) if s.keyword == "RUN" and "torch" in s.args]
+    assert torch_runs == [f"pip install --no-cache-dir {pin} ${{TORCH_SOURCE}}"]
+
+
+def image_check() -> Any:
+    """scripts/image_check.py as a module (scripts/ is no package)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("image_check", REPO / "scripts" / "image_check.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_real_build_runs_compose_s_services_as_compose_does(tmp_path: Path) -> None:
+    """The containers of `make image-test` start with compose's own commands (budgets appended, later flags win),
+    mount what compose mounts, and the plain router is ``ennc-ql router`` with the eclipse/zenoh router's flags."""
+    from ennc_ql.cli import build_parser
+
+    check = image_check()
+    plain = yaml.safe_load(COMPOSE.read_text())
+    services = {s.name: s for s in check.plain_services(plain)}
+    replicas = plain["services"]["actor"]["deploy"]["replicas"]
+    assert list(services) == ["router", "learner", *(f"actor-{i}" for i in range(replicas))]
+    router = build_parser().parse_args(services["router"].command)
+    assert router.command == "router" and router.listen == ["tcp/0.0.0.0:7447"] and not router.multicast_scouting
+    assert (
+        services["learner"].command[: len(plain["services"]["learner"]["command"])]
+        == plain["services"]["learner"]["command"]
+    )
+    assert services["learner"].volumes == {"runs": "/runs"}
+    assert (
+        services["actor-0"].command[: len(plain["services"]["actor"]["command"])]
+        == plain["services"]["actor"]["command"]
+    )
+    secure_spec = yaml.safe_load((REPO / "compose.secure.yaml").read_text())
+    secure = {s.name: s for s in check.secure_services(secure_spec, tmp_path)}
+    assert list(secure) == list(secure_spec["services"])
+    for name, service in secure_spec["services"].items():
+        assert secure[name].command[: len(service["command"])] == service["command"]
+        mounted = {
+            f"/run/secrets/{s['target']}": Path(secure_spec["secrets"][s["source"]]["file"]).name
+            for s in service["secrets"]
+        }
+        assert {target: Path(source).name for source, target in secure[name].files.items()} == mounted
+        assert all(Path(source).parent == tmp_path for source in secure[name].files)

@@ -58,3 +58,24 @@ def test_every_configuration_keeps_payloads_inside_tls(tmp_path: Path) -> None:
         conf = zenoh.Config.from_file(str(path))
         assert json.loads(conf.get_json("transport/shared_memory/enabled")) is False, path.name
         assert json.loads(conf.get_json("transport/link/tls/enable_mtls")) is True, path.name
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [["router"], ["learner", "--run-dir", "RUN"], ["actor", "--actor-id", "actor-0"]],
+    ids=["router", "learner", "actor"],
+)
+def test_a_configuration_the_process_cannot_read_is_a_one_line_error_naming_it(argv: list[str], tmp_path: Path) -> None:
+    """What a container prints when its mounted secrets are not readable by its user (the image runs as uid 1000)."""
+    missing = tmp_path / "secrets" / "actor-0.json5"
+    argv = [str(tmp_path / "run") if a == "RUN" else a for a in argv]
+    out = subprocess.run(
+        [sys.executable, "-m", "ennc_ql.cli", *argv, "--zenoh-config", str(missing)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert out.returncode == 2
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"ennc-ql {argv[0]}: error: zenoh configuration:"), out.stderr
+    assert str(missing) in lines[0] and "No such file or directory" in lines[0]
