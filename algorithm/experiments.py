@@ -136,13 +136,15 @@ class Outcome:
 Progress = Callable[[str], None]
 
 
-def _discretize(spec: MethodSpec, data: Transitions, budget: Budget, seed: int) -> tuple[Discretization, ActionMode]:
+def _discretize(
+    spec: MethodSpec, data: Transitions, budget: Budget, seed: int, lost_reward: float
+) -> tuple[Discretization, ActionMode]:
     rng = np.random.default_rng(seed)
     if spec.algorithm == "vqql":
         n = min(budget.codebook_patterns, len(data))
         sample = data.state[rng.choice(len(data), n, replace=False)]
         return Discretization.shared(lbg(sample, spec.codebook, seed=seed, max_iter=30), N_ACTIONS), "until_change"
-    result = phase1(data, N_ACTIONS, budget.phase1, seed=seed)
+    result = phase1(data, N_ACTIONS, budget.phase1, seed=seed, lost_reward=lost_reward)
     return result.discretization, "fixed"
 
 
@@ -216,7 +218,7 @@ def train(
     )
     data = Transitions.concat([explorer.run_trial() for _ in range(budget.explore_trials)])
     say(f"explored {len(data)} tuples")
-    disc, action_mode = _discretize(spec, data, budget, seed)
+    disc, action_mode = _discretize(spec, data, budget, seed, base.lost_reward)
     say(f"discretization: {disc.size} cells, {disc.sizes().mean():.1f} per action")
     rows = spec.learning_robots if spec.per_robot_tables and not spec.shared_table else 1
     template = Policy(

@@ -50,6 +50,11 @@ class Phase1Config:
     """How q values are binned when there are too many: equal-count or equal-width bins [choice]."""
     max_patterns: int | None = None
     """Fit each action's ENNC on at most this many tuples (a uniform sample); None = all [choice]."""
+    targets: Literal["reward", "lost"] = "reward"
+    """What ENNC's classes are drawn from: ``reward``, q = r + γ·max_b Q̂(s′, b) [paper]; ``lost``, the same with r
+    replaced by the lost reward where the tuple ended its robot's trial by losing every target and by 0 elsewhere
+    [beyond the paper: a per-decision reward gives noisy, many-valued targets on which ENNC keeps few prototypes;
+    the lost signal is the crisp one the paper's delayed reward gives, while phase 2 learns the reward itself]."""
     seed_prototypes: int = 0
     """0: each ENNC starts from one prototype [paper]. P > 0: from P of the action's training states (a uniform
     sample), each with the majority class of its region, so that the discretization starts as fine as P cells spread
@@ -77,6 +82,10 @@ class Phase1Config:
             raise ValueError("round_to must be positive")
         if self.max_patterns is not None and self.max_patterns < 1:
             raise ValueError("max_patterns must be positive or None")
+        if self.targets not in ("reward", "lost"):
+            raise ValueError(f"targets must be 'reward' or 'lost', got {self.targets!r}")
+        if self.seed_prototypes < 0 or self.smooth_k < 0:
+            raise ValueError("seed_prototypes and smooth_k must be non-negative")
 
 
 CMOMMT_PHASE1 = Phase1Config(max_iterations=1, max_patterns=30_000)
@@ -157,13 +166,15 @@ def phase1(
     warm_start: Discretization | None = None,
     progress: Progress | None = None,
     values: np.ndarray | None = None,
+    lost_reward: float = -1.0,
 ) -> Phase1Result:
     """Fitted ENNC iterations until no predicted value changes or ``max_iterations``.
 
     ``warm_start`` seeds every action's first fit with its prototypes and labels (the learner's refits as data
     grows). ``values`` (Σ P_a,), with ``warm_start``: Q values learned over its cells (phase 2's tables); the
     first iteration's targets then bootstrap from them instead of from Q̂^(0) ≡ 0, and each warm prototype starts
-    labelled with the class nearest its value. ``progress(iteration, action)`` is called after each fit.
+    labelled with the class nearest its value. ``lost_reward`` is the scenario's (``targets="lost"`` finds the
+    tuples that lost every target by it). ``progress(iteration, action)`` is called after each fit.
     """
     ennc_class = estimator()
     config = config or Phase1Config()
@@ -176,6 +187,8 @@ def phase1(
     if actions.max() >= n_actions:
         raise ValueError(f"tuples name action {actions.max()} but there are only {n_actions} actions")
     rewards = np.asarray(data.reward, dtype=np.float64)
+    if config.targets == "lost":
+        rewards = np.where(data.done & (rewards == np.float32(lost_reward)), lost_reward, 0.0)
     scale = warm_start.scale if warm_start is not None else standard_scale(states) if config.standardize else None
     unit = np.ones(states.shape[1]) if scale is None else scale.astype(np.float64)
     if values is not None:

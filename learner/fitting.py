@@ -25,6 +25,7 @@ from algorithm.phase1 import phase1
 from learner.config import LearnerConfig
 from learner.intake import ExperienceIntake
 from protocol import N_ACTIONS
+from sim import scenario
 
 log = logging.getLogger(__name__)
 
@@ -56,7 +57,10 @@ class Fitter:
         log.info("phase 1 on %d tuples (%s)", len(data), "first fit" if warm_start is None else "warm start")
         began = time.monotonic()
         seed = int(self._rng.integers(2**31))
-        disc = phase1(data, N_ACTIONS, self.config.phase1, seed=seed, warm_start=warm_start).discretization
+        lost = scenario(self.config.scenario).lost_reward
+        disc = phase1(
+            data, N_ACTIONS, self.config.phase1, seed=seed, warm_start=warm_start, lost_reward=lost
+        ).discretization
         self.fits += 1
         log.info(
             "phase 1 done in %.1f s: %.1f prototypes per action (%d cells)",

@@ -250,3 +250,26 @@ def test_seeded_phase1_starts_from_training_states_and_keeps_them_where_classes_
     assert seeded.discretization.size == 20
     cells = seeded.discretization.cells(x)[:, 0]
     assert np.bincount(cells, minlength=20).min() > 0  # every seeded cell holds training states
+
+
+def test_phase1_can_draw_its_classes_from_the_lost_signal_alone() -> None:
+    # Per-decision rewards 0.2 … 2.0 everywhere, −1 where the tuple lost every target (x < 0): the reward's own
+    # classes are many; the lost signal gives exactly two, −1 left of 0 and 0 right of it.
+    rng = np.random.default_rng(1)
+    x = rng.uniform(-1, 1, (2000, 2)).astype(np.float32)
+    bad = x[:, 0] < 0
+    data = Transitions(
+        robot=np.zeros(2000, np.int16),
+        state=x,
+        action=np.zeros(2000, np.uint8),
+        reward=np.where(bad, -1.0, rng.integers(1, 11, 2000) / 5).astype(np.float32),
+        next_state=x,
+        done=bad,
+    )
+    config = Phase1Config(n_cycles=80, max_iterations=1, targets="lost")
+    disc = phase1(data, n_actions=1, config=config, seed=3, lost_reward=-1.0).discretization
+    assert set(np.unique(disc.labels)) == {-1.0, 0.0}
+    predicted = disc.labels[disc.cells(x)[:, 0]]
+    assert np.mean(predicted == np.where(bad, -1.0, 0.0)) > 0.9
+    with pytest.raises(ValueError, match="targets"):
+        Phase1Config(targets="money")  # type: ignore[arg-type]
