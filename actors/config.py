@@ -84,8 +84,9 @@ class ActorConfig:
     """Stop after this many seconds (None: run until stopped)."""
     status_interval: float = 2.0
     """Seconds between status messages."""
-    phase2: Phase2Config = field(default_factory=Phase2Config)
-    """On-line Q-learning of the robots this actor learns."""
+    phase2: Phase2Config = field(default_factory=lambda: Phase2Config(alpha_floor=0.01))
+    """On-line Q-learning of the robots this actor learns; each cell's step size decays from alpha to 0.01 as it is
+    visited [beyond the paper: the actors of a run see hundreds of millions of tuples]."""
     draw_every: int = 10
     """With monitoring on, every this many trials arena 0 is drawn at each step of the trial."""
     resolved: Formulation = field(init=False, repr=False, compare=False)

@@ -97,6 +97,8 @@ class Budget:
     discretization, its targets bootstrapped from the learned tables, which then carry over [beyond the paper]."""
     refit_tuples: int = 600_000
     """Tuples of a refit (the newest of its part of phase 2)."""
+    refit_seed_prototypes: int | None = None
+    """``seed_prototypes`` of the refits' phase 1 (more data can hold more cells); None: ``phase1``'s."""
     fqi: FQIConfig = field(default_factory=FQIConfig)
     """The neural fitted-Q reference (method ``fqi-mlp``): it explores as phase 0 and learns on as many batches of
     learning trials as phase 2, in ``fqi.rounds`` rounds."""
@@ -183,7 +185,10 @@ def _refit(agent: TabularAgent, data: Transitions, budget: Budget, seed: int) ->
     """Phase 1 again on on-policy ``data``, bootstrapped from the agent's tables (their mean over robots); a new
     agent over the new discretization with the tables carried over (each new cell from the nearest old one)."""
     old = agent.discretization
-    fit = phase1(data, N_ACTIONS, budget.phase1, seed=seed, warm_start=old, values=agent.tables.mean(axis=0))
+    config = budget.phase1
+    if budget.refit_seed_prototypes is not None:
+        config = dataclasses.replace(config, seed_prototypes=budget.refit_seed_prototypes)
+    fit = phase1(data, N_ACTIONS, config, seed=seed, warm_start=old, values=agent.tables.mean(axis=0))
     disc = fit.discretization
     template = dataclasses.replace(agent.template, discretization=disc, tables=disc.carry_over(old, agent.tables))
     return TabularAgent(dataclasses.replace(template, visits=None), budget.phase2), disc

@@ -171,7 +171,8 @@ def phase1(
     """Fitted ENNC iterations until no predicted value changes or ``max_iterations``.
 
     ``warm_start`` seeds every action's first fit with its prototypes and labels (the learner's refits as data
-    grows). ``values`` (Σ P_a,), with ``warm_start``: Q values learned over its cells (phase 2's tables); the
+    grows; with ``seed_prototypes`` the fits start from seeds instead, and the warm start gives only its scale and
+    values). ``values`` (Σ P_a,), with ``warm_start``: Q values learned over its cells (phase 2's tables); the
     first iteration's targets then bootstrap from them instead of from Q̂^(0) ≡ 0, and each warm prototype starts
     labelled with the class nearest its value. ``lost_reward`` is the scenario's (``targets="lost"`` finds the
     tuples that lost every target by it). ``progress(iteration, action)`` is called after each fit.
@@ -223,7 +224,11 @@ def phase1(
             classes = to_classes(target, config)
             # ENNC refuses continuous targets, so it fits on class indices, numbered in the order of the Q values
             # so that its ties (first class wins) still fall on the lowest Q value.
-            if warm_start is not None and it == 1 and values is not None:
+            if config.seed_prototypes > 0:
+                q_values, index = np.unique(classes, return_inverse=True)
+                start = rng.choice(rows.size, min(config.seed_prototypes, rows.size), replace=False)
+                model.fit(states[rows] / unit, index, init_prototypes=states[rows[np.sort(start)]] / unit)
+            elif warm_start is not None and it == 1 and values is not None:
                 lo, hi = warm_start.offsets[a], warm_start.offsets[a + 1]
                 q_values, index = np.unique(classes, return_inverse=True)
                 nearest = np.abs(np.asarray(values[lo:hi], np.float64)[:, None] - q_values[None, :]).argmin(axis=1)
@@ -242,10 +247,6 @@ def phase1(
                     init_prototypes=warm_start.prototypes[lo:hi] / unit,
                     init_labels=index[rows.size :],
                 )
-            elif config.seed_prototypes > 0:
-                q_values, index = np.unique(classes, return_inverse=True)
-                start = rng.choice(rows.size, min(config.seed_prototypes, rows.size), replace=False)
-                model.fit(states[rows] / unit, index, init_prototypes=states[rows[np.sort(start)]] / unit)
             else:
                 q_values, index = np.unique(classes, return_inverse=True)
                 model.fit(states[rows] / unit, index)

@@ -403,3 +403,87 @@ def tracked_force_heading(
             if cooperative:
                 fx, fy = _robot_push(robot_pos, e, i, dr1, dr2, fx, fy)
             out_heading[e, i, 0], out_heading[e, i, 1] = _unit_or_kept(fx, fy, heading, e, i, rx, ry, radius)
+
+
+@njit(cache=True)
+def target_frames(
+    features: np.ndarray,  # (E, m, 6) float32: nearest target, furthest target, nearest robot (dx, dy), masked
+    n_seen: np.ndarray,  # (E, m) int32
+    sees_robot: np.ndarray,  # (E, m) bool
+    out_frame: np.ndarray,  # out (E, m, 2, 2) float64: rows are the frame's x and y axes in world coordinates
+) -> None:
+    """The target frame of :func:`sim.actions.target_frame`, one pass per robot."""
+    n_arenas, m, _ = features.shape
+    for e in range(n_arenas):
+        for i in range(m):
+            nx = float(features[e, i, 0])
+            ny = float(features[e, i, 1])
+            d = math.sqrt(nx * nx + ny * ny)
+            if n_seen[e, i] >= 1 and d > 1e-9:
+                xx = nx / d
+                xy = ny / d
+            else:
+                xx = 1.0
+                xy = 0.0
+            yx = -xy
+            yy = xx
+            side = 0.0
+            if n_seen[e, i] >= 2:
+                side = float(features[e, i, 2]) * yx + float(features[e, i, 3]) * yy
+            elif sees_robot[e, i] and n_seen[e, i] >= 1:
+                side = float(features[e, i, 4]) * yx + float(features[e, i, 5]) * yy
+            if side < 0.0:
+                yx = -yx
+                yy = -yy
+            out_frame[e, i, 0, 0] = xx
+            out_frame[e, i, 0, 1] = xy
+            out_frame[e, i, 1, 0] = yx
+            out_frame[e, i, 1, 1] = yy
+
+
+@njit(cache=True)
+def frame9d(
+    features: np.ndarray,  # (E, m, 6) float32: nearest target, furthest target, nearest robot (dx, dy), masked
+    n_seen: np.ndarray,  # (E, m) int32
+    sees_robot: np.ndarray,  # (E, m) bool
+    shared: np.ndarray,  # (E, m, 2) bool
+    frame: np.ndarray,  # (E, m, 2, 2) float64 from target_frames
+    out: np.ndarray,  # out (E, m, 9) float32: the frame9d state of sim.features
+) -> None:
+    """The ``frame9d`` state: the nearest target's distance, the furthest target's and the nearest robot's offsets
+    in the target frame with presence flags (absent pairs at 0), the two shared flags."""
+    n_arenas, m, _ = features.shape
+    for e in range(n_arenas):
+        for i in range(m):
+            xx = frame[e, i, 0, 0]
+            xy = frame[e, i, 0, 1]
+            yx = frame[e, i, 1, 0]
+            yy = frame[e, i, 1, 1]
+            d = 0.0
+            if n_seen[e, i] >= 1:
+                nx = float(features[e, i, 0])
+                ny = float(features[e, i, 1])
+                d = math.sqrt(nx * nx + ny * ny)
+            fx = fy = has_f = 0.0
+            if n_seen[e, i] >= 2:
+                ox = float(features[e, i, 2])
+                oy = float(features[e, i, 3])
+                fx = ox * xx + oy * xy
+                fy = ox * yx + oy * yy
+                has_f = 1.0
+            bx = by = has_b = 0.0
+            if sees_robot[e, i]:
+                ox = float(features[e, i, 4])
+                oy = float(features[e, i, 5])
+                bx = ox * xx + oy * xy
+                by = ox * yx + oy * yy
+                has_b = 1.0
+            out[e, i, 0] = d
+            out[e, i, 1] = fx
+            out[e, i, 2] = fy
+            out[e, i, 3] = has_f
+            out[e, i, 4] = bx
+            out[e, i, 5] = by
+            out[e, i, 6] = has_b
+            out[e, i, 7] = 1.0 if shared[e, i, 0] else 0.0
+            out[e, i, 8] = 1.0 if shared[e, i, 1] else 0.0

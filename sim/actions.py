@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim import _kernels
 from sim.config import ScenarioConfig
 from sim.controllers import COMPASS, COMPASS_NAMES
 from sim.world import Observation
@@ -80,16 +81,8 @@ def target_frame(obs: Observation) -> np.ndarray:
     """(E, m, 2, 2) float64 the target frame of every robot (module docstring): rows are its x and y axes.
 
     Read from the features' offsets (nearest target, furthest target, nearest robot in view), so it holds only what
-    the robot senses.
+    the robot senses. A numba kernel: the numpy version took half of a learning trial's time.
     """
-    f = obs.features.astype(np.float64)
-    nearest, furthest, robot = f[..., 0:2], f[..., 2:4], f[..., 4:6]
-    n = np.linalg.norm(nearest, axis=-1, keepdims=True)
-    sees = (obs.n_seen >= 1)[..., None] & (n > 1e-9)
-    x = np.where(sees, nearest / np.maximum(n, 1e-300), np.array([1.0, 0.0]))
-    y = np.stack([-x[..., 1], x[..., 0]], axis=-1)
-    side_f = np.einsum("...k,...k->...", furthest, y)
-    side_r = np.einsum("...k,...k->...", robot, y)
-    side = np.where(obs.n_seen >= 2, side_f, np.where(obs.sees_robot & (obs.n_seen >= 1), side_r, 0.0))
-    mirror = np.where(side < 0.0, -1.0, 1.0)[..., None]
-    return np.stack([x, mirror * y], axis=-2)
+    frame = np.empty((*obs.n_seen.shape, 2, 2))
+    _kernels.target_frames(obs.features, obs.n_seen, obs.sees_robot, frame)
+    return frame

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim import _kernels
 from sim.actions import ACTION_SETS, target_frame
 from sim.config import ScenarioConfig
 from sim.world import Observation
@@ -114,15 +115,9 @@ def _frame7d(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
 
 
 def _frame9d(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
-    nearest, furthest, robot, has_second, has_robot = _pairs(obs)
-    frame = target_frame(obs)  # (E, m, 2, 2): rows x, y
-
-    def local(offset: np.ndarray) -> np.ndarray:
-        return np.einsum("...k,...dk->...d", offset, frame)
-
-    distance = np.linalg.norm(nearest, axis=-1, keepdims=True)
-    columns = [distance, local(furthest), has_second[..., None], local(robot), has_robot[..., None], obs.shared]
-    return np.concatenate(columns, axis=-1).astype(np.float32)
+    out = np.empty((*obs.n_seen.shape, 9), np.float32)
+    _kernels.frame9d(obs.features, obs.n_seen, obs.sees_robot, obs.shared, target_frame(obs), out)
+    return out
 
 
 FEATURIZER_REGISTRY: dict[str, Featurizer] = {
@@ -267,10 +262,13 @@ class Formulation:
 FORMULATIONS: dict[str, Formulation] = {
     "paper": Formulation("collab6d", "eq2"),
     "shared-difference": Formulation("shared8d", "difference", act_every=1),
+    "frame-difference": Formulation("frame9d", "difference-decision", act_every=1, actions="relative"),
 }
 """Every formulation by name: ``paper`` is the paper's collaborative formulation [paper §4, Eq. 2];
-``shared-difference`` the best one the ablations of the README found [beyond the paper]."""
-DEFAULT_FORMULATION = "shared-difference"
+``shared-difference`` the best with the world-frame state and compass moves that the README's ablations found;
+``frame-difference`` the state and the moves in the frame of the nearest target, the difference reward paid per
+decision [beyond the paper, README "Learning quality"]."""
+DEFAULT_FORMULATION = "frame-difference"
 """The formulation of every process (``up``, ``learner``, ``actor``, compose's) unless another is named."""
 
 

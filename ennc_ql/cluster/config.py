@@ -68,8 +68,6 @@ UP_PRESETS: dict[str, Any] = {
     "learner.threads": 1,
     # Two actors x 500 arenas saturate the 2-core machine without starving the learner.
     "actor.arenas": 500,
-    # A second fitted iteration measured +1 to +3 points at the full budget (README, Ablations) for one more fit.
-    "learner.phase1.max_iterations": 2,
 }
 """What ``ennc-ql up`` sets differently from the processes' own defaults, named once."""
 

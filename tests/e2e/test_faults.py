@@ -123,14 +123,14 @@ def test_a_poisoned_message_is_rejected_and_its_stream_flows_on(cluster: Cluster
             "incarnation": 99,
             "seq": seq,
             "policy_version": 0,
-            "featurizer": "shared8d",  # the learner's formulation: shared-difference, by default
-            "reward_function": "difference",
-            "action_set": "compass",
+            "featurizer": "frame9d",  # the learner's formulation: frame-difference, by default
+            "reward_function": "difference-decision",
+            "action_set": "relative",
             "robot": array("int16", np.zeros(n)),
-            "state": array("float32", np.ones((n, 8))),
+            "state": array("float32", np.ones((n, 9))),
             "action": array("uint8", np.zeros(n)),
             "reward": array("float32", reward),
-            "next_state": array("float32", np.ones((n, 8))),
+            "next_state": array("float32", np.ones((n, 9))),
             "done": array("bool", np.zeros(n, bool)),
         }
         return msgpack.packb([2, "experience", fields], use_bin_type=True)

@@ -22,6 +22,7 @@ from learner.report import LearnerReport
 from learner.service import LearnerService
 from learner.wiring import connect as connect_learner
 from protocol import ExperienceBatch, InMemoryBus, InMemoryTransport, PolicyUpdate, QTableIncrement, Reject
+from sim.features import DEFAULT_FORMULATION, FEATURIZERS, FORMULATIONS
 
 FAST = LearnerConfig(
     min_tuples=8000,
@@ -88,6 +89,10 @@ def test_serial_learner_and_actor_exchange_experience_and_policies(tmp_path: Pat
     assert (moved[[0, 1, 2]] > 0).all() and (moved[3:] == 0).all()
 
 
+DIM = FEATURIZERS[FORMULATIONS[DEFAULT_FORMULATION].featurizer]
+"""State dimension of the default formulation, FAST's."""
+
+
 def one_cell_per_action(dim: int = 6) -> Discretization:
     return Discretization.from_per_action([np.zeros((1, dim), np.float32)] * 8)
 
@@ -108,7 +113,7 @@ def increment(actor: str, seq: int, q: list[float], visits: list[int], version: 
 def test_merge_adds_the_visit_weighted_mean_of_the_actors_changes(tmp_path: Path) -> None:
     with InMemoryTransport(InMemoryBus()) as t:
         service = LearnerService(t, FAST, tmp_path)
-        service.state.adopt(one_cell_per_action(dim=8))  # FAST's formulation: shared-difference, 8-D states
+        service.state.adopt(one_cell_per_action(dim=DIM))  # FAST's formulation: the default
         first = service.state.publish()  # version 1 over the labels (all 0)
         service.on_increment(increment("a", 0, [1, 0, 0, 0, 0, 0, 0, 0], [1, 0, 0, 0, 0, 0, 0, 0]))
         service.on_increment(increment("a", 1, [1, 2, 0, 0, 0, 0, 0, 0], [1, 2, 0, 0, 0, 0, 0, 0]))  # adds up
@@ -148,15 +153,18 @@ def test_the_evaluated_policy_decides_every_act_every_steps_while_the_broadcast_
     assert plain.policy() is not None and plain.policy().action_steps == 5  # type: ignore[union-attr]
 
 
-def experience(seq: int, dim: int = 8, reward_function: str = "difference", n: int = 3) -> ExperienceBatch:
+DEFAULT = FORMULATIONS[DEFAULT_FORMULATION]
+
+
+def experience(seq: int, dim: int = DIM, reward_function: str = DEFAULT.reward, n: int = 3) -> ExperienceBatch:
     return ExperienceBatch(
         actor_id="a",
         incarnation=1,
         seq=seq,
         policy_version=0,
-        featurizer="shared8d",
+        featurizer=DEFAULT.featurizer,
         reward_function=reward_function,
-        action_set="compass",
+        action_set=DEFAULT.actions,
         robot=np.zeros(n, np.int16),
         state=np.zeros((n, dim), np.float32),
         action=np.zeros(n, np.uint8),
@@ -170,7 +178,7 @@ def test_experience_of_another_formulation_or_dimension_is_rejected_and_counted(
     rejects: list[tuple[int, str]] = []
     with InMemoryTransport(InMemoryBus()) as t:
         t.subscribe(t.keys.reject("a"), Reject, lambda r: rejects.append((r.seq, r.reason)))
-        service = LearnerService(t, FAST, tmp_path)  # shared-difference: shared8d, difference, compass
+        service = LearnerService(t, FAST, tmp_path)  # the default formulation
         handles = connect_learner(service, t)
         good = experience(seq=0)
         t.publish(t.keys.experience("a"), good)
@@ -187,8 +195,8 @@ def test_experience_of_another_formulation_or_dimension_is_rejected_and_counted(
     assert sum(t.stats.rejected.values()) == 1  # the transport saw only the garbage
     assert figures.duplicates == 1
     assert rejects == [
-        (1, "state dimension 2, expected 8"),
-        (2, "reward_function eq2, expected difference"),
+        (1, f"state dimension 2, expected {DIM}"),
+        (2, f"reward_function eq2, expected {DEFAULT.reward}"),
     ]
 
 
@@ -297,7 +305,7 @@ def test_a_poisoned_message_is_rejected_by_its_seq_and_the_stream_flows_on(tmp_p
             handle.close()
     assert [(r.actor_id, r.seq) for r in rejects] == [("a", 1), ("a", 3)]
     assert rejects[0].reason.startswith("InvalidValues: reward")
-    assert rejects[1].reason == "state dimension 2, expected 8"
+    assert rejects[1].reason == f"state dimension 2, expected {DIM}"
     assert [(a.actor_id, a.seq) for a in acks] == [("a", 3)]  # the cumulative ack steps over both
     figures = service.intake.figures()
     assert figures.tuples_received == 6 and figures.refused == 2 and figures.gaps == 0

@@ -104,3 +104,25 @@ def test_a_relative_move_is_held_in_the_frame_it_was_chosen_in(actions: str) -> 
         decide = out.decide
     np.testing.assert_allclose(state.world.robot_pos[0, 0], [0.0, cfg.action_steps * SPEED], atol=1e-9)
     assert out.boundary[0, 0]
+
+
+def test_frame9d_keeps_lengths_puts_the_furthest_on_the_left_and_flags_presence_on_random_arenas() -> None:
+    from sim import reset
+
+    cfg = scenario()
+    obs = sense(cfg, reset(cfg, 200, np.random.default_rng(5)))
+    state = featurize(cfg, obs, "frame9d").astype(np.float64)
+    f = obs.features.astype(np.float64)
+    sees, two, robot = obs.n_seen >= 1, obs.n_seen >= 2, obs.sees_robot
+    np.testing.assert_allclose(state[..., 0], np.where(sees, np.linalg.norm(f[..., 0:2], axis=-1), 0.0), atol=1e-3)
+    np.testing.assert_allclose(
+        np.linalg.norm(state[..., 1:3], axis=-1), np.where(two, np.linalg.norm(f[..., 2:4], axis=-1), 0.0), atol=1e-3
+    )
+    np.testing.assert_allclose(
+        np.linalg.norm(state[..., 4:6], axis=-1), np.where(robot, np.linalg.norm(f[..., 4:6], axis=-1), 0.0), atol=1e-3
+    )
+    assert (state[..., 2][two] >= 0).all()  # the furthest target on the frame's left (+y) side
+    np.testing.assert_array_equal(state[..., 3], two)
+    np.testing.assert_array_equal(state[..., 6], robot)
+    np.testing.assert_array_equal(state[..., 7:9], obs.shared)
+    assert two.sum() > 20 and robot.sum() > 20  # the arenas exercise every case

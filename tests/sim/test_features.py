@@ -10,7 +10,6 @@ from sim.features import (
     DEFAULT_FORMULATION,
     FEATURIZER_REGISTRY,
     FEATURIZERS,
-    FORMULATIONS,
     REWARDS,
     Formulation,
     resolve_formulation,
@@ -76,7 +75,8 @@ def test_paper_names_each_featurizers_own_reward_and_unknown_names_are_refused()
 
 
 def test_a_formulation_is_resolved_by_name_with_explicit_parts_over_it() -> None:
-    assert resolve_formulation(DEFAULT_FORMULATION) == FORMULATIONS["shared-difference"]
+    assert DEFAULT_FORMULATION == "frame-difference"
+    assert resolve_formulation(DEFAULT_FORMULATION) == Formulation("frame9d", "difference-decision", 1, "relative")
     assert resolve_formulation("shared-difference") == Formulation("shared8d", "difference", 1, "compass")
     assert resolve_formulation("paper", featurizer="local2d") == Formulation("local2d", "eq2")
     assert resolve_formulation("paper", featurizer="local2d", reward="paper") == Formulation("local2d", "observed")
