@@ -74,26 +74,25 @@ def cmd_learner(args: argparse.Namespace) -> int:
     check_folder(args.run_dir, "learner", "--run-dir")
     check_device(config.phase1.device, "learner", "--phase1-device")
     conf = checked_zenoh(args, "learner", config.learner_id)
-    run_dir = make_folder(args.run_dir, "learner", "--run-dir")
     if config.threads > 0:
         import torch  # only a learner that fits loads it
 
         torch.set_num_threads(config.threads)
     stop = stop_on_signals()
-    with (
-        open_transport(conf, args, "learner") as transport,
-        open_monitor(sink_from_args(args), process=config.learner_id, recording_id=args.recording_id) as monitor,
-    ):
-        try:
-            service = LearnerService(transport, config, run_dir, resume=args.resume, monitor=monitor)
-        except CheckpointError as exc:
-            fail("learner", str(exc))
-        handles = connect(service, transport)
-        try:
-            report = service.run(stop)
-        finally:
-            for handle in reversed(handles):
-                handle.close()
+    # The session first: a port in use is then an error before the run folder exists.
+    with open_transport(conf, args, "learner") as transport:
+        run_dir = make_folder(args.run_dir, "learner", "--run-dir")
+        with open_monitor(sink_from_args(args), process=config.learner_id, recording_id=args.recording_id) as monitor:
+            try:
+                service = LearnerService(transport, config, run_dir, resume=args.resume, monitor=monitor)
+            except CheckpointError as exc:
+                fail("learner", str(exc))
+            handles = connect(service, transport)
+            try:
+                report = service.run(stop)
+            finally:
+                for handle in reversed(handles):
+                    handle.close()
     line = (
         f"learner {config.learner_id}: {report.tuples_received} tuples from {len(report.actors)} actors, "
         f"policy version {report.policy_version}, final coverage {report.final_coverage_mean}; "

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -217,3 +218,17 @@ def test_bad_input_is_one_line_exit_2_and_nothing_left(argv: list[str], message:
         assert leak not in result.stderr
     assert result.stdout == ""
     assert tree(tmp_path) == before  # no run folder, no created directory, no recording
+
+
+def test_a_port_in_use_is_one_line_and_leaves_no_run_folder(tmp_path: Path) -> None:
+    """Zenoh's own refusal, once the session opens, follows the contract too: one line, no Rust path, no folder."""
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        result = run(["learner", "--run-dir", "r", "--listen", f"tcp/127.0.0.1:{port}", "--duration", "1"], tmp_path)
+    assert result.returncode == 2
+    [line] = result.stderr.splitlines()
+    assert line.startswith("ennc-ql learner: error: zenoh could not open a session: Can not create a new TCP listener")
+    assert f"127.0.0.1:{port}" in line and "Address already in use" in line and ".rs:" not in line
+    assert list(tmp_path.iterdir()) == []
