@@ -104,7 +104,7 @@ BENCHMARKS: dict[str, tuple[Callable[[argparse.Namespace], Figures], CommandHelp
                 ("ennc-ql bench ennc", "every part"),
                 ("ennc-ql bench ennc --phase1-tuples 0 --region-patterns 0 --threads 1", "ENNC against k-means only"),
             ),
-            "1.5-3 min",
+            "about 1.5 min on an idle machine (the sum of its parts in the README's performance notes)",
         ),
     ),
     "transport": (
@@ -134,7 +134,7 @@ BENCHMARKS: dict[str, tuple[Callable[[argparse.Namespace], Figures], CommandHelp
                 ("ennc-ql bench actor", "with a policy learned for the occasion"),
                 ("ennc-ql bench actor --policy runs/<id>/policy.npz --json", "with a run's policy"),
             ),
-            "about 1 min (less with --policy)",
+            "3.5 min learning its policy, 12 s with --policy (measured on 2 busy cores)",
         ),
     ),
     "broadcast": (
@@ -162,7 +162,7 @@ BENCHMARKS: dict[str, tuple[Callable[[argparse.Namespace], Figures], CommandHelp
                 ("ennc-ql bench phase1", "100 000, 300 000 and 1 000 000 tuples"),
                 ("ennc-ql bench phase1 --store-sizes 50000 --json", "one size"),
             ),
-            "about 1 min",
+            "8 min measured on 2 cores shared with other jobs; less on an idle machine",
         ),
     ),
 }
@@ -181,7 +181,7 @@ BENCH = CommandHelp(
     "benchmark is a subcommand with its own flags (ennc-ql bench NAME --help). Benchmarks are commands, never timed "
     "tests: the figures depend on what else the machine is doing.",
     (("ennc-ql bench sim", "simulator speed"), ("ennc-ql bench transport --json", "the learner's receive path")),
-    "15 s to 3 min, by benchmark",
+    "6 s to 8 min, by benchmark (each one's page says)",
 )
 
 
