@@ -102,7 +102,8 @@ def load_policy(path: str | os.PathLike[str]) -> tuple[Policy, dict[str, Any]]:
             arrays = {name: data[name] for name in data.files}
     except OSError as exc:
         raise PolicyFileError(f"{path}: cannot be read ({exc.strerror or exc})") from exc
-    except (ValueError, EOFError, zipfile.BadZipFile) as exc:  # numpy's own message would advise allow_pickle, which is never right here
+    except (ValueError, EOFError, zipfile.BadZipFile) as exc:
+        # Not numpy's message: it would advise allow_pickle, which is never right for a policy file.
         raise PolicyFileError(f"{path}: not a policy file (not an .npz archive of plain arrays)") from exc
     missing = {"header", "prototypes", "labels", "offsets", "tables", "robot_table"} - set(arrays)
     if missing:
