@@ -145,7 +145,7 @@ def check_endpoints(args: argparse.Namespace, command: str) -> None:
             if not sep or not proto or not address:
                 fail(command, f"{flag} {endpoint}: expected PROTOCOL/ADDRESS, e.g. tcp/127.0.0.1:7447")
             if proto in _PORTED:
-                port = address.rpartition(":")[2]
+                port = re.split(r"[?#]", address)[0].rpartition(":")[2]  # endpoints may carry ?metadata#config
                 lowest = 0 if flag == "--listen" else 1  # listening on port 0 takes any free one
                 if not port.isdigit() or not lowest <= int(port) <= 65535:
                     fail(command, f"{flag} {endpoint}: expected HOST:PORT with a port from {lowest} to 65535")
