@@ -34,7 +34,8 @@ HELP = CommandHelp(
         ("ennc-ql eval --policy runs/<id>/policy.npz --trials 50", "a learned policy, as up's final figure"),
         ("ennc-ql eval --policy runs/<id>/policy.npz --rerun spawn --trials 1", "watch one trial in the viewer"),
     ),
-    "1-2.5 s for 10 trials, a hand-made controller or a learned policy; about 4 s for 50 trials",
+    "2-2.5 s for 10 trials, a hand-made controller or a learned policy, about 4 s for 50; the first run after an "
+    "install takes 3 s more, while numba compiles the simulator",
 )
 
 
