@@ -9,11 +9,18 @@ LIBS   := sim algorithm learner actors protocol monitor ennc_ql
 .PHONY: run test lint typecheck clean image-test
 
 $(PY):
+	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 11))' || \
+		{ echo "make: ennc-ql needs Python 3.11 or newer; $(PYTHON) is $$($(PYTHON) --version 2>&1) (set PYTHON=...)"; exit 1; }
+	@echo "make: creating the virtual environment $(VENV) with $$($(PYTHON) --version)"
 	$(PYTHON) -m venv $(VENV)
 
 $(STAMP): pyproject.toml | $(PY)
+	@echo "make: installing ennc-ql and its dependencies into $(VENV): torch, numba, rerun-sdk, eclipse-zenoh,"
+	@echo "      scikit-learn, matplotlib and the development tools (about 2.3 GB the first time; again only when"
+	@echo "      pyproject.toml changes)"
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[dev]'
+	@echo "make: installed; run the commands as $(VENV)/bin/ennc-ql, or activate first: source $(VENV)/bin/activate"
 	touch $(STAMP)
 
 run: $(STAMP)

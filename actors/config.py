@@ -105,6 +105,7 @@ class ActorConfig:
             draw_every=self.draw_every,
         )
         require_positive(resend_after=self.resend_after, status_interval=self.status_interval, duration=self.duration)
+        require_at_least(0, seed=self.seed)
         if self.flush_timeout < 0:
             raise ValueError(f"flush_timeout must be 0 or more, got {self.flush_timeout}")
         n_robots = SCENARIOS[self.scenario].n_robots

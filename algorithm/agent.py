@@ -30,7 +30,9 @@ class Phase2Config:
     alpha: float = 0.1
     """Step size of Eq. 1 [choice]; with ``alpha_floor``, the step of a cell's first visit."""
     gamma: float = 0.9
+    """Discount of Eq. 1 per decision [choice]."""
     epsilon: float = 0.1
+    """Probability that a learning robot explores: a random action instead of its table's best [choice]."""
     alpha_floor: float | None = None
     """None: constant ``alpha`` [paper Eq. 1]. A number: the n-th visit of a cell steps by
     max(alpha_floor, 1 / (1/alpha − 1 + n)), a running mean of its targets in which the initial value weighs

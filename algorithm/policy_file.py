@@ -26,6 +26,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -104,11 +105,17 @@ def load_policy(path: str | os.PathLike[str]) -> tuple[Policy, dict[str, Any]]:
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {name: data[name] for name in data.files}
-    except (OSError, ValueError, EOFError) as exc:
-        raise PolicyFileError(f"{path}: not a readable policy file ({exc})") from exc
+    except OSError as exc:
+        raise PolicyFileError(f"{path}: cannot be read ({exc.strerror or exc})") from exc
+    except (ValueError, EOFError, zipfile.BadZipFile) as exc:
+        # Not numpy's message: it would advise allow_pickle, which is never right for a policy file.
+        raise PolicyFileError(f"{path}: not a policy file (not an .npz archive of plain arrays)") from exc
     missing = {"header", "prototypes", "labels", "offsets", "tables", "robot_table"} - set(arrays)
     if missing:
-        raise PolicyFileError(f"{path}: missing members {sorted(missing)}")
+        raise PolicyFileError(
+            f"{path}: not a policy file (no {', '.join(sorted(missing))}; a run folder holds its policy as "
+            "policy.npz beside the checkpoint)"
+        )
     try:
         header = json.loads(arrays["header"].tobytes().decode())
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:

@@ -16,23 +16,42 @@ from typing import Any
 from actors.actor import RobotActor
 from actors.config import ActorConfig
 from actors.wiring import connect
-from ennc_ql.command import add_process_args, configure, emit, open_transport
+from ennc_ql.command import add_process_args, checked_zenoh, configure, emit, open_transport, registry_choices
+from ennc_ql.parser import CommandHelp, add_command
 from ennc_ql.system import stop_on_signals
 from monitor import open_monitor, sink_from_args
 
+HELP = CommandHelp(
+    "actor",
+    "one robot actor process, for runs over several machines",
+    "One actor: --arenas independent arenas of the simulated world, each with all 10 robots. Until the first "
+    "policy arrives every robot explores at random; then the robots it learns (--learn) act epsilon-greedily on "
+    "their own Q tables (option 2) and the others follow the broadcast policy. It streams experience and Q-table "
+    "changes to the learner, keeps everything unacknowledged in a bounded outbox (re-sent after a learner "
+    "restart), and runs until --duration or SIGTERM/Ctrl-C, after which it flushes its outbox for a few seconds. "
+    "ennc-ql up starts these for you; start them by hand for several machines. Every actor needs its own "
+    "--actor-id (auto: one made of the host name and the process id).",
+    (
+        ("ennc-ql actor --connect tcp/LEARNER:7447 --actor-id actor-3", "join a learner that listens"),
+        ("ennc-ql actor --mode client --connect tcp/ROUTER:7447 --actor-id auto --arenas 500", "through a router"),
+    ),
+    "until --duration or a signal; it sends its first experience within a few seconds",
+)
+
 
 def add_actor_parser(sub: Any) -> None:
-    p = sub.add_parser("actor", help="one robot actor process")
-    add_process_args(p, ActorConfig, "actor configuration (actors.config.ActorConfig)")
+    p = add_command(sub, HELP)
+    add_process_args(p, ActorConfig, "actor configuration (actors.config.ActorConfig)", choices=registry_choices())
     p.set_defaults(func=cmd_actor)
 
 
 def cmd_actor(args: argparse.Namespace) -> int:
     config: ActorConfig = configure(ActorConfig, args, "actor")
+    conf = checked_zenoh(args, "actor", config.actor_id)
     stop = stop_on_signals()
     with (
+        open_transport(conf, args, "actor") as transport,
         open_monitor(sink_from_args(args), process=config.actor_id, recording_id=args.recording_id) as monitor,
-        open_transport(args, "actor", config.actor_id) as transport,
     ):
         actor = RobotActor(transport, config, monitor=monitor)
         handles = connect(actor, transport)

@@ -1,7 +1,8 @@
 """The ``ennc-ql`` command line: thin subcommands over library functions, one module each.
 
 Every subcommand that produces results accepts ``--json`` and then prints exactly one JSON object on stdout;
-logs go to stderr.
+logs go to stderr. Bad input is one line, ``ennc-ql <command>: error: ...``, and exit status 2, before anything
+starts (:mod:`ennc_ql.parser`).
 """
 
 from __future__ import annotations
@@ -10,17 +11,40 @@ import argparse
 import logging
 import sys
 from collections.abc import Sequence
+from importlib.metadata import PackageNotFoundError, version
 
 from ennc_ql.allocator import keep_freed_memory
+from ennc_ql.command import check_recording
+from ennc_ql.parser import PROG, CommandParser, add_commands, wrap
 from ennc_ql.router import add_router_parser
+
+DESCRIPTION = """\
+ENNC-QL reinforcement learning for cooperative multi-robot target observation (CMOMMT), as a distributed
+actor-learner system: actor processes simulate robots and stream experience over Zenoh to one learner, which
+broadcasts policies back; training is watched in the Rerun viewer."""
+
+EPILOG = """\
+first steps:
+  ennc-ql eval --policy a-cmommt        # the hand-made reference on 10 test trials (about 1 s)
+  ennc-ql up --duration 120             # a 2-minute training run on this machine (about 3 min in all)
+  ennc-ql up                            # the main job, as make run (about 8.5 min)
+  ennc-ql COMMAND --help                # what a command does, with examples and its run time"""
+
+
+def _version() -> str:
+    try:
+        return version(PROG)
+    except PackageNotFoundError:  # run from a source tree that was never installed
+        return "unknown (not installed)"
 
 
 def build_parser(router_only: bool = False) -> argparse.ArgumentParser:
     """Every command's parser; ``router_only``: the router's alone, whose process never loads the simulator (the
     other commands' configurations import it, and with it numba's compiler: 40 MB of resident memory)."""
-    parser = argparse.ArgumentParser(prog="ennc-ql", description=__doc__.splitlines()[0])
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging on stderr")
-    sub = parser.add_subparsers(dest="command", required=True)
+    parser = CommandParser(prog=PROG, description=wrap(DESCRIPTION), epilog=EPILOG)
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging on stderr, and tracebacks")
+    parser.add_argument("--version", action="version", version=f"{PROG} {_version()}")
+    sub = add_commands(parser, dest="command")
     if router_only:
         add_router_parser(sub)
         return parser
@@ -61,8 +85,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         stream=sys.stderr,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
+    prog: str = args.prog
+    check_recording(getattr(args, "rerun", None), prog.removeprefix(PROG + " "))
     keep_freed_memory()  # every process of ours churns ~1 MB message buffers
-    code: int = args.func(args)
+    try:
+        code: int = args.func(args)
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:
+        if args.verbose:
+            raise
+        # Not bad input (that was answered before anything started): a fault of ours, or of the machine.
+        what = " ".join(f"{type(exc).__name__}: {exc}".split())
+        print(f"{prog}: error: {what} (ennc-ql --verbose {command} ... shows the traceback)", file=sys.stderr)
+        return 1
     return code
 
 

@@ -1,20 +1,30 @@
-"""What every command shares: the one-line error, a configuration from its file and flags, a checked run folder,
-the result printed as a table or as one JSON object, and the flags and Zenoh session of a process command."""
+"""What every command shares: the one-line error, a configuration from its file and flags, folders checked before
+anything is created, the result printed as a table or as one JSON object, and the flags and Zenoh session of a
+process command. Everything here is light to import: the router's process loads it, and never the simulator."""
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import re
 import sys
 import tempfile
+from collections.abc import Collection, Mapping
 from pathlib import Path
 from typing import Any, NoReturn
 
 import zenoh
 
 from ennc_ql.config import ConfigError, add_config_flags, load_config
-from monitor import add_rerun_args
+from monitor import Sink, add_rerun_args
 from protocol import ZenohTransport, add_connection_args, config_from_args, keys_from_args
+
+_RUST_SOURCE = re.compile(r"\s+at /\S+\.rs:\d+\.?")
+_JSON_ERROR = re.compile(
+    r'JSON error: Message \{ msg: "(.*)", location: Some\(Location \{ line: (\d+), column: (\d+) \}\) \}'
+)
+_PORTED = ("tcp", "udp", "tls", "quic", "ws")
 
 
 def fail(command: str, message: str) -> NoReturn:
@@ -38,35 +48,151 @@ def configure(cls: type[Any], args: argparse.Namespace, command: str, defaults: 
         fail(command, f"--config {args.config}: {exc.strerror or exc}")
 
 
-def writable_dir(path: Path, command: str, flag: str) -> Path:
-    """``path`` created if needed and checked writable now, before any process state exists."""
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=path, prefix=".write-test-"):
+def check_folder(path: Path, command: str, flag: str, *, empty: bool = False) -> None:
+    """Fail unless ``path`` is a folder, or could be created as one, where this process can write; with ``empty``,
+    also if it holds anything. Creates nothing: a check that fails must leave nothing behind."""
+    if path.exists() and not path.is_dir():
+        fail(command, f"{flag} {path}: a file is in the way of the folder")
+    if empty and path.is_dir() and any(path.iterdir()):
+        fail(command, f"{flag} {path}: the folder is not empty (another run's files would be taken for this one's)")
+    base = path
+    while not base.exists():
+        base = base.parent
+    if not base.is_dir():
+        fail(command, f"{flag} {path}: {base} is a file, not a folder")
+    try:  # the one way to know, whoever the user is: a file created and removed at once
+        with tempfile.NamedTemporaryFile(dir=base, prefix=".ennc-ql-write-test-"):
             pass
     except OSError as exc:
-        fail(command, f"{flag} {path}: not a writable folder ({exc.strerror or exc})")
+        fail(command, f"{flag} {path}: cannot write in {base} ({exc.strerror or exc})")
+
+
+def make_folder(path: Path, command: str, flag: str) -> Path:
+    """``path`` created (with its parents) once every check has passed."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        fail(command, f"{flag} {path}: cannot create the folder ({exc.strerror or exc})")
     return path
 
 
-def add_process_args(p: argparse.ArgumentParser, cls: type[Any], title: str) -> None:
+def writable_dir(path: Path, command: str, flag: str) -> Path:
+    """``path`` checked writable, then created if needed."""
+    check_folder(path, command, flag)
+    return make_folder(path, command, flag)
+
+
+def check_recording(sink: Sink | None, command: str) -> None:
+    """A ``--rerun save PATH`` whose file cannot be written fails now, not when the first process opens it."""
+    if sink is None or sink.kind != "save":
+        return
+    target = Path(str(sink.target))
+    if target.is_dir():
+        fail(command, f"--rerun save {target}: a folder, not a file (give e.g. {target / 'run.rrd'})")
+    check_folder(target.parent, command, "--rerun save")
+
+
+def check_device(device: str, command: str, flag: str) -> None:
+    """A torch device that this machine has: a learner given another would fail at its first fit, minutes in."""
+    if device == "cpu":
+        return
+    import torch  # only for a device other than the CPU
+
+    try:
+        kind = torch.device(device)
+    except (RuntimeError, ValueError):
+        fail(command, f"{flag} {device}: not a torch device (e.g. cpu, cuda, cuda:0)")
+    if kind.type == "cuda":
+        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        if count == 0:
+            fail(command, f"{flag} {device}: this machine has no CUDA device (or torch was built without CUDA)")
+        if kind.index is not None and kind.index >= count:
+            fail(command, f"{flag} {device}: this machine has {count} CUDA device(s), cuda:0 to cuda:{count - 1}")
+    elif kind.type != "cpu":
+        fail(command, f"{flag} {device}: only cpu and cuda devices are supported")
+
+
+def registry_choices() -> dict[str, Collection[str]]:
+    """The values of configuration fields that name an entry of a registry, by field name: their flags offer
+    exactly these."""
+    from sim import FEATURIZERS, SCENARIOS  # imported here: the router's process never loads the simulator
+    from sim.features import FORMULATIONS, REWARD_NAMES
+
+    return {"formulation": FORMULATIONS, "featurizer": FEATURIZERS, "reward": REWARD_NAMES, "scenario": SCENARIOS}
+
+
+def zenoh_message(exc: BaseException) -> str:
+    """Zenoh's error as one line for a user: without Rust source paths, and with JSON5 parse errors located."""
+    text = _RUST_SOURCE.sub("", str(exc)).strip()
+    json_error = _JSON_ERROR.search(text)
+    if json_error:
+        msg, line, column = json_error.groups()
+        return f"{msg.replace(chr(96), chr(39))} (line {line}, column {column})"
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    if lines and lines[0].startswith("-->"):  # the JSON5 parser's caret diagram: its position and its last line
+        where = lines[0].removeprefix("-->").strip().split(":")
+        what = lines[-1].lstrip("= ").strip()
+        return f"not valid JSON5: {what} (line {where[0]}, column {where[-1]})"
+    return " ".join(lines)
+
+
+def check_endpoints(args: argparse.Namespace, command: str) -> None:
+    """``--connect``/``--listen`` endpoints that zenoh would only refuse once a session opens (or never, retrying
+    a port that cannot exist)."""
+    for flag, endpoints in (("--connect", args.connect), ("--listen", args.listen)):
+        for endpoint in endpoints:
+            proto, sep, address = endpoint.partition("/")
+            if not sep or not proto or not address:
+                fail(command, f"{flag} {endpoint}: expected PROTOCOL/ADDRESS, e.g. tcp/127.0.0.1:7447")
+            if proto in _PORTED:
+                port = re.split(r"[?#]", address)[0].rpartition(":")[2]  # endpoints may carry ?metadata#config
+                lowest = 0 if flag == "--listen" else 1  # listening on port 0 takes any free one
+                if not port.isdigit() or not lowest <= int(port) <= 65535:
+                    fail(command, f"{flag} {endpoint}: expected HOST:PORT with a port from {lowest} to 65535")
+
+
+def zenoh_conf(args: argparse.Namespace, command: str) -> zenoh.Config:
+    """The Zenoh configuration the shared connection flags select, or a one-line error."""
+    check_endpoints(args, command)
+    if args.zenoh_config and not os.path.isfile(args.zenoh_config):
+        fail(command, f"--zenoh-config {args.zenoh_config}: no such file")
+    try:
+        return config_from_args(args)
+    except (ValueError, OSError, zenoh.ZError) as exc:
+        where = f"--zenoh-config {args.zenoh_config}" if args.zenoh_config else "zenoh configuration"
+        fail(command, f"{where}: {zenoh_message(exc)}")
+
+
+def add_process_args(
+    p: argparse.ArgumentParser, cls: type[Any], title: str, choices: Mapping[str, Collection[str]]
+) -> None:
     """The flags of a process command (``learner``, ``actor``): its configuration's, the Zenoh and the Rerun ones."""
-    p.add_argument("--config", metavar="FILE", help="TOML file with the configuration fields; flags given override it")
+    p.add_argument(
+        "--config",
+        metavar="FILE",
+        help="TOML file with the configuration fields; flags given override it (default: none)",
+    )
     p.add_argument("--json", action="store_true", help="print the final result as one JSON object")
-    add_config_flags(p.add_argument_group(title), cls)
+    add_config_flags(p.add_argument_group(title), cls, choices=choices)
     add_connection_args(p)
     add_rerun_args(p)
 
 
-def open_transport(args: argparse.Namespace, command: str, ident: str) -> ZenohTransport:
-    """The process's Zenoh session from the shared connection flags, or a one-line error."""
-    try:
-        conf = config_from_args(args)
-    except (ValueError, OSError, zenoh.ZError) as exc:
-        fail(command, f"zenoh configuration: {exc}")
+def checked_zenoh(args: argparse.Namespace, command: str, ident: str) -> zenoh.Config:
+    """The process's Zenoh configuration, checked before anything starts: it parses, and a configuration with
+    credentials authenticates as this process."""
+    conf = zenoh_conf(args, command)
     # With credentials, the router's access control lets this process publish only under its user name: any other
     # id would have every message dropped in silence, and its outbox would never drain.
     user = json.loads(conf.get_json("transport/auth/usrpwd/user"))
     if user is not None and user != ident:
         fail(command, f"the zenoh configuration authenticates as {user!r} but this process's id is {ident!r}")
-    return ZenohTransport.open(conf, keys_from_args(args))
+    return conf
+
+
+def open_transport(conf: zenoh.Config, args: argparse.Namespace, command: str) -> ZenohTransport:
+    """The process's Zenoh session, or a one-line error (an address in use, a protocol zenoh does not have)."""
+    try:
+        return ZenohTransport.open(conf, keys_from_args(args))
+    except zenoh.ZError as exc:
+        fail(command, f"zenoh could not open a session: {zenoh_message(exc)}")

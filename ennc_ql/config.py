@@ -41,7 +41,7 @@ Flags store under the field path (``args.store_capacity``, ``getattr(args, "fit.
 import argparse
 import dataclasses
 import typing
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Collection, Iterable, Mapping
 from pathlib import Path
 from typing import Any, Protocol, TypeVar
 
@@ -54,6 +54,7 @@ from ennc_ql.config_fields import (
     coerce,
     config_leaves,
     field_docs,
+    flag_name,
     flag_type,
     metavar,
     read_file,
@@ -68,6 +69,7 @@ __all__ = [
     "dump_config",
     "field_docs",
     "load_config",
+    "non_negative",
     "parse_setting",
     "positive",
     "replace_setting",
@@ -102,16 +104,40 @@ def positive(kind: type[N]) -> Callable[[str], N]:
     return parse
 
 
+def non_negative(kind: type[N]) -> Callable[[str], N]:
+    """The argparse ``type`` of a number that is 0 or more (a seed, an index).
+
+    >>> non_negative(int)("0")
+    0
+    """
+    noun = "integer" if kind is int else "number"
+
+    def parse(text: str) -> N:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an {noun} of 0 or more, got {text!r}") from None
+        if not value >= 0:
+            raise argparse.ArgumentTypeError(f"expected an {noun} of 0 or more, got {text!r}")
+        return value
+
+    parse.__name__ = f"non_negative_{kind.__name__}"
+    return parse
+
+
 def add_config_flags(
     parser: _AddsArguments,
     cls: type,
     *,
     exclude: Iterable[str] = (),
     defaults: Mapping[str, Any] | None = None,
+    choices: Mapping[str, Collection[str]] | None = None,
 ) -> None:
     """One flag per field of ``cls``: ``store_capacity`` -> ``--store-capacity``, ``phase1.n_cycles`` ->
-    ``--phase1-n-cycles``; bools get ``--x/--no-x``. ``exclude`` names field paths (a nested field's path drops all
-    of it); ``defaults`` are the command's presets by field path, shown as the default in the help.
+    ``--phase1-n-cycles`` (a field that repeats its table's name says it once: ``learner.learner_id`` ->
+    ``--learner-id``); bools get ``--x/--no-x``. ``exclude`` names field paths (a nested field's path drops all of
+    it); ``defaults`` are the command's presets by field path, shown as the default in the help; ``choices`` lists
+    the values a text field takes, by field name, wherever it is nested (``{"formulation": FORMULATIONS}``).
 
     A flag sets its attribute, named by the field path (``getattr(args, "phase1.n_cycles")``), only when given, so
     ``load_config`` can rank it above the file.
@@ -125,12 +151,14 @@ def add_config_flags(
         default = (defaults or {}).get(leaf.path, leaf.default)
         shown = "required" if default is dataclasses.MISSING else f"default: {show(leaf, default)}"
         help_text = f"{leaf.doc} ({shown})" if leaf.doc else f"({shown})"
-        flag = "--" + leaf.path.replace(".", "-").replace("_", "-")
+        allowed = (choices or {}).get(leaf.path.rsplit(".", 1)[-1])
         common = {"dest": leaf.path, "default": argparse.SUPPRESS, "help": help_text.replace("%", "%%")}
         if leaf.kind is bool and not leaf.optional and "parse" not in leaf.metadata:
-            parser.add_argument(flag, action=argparse.BooleanOptionalAction, **common)
+            parser.add_argument(flag_name(leaf.path), action=argparse.BooleanOptionalAction, **common)
         else:
-            parser.add_argument(flag, type=flag_type(leaf), metavar=metavar(leaf), **common)
+            parser.add_argument(
+                flag_name(leaf.path), type=flag_type(leaf, allowed), metavar=metavar(leaf, allowed), **common
+            )
 
 
 def load_config(

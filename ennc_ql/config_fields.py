@@ -1,4 +1,4 @@
-"""The machinery of :mod:`ennc_ql.config`: a config dataclass as a list of leaf fields (``phase1.max_patterns``),
+"""The machinery of ``ennc_ql.config``: a config dataclass as a list of leaf fields (``phase1.max_patterns``),
 and how one leaf's value is read from TOML, parsed from a flag, checked, shown in the help and written back."""
 
 import argparse
@@ -11,9 +11,11 @@ import textwrap
 import tomllib
 import types
 import typing
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Collection, Iterable, Mapping
 from pathlib import Path
 from typing import Any, Literal
+
+from ennc_ql.parser import plain
 
 
 class ConfigError(ValueError):
@@ -58,7 +60,7 @@ def field_docs(cls: type) -> dict[str, str]:
                 and isinstance(after.value, ast.Constant)
                 and isinstance(after.value.value, str)
             ):
-                docs[stmt.target.id] = " ".join(inspect.cleandoc(after.value.value).split())
+                docs[stmt.target.id] = plain(" ".join(inspect.cleandoc(after.value.value).split()))
     return docs
 
 
@@ -240,7 +242,7 @@ def build(cls: type, values: Mapping[str, Any], prefix: str, base: Any) -> Any:
         elif path in values:
             kwargs[f.name] = values[path]
         elif default is dataclasses.MISSING:
-            raise ConfigError(f"missing required key {path!r} (give --{path.replace('.', '-').replace('_', '-')})")
+            raise ConfigError(f"missing required key {path!r} (give {flag_name(path)})")
     try:
         return cls(**kwargs) if base is None else dataclasses.replace(base, **kwargs)
     except ConfigError:
@@ -250,7 +252,21 @@ def build(cls: type, values: Mapping[str, Any], prefix: str, base: Any) -> Any:
         raise ConfigError(where + " ".join(str(exc).split())) from None
 
 
-def flag_type(leaf: Leaf) -> Callable[[str], Any]:
+def flag_name(path: str) -> str:
+    """The flag of a field path; a field that repeats its table's name says it once.
+
+    >>> flag_name("phase1.n_cycles"), flag_name("learner.learner_id")
+    ('--phase1-n-cycles', '--learner-id')
+    """
+    parts = path.split(".")
+    for i in range(1, len(parts)):
+        if parts[i].startswith(parts[i - 1] + "_"):
+            parts[i] = parts[i].removeprefix(parts[i - 1] + "_")
+    return "--" + "-".join(parts).replace("_", "-")
+
+
+def flag_type(leaf: Leaf, choices: Collection[str] | None = None) -> Callable[[str], Any]:
+    """The argparse ``type`` of a leaf's flag; ``choices``: the only values a text field takes."""
     parse_hook = leaf.metadata.get("parse")
 
     def parse_item(kind: Any, text: str) -> Any:
@@ -282,6 +298,10 @@ def flag_type(leaf: Leaf) -> Callable[[str], Any]:
     def parse(text: str) -> Any:
         if leaf.optional and text.lower() == "none":
             return None
+        if choices is not None and text not in choices:
+            close = difflib.get_close_matches(text, list(choices), n=1)
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            raise argparse.ArgumentTypeError(f"unknown value {text!r} ({hint}one of {', '.join(choices)})")
         if parse_hook is None:
             return parse_item(leaf.kind, text)
         try:
@@ -293,8 +313,10 @@ def flag_type(leaf: Leaf) -> Callable[[str], Any]:
     return parse
 
 
-def metavar(leaf: Leaf) -> str:
-    if "metavar" in leaf.metadata:
+def metavar(leaf: Leaf, choices: Collection[str] | None = None) -> str:
+    if choices is not None:
+        base = "{" + ",".join(choices) + "}"
+    elif "metavar" in leaf.metadata:
         base = str(leaf.metadata["metavar"])
     elif "parse" in leaf.metadata:
         base = "VALUE"

@@ -1,7 +1,7 @@
 """A picture of a learned policy: one test arena under the policy, and the prototypes it learned per action.
 
-The same geometry as the Rerun views (:mod:`monitor.geometry`), rendered with matplotlib so that a run folder and
-the README carry a picture without a viewer. Usage::
+The same geometry and colours as the Rerun views (``monitor.geometry``, ``monitor.style``), rendered with
+matplotlib so that a run folder and the README carry a picture without a viewer. Usage::
 
     policy, header = load_policy("runs/x/policy.npz")
     policy_figure(policy, scenario_from_header(header), Path("runs/x/policy.png"))
@@ -9,13 +9,15 @@ the README carry a picture without a viewer. Usage::
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from algorithm.policy import Policy, PolicyController
-from monitor.geometry import observed_targets, project_2d, q_colors
+from monitor import style
+from monitor.geometry import COLORMAP, observed_targets, project_2d, q_colors, q_range
 from sim import ScenarioConfig, evaluate
 from sim.controllers import COMPASS_NAMES
 from sim.world import Observation, WorldState
@@ -36,28 +38,40 @@ def _snapshot(policy: Policy, cfg: ScenarioConfig, seed: int, step: int) -> tupl
     return seen["robots"], seen["targets"], float(result.coverage_per_trial[0])
 
 
+def _rgb(color: tuple[int, int, int]) -> tuple[float, float, float]:
+    r, g, b = color
+    return (r / 255, g / 255, b / 255)
+
+
 def policy_figure(policy: Policy, cfg: ScenarioConfig, out: Path, seed: int = 0, step: int = SNAPSHOT_STEP) -> Path:
-    """Write ``out`` (PNG): the arena of test trial 0 at ``step`` and each action's prototypes coloured by Q."""
+    """Write ``out`` (PNG): the arena of test trial 0 at ``step`` and each action's prototypes coloured by Q, with a
+    Q colour bar and a caption; the arena's colours are the viewer's (Okabe and Ito's, colour-blind safe)."""
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
     from matplotlib.figure import Figure
     from matplotlib.patches import Circle
 
     robots, targets, coverage = _snapshot(policy, cfg, seed, step)
     observed = observed_targets(robots, targets, cfg.sensing_range)
-    fig = Figure(figsize=(13.0, 5.6), layout="constrained")
+    fig = Figure(figsize=(13.0, 6.4), layout="constrained")
     panels: Any = fig.subfigures(1, 2, width_ratios=[1.0, 1.45])
     left, right = panels[0], panels[1]
     ax: Any = left.subplots()
-    ax.add_patch(Circle((0.0, 0.0), cfg.arena_radius, fill=False, color="0.3"))
+    ax.add_patch(Circle((0.0, 0.0), cfg.arena_radius, fill=False, color=_rgb(style.BOUNDARY)))
     for x, y in robots:
-        ax.add_patch(Circle((x, y), cfg.sensing_range, color="tab:blue", alpha=0.12, lw=0))
-    ax.scatter(robots[:, 0], robots[:, 1], s=28, c="tab:blue", marker="^", label="robot (sensing disk)")
-    ax.scatter(*targets[observed].T, s=30, c="tab:green", label="target, observed")
-    ax.scatter(*targets[~observed].T, s=30, c="tab:red", label="target, unobserved")
+        ax.add_patch(Circle((x, y), cfg.sensing_range, color=_rgb(style.ROBOT), alpha=0.18, lw=0))
+    ax.scatter(robots[:, 0], robots[:, 1], s=28, color=_rgb(style.ROBOT), marker="^", label="robot (sensing disk)")
+    ax.scatter(*targets[observed].T, s=30, color=_rgb(style.OBSERVED), label="target, observed")
+    ax.scatter(*targets[~observed].T, s=30, color=_rgb(style.UNOBSERVED), marker="X", label="target, unobserved")
     ax.set_xlim(-1.05 * cfg.arena_radius, 1.05 * cfg.arena_radius)
     ax.set_ylim(-1.05 * cfg.arena_radius, 1.05 * cfg.arena_radius)
     ax.set_aspect("equal")
     ax.legend(loc="lower left", fontsize=7, framealpha=0.8)
-    ax.set_title(f"test trial {seed}, step {step}: {observed.sum()}/{len(targets)} observed (A = {coverage:.1f}%)")
+    ax.set_title(
+        f"test trial {seed} at step {step}: {observed.sum()} of {len(targets)} targets observed\n"
+        f"over steps 0-{step}: {coverage:.1f} % of the targets observed on average",
+        fontsize=9,
+    )
 
     prototypes, q_values = policy.prototypes_by_action()
     points = [project_2d(p) for p in prototypes]
@@ -71,16 +85,31 @@ def policy_figure(policy: Policy, cfg: ScenarioConfig, out: Path, seed: int = 0,
             panel.set_visible(False)
             continue
         inside = (np.abs(points[k]) <= 1.2 * reach).all(axis=1)
+        panel.add_patch(Circle((0.0, 0.0), reach, fill=False, color=_rgb(style.BOUNDARY), lw=0.8))
         panel.scatter(*points[k][inside].T, s=9, c=colors[k][inside] / 255.0)
-        panel.set_title(f"action {k} ({COMPASS_NAMES[k]}): {len(points[k])}", fontsize=8)
+        panel.set_title(f"move {COMPASS_NAMES[k]}: {len(points[k])} prototypes", fontsize=8)
         panel.set_xlim(-1.2 * reach, 1.2 * reach)
         panel.set_ylim(-1.2 * reach, 1.2 * reach)
         panel.set_aspect("equal")
         panel.tick_params(labelsize=6)
-    right.suptitle(
-        "prototypes per action: (dx, dy) to the nearest target in view, standardized; colour = Q (viridis)",
-        fontsize=9,
+    lo, hi = q_range(q_values)
+    bar = right.colorbar(
+        ScalarMappable(norm=Normalize(lo, hi if hi > lo else lo + 1.0), cmap=COLORMAP), ax=axes, shrink=0.8
     )
+    bar.set_label("Q value of the move (mean over robots)", fontsize=8)
+    bar.ax.tick_params(labelsize=7)
+    right.suptitle("prototypes per move: where the nearest target in view lies, seen from the robot", fontsize=9)
+    fig.supxlabel(CAPTION, fontsize=8, ha="left", x=0.01)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=100)
     return out
+
+
+CAPTION = textwrap.fill(
+    "Left: one test trial under the learned policy; a target is observed when it lies within some robot's sensing "
+    "disk. Right: the learned discretization, one panel per compass move: each dot is a prototype placed by "
+    "(dx, dy) from the robot to the nearest target in view (standardized units, north up; the circle is the "
+    "sensing range), coloured by the Q value of making that move from there: brighter is better. States with no "
+    "target in view lie outside the panels.",
+    width=200,
+)

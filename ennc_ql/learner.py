@@ -11,48 +11,88 @@ cleanly: it checkpoints and writes its report. Usage::
 from __future__ import annotations
 
 import argparse
+import zipfile
 from pathlib import Path
 from typing import Any
 
-from ennc_ql.command import add_process_args, configure, emit, fail, open_transport, writable_dir
+from ennc_ql.command import (
+    add_process_args,
+    check_device,
+    check_folder,
+    checked_zenoh,
+    configure,
+    emit,
+    fail,
+    make_folder,
+    open_transport,
+    registry_choices,
+)
+from ennc_ql.parser import CommandHelp, add_command
 from ennc_ql.system import stop_on_signals
-from learner.checkpoint import CheckpointError
+from learner.checkpoint import Checkpointer, CheckpointError
 from learner.config import LearnerConfig
 from learner.service import LearnerService
 from learner.wiring import connect
 from monitor import open_monitor, sink_from_args
 
+HELP = CommandHelp(
+    "learner",
+    "the central ENNC-QL learner process, for runs over several machines",
+    "The central learner: it stores the actors' experience, runs ENNC-QL phase 1 once --min-tuples are in, merges "
+    "the actors' Q-table changes, broadcasts a policy with a strictly increasing version every few seconds, "
+    "evaluates it on seeded test trials (the learning curve), checkpoints (acknowledging only what a checkpoint "
+    "holds) and, at the end, scores the final policy and writes report.json and policy.npz into --run-dir. It runs "
+    "until --duration or SIGTERM/Ctrl-C, which end it cleanly. --resume continues from the checkpoint in --run-dir "
+    "after a crash. ennc-ql up starts one of these for you; start it by hand for several machines.",
+    (
+        ("ennc-ql learner --listen tcp/0.0.0.0:7447 --run-dir runs/exp1 --duration 600", "listen for actors"),
+        ("ennc-ql learner --mode client --connect tcp/ROUTER:7447 --run-dir runs/exp1", "join through a router"),
+        ("ennc-ql learner --run-dir runs/exp1 --resume --listen tcp/0.0.0.0:7447", "continue after a crash"),
+    ),
+    "until --duration or a signal; start-up about 5 s (torch loads), the final evaluation 5-20 s",
+)
+
 
 def add_learner_parser(sub: Any) -> None:
-    p = sub.add_parser("learner", help="the central ENNC-QL learner process")
-    p.add_argument("--run-dir", type=Path, required=True, help="folder for checkpoint, policy file and report")
+    p = add_command(sub, HELP)
+    p.add_argument(
+        "--run-dir", type=Path, required=True, help="folder for checkpoint, policy file and report (required)"
+    )
     p.add_argument("--resume", action="store_true", help="continue from the checkpoint in --run-dir")
-    add_process_args(p, LearnerConfig, "learner configuration (learner.config.LearnerConfig)")
+    add_process_args(
+        p, LearnerConfig, "learner configuration (learner.config.LearnerConfig)", choices=registry_choices()
+    )
     p.set_defaults(func=cmd_learner)
 
 
 def cmd_learner(args: argparse.Namespace) -> int:
+    # Everything is checked before anything starts: a resume from a folder without a checkpoint creates nothing
+    # and opens no session.
     config: LearnerConfig = configure(LearnerConfig, args, "learner")
-    run_dir = writable_dir(args.run_dir, "learner", "--run-dir")
+    if args.resume:
+        check_checkpoint(args.run_dir)
+    check_folder(args.run_dir, "learner", "--run-dir")
+    check_device(config.phase1.device, "learner", "--phase1-device")
+    conf = checked_zenoh(args, "learner", config.learner_id)
     if config.threads > 0:
         import torch  # only a learner that fits loads it
 
         torch.set_num_threads(config.threads)
     stop = stop_on_signals()
-    with (
-        open_monitor(sink_from_args(args), process=config.learner_id, recording_id=args.recording_id) as monitor,
-        open_transport(args, "learner", config.learner_id) as transport,
-    ):
-        try:
-            service = LearnerService(transport, config, run_dir, resume=args.resume, monitor=monitor)
-        except CheckpointError as exc:
-            fail("learner", str(exc))
-        handles = connect(service, transport)
-        try:
-            report = service.run(stop)
-        finally:
-            for handle in reversed(handles):
-                handle.close()
+    # The session first: a port in use is then an error before the run folder exists.
+    with open_transport(conf, args, "learner") as transport:
+        run_dir = make_folder(args.run_dir, "learner", "--run-dir")
+        with open_monitor(sink_from_args(args), process=config.learner_id, recording_id=args.recording_id) as monitor:
+            try:
+                service = LearnerService(transport, config, run_dir, resume=args.resume, monitor=monitor)
+            except CheckpointError as exc:
+                fail("learner", str(exc))
+            handles = connect(service, transport)
+            try:
+                report = service.run(stop)
+            finally:
+                for handle in reversed(handles):
+                    handle.close()
     line = (
         f"learner {config.learner_id}: {report.tuples_received} tuples from {len(report.actors)} actors, "
         f"policy version {report.policy_version}, final coverage {report.final_coverage_mean}; "
@@ -60,3 +100,14 @@ def cmd_learner(args: argparse.Namespace) -> int:
     )
     emit(report.to_dict(), args.json, line)
     return 0
+
+
+def check_checkpoint(run_dir: Path) -> None:
+    """``--resume`` needs a checkpoint in ``run_dir`` that is a readable archive (its content is read at start-up)."""
+    path = Checkpointer(run_dir).path
+    if not run_dir.is_dir():
+        fail("learner", f"--resume: no folder {run_dir} (--run-dir names the folder of the run to resume)")
+    if not path.is_file():
+        fail("learner", f"--resume: no checkpoint in {run_dir} (a learner writes {path.name} every few seconds)")
+    if not zipfile.is_zipfile(path):
+        fail("learner", f"--resume: {path} is not a checkpoint (not an .npz archive)")

@@ -1,12 +1,14 @@
-"""Human-readable reports of a training run: the terminal table, ``report.md`` and ``learning_curve.png``.
+"""Human-readable reports of a training run: the terminal summary, ``report.md`` and ``learning_curve.png``.
 
-Input is the learner's report (``runs/<id>/report.json``, a :class:`learner.report.LearnerReport` as a dict),
-optionally completed by the launcher with ``run_id``, ``run_dir``, ``command``, ``config`` and ``wall_seconds``.
-Usage::
+Input is the learner's report (``runs/<id>/report.json``, a ``learner.report.LearnerReport`` as a dict),
+optionally completed by the launcher with ``run_id``, ``run_dir``, ``command``, ``config``, ``wall_seconds`` and
+``recording``. Each opens with the result: the final coverage beside the hand-made controllers' on the same test
+trials (the learner measures them, ``reference_coverage`` and ``final_reference_coverage``), and ends with the
+commands that come next. Usage::
 
     report = json.loads((run_dir / "report.json").read_text())
     markdown_path, png_path = write_run_report(report, run_dir)
-    print(results_table(report))
+    print(terminal_summary(report))
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from monitor.style import REFERENCES as STYLES
 from sim.controllers import COMPASS_NAMES
 from sim.features import FORMULATIONS
 
@@ -23,31 +26,87 @@ if TYPE_CHECKING:
 
 REPORT_MD = "report.md"
 LEARNING_CURVE_PNG = "learning_curve.png"
-HAND_MADE_COVERAGE = {
-    "random": 16.60,
-    "local": 56.92,
-    "force-6d-shared": 69.09,
-    "A-CMOMMT": 68.26,
-    "A-CMOMMT oracle": 72.14,
+REFERENCE_NOTES = {
+    "a-cmommt": "hand-made; reads only what its robots sense or are told",
+    "a-cmommt-oracle": "hand-made; reads true target positions that no robot senses",
+    "force-6d-shared": "A-CMOMMT's force law fed the 6-D state and the shared-observation flags",
+    "force-6d": "A-CMOMMT's force law fed the paper's 6-D state",
+    "local": "hand-made; attraction to the targets in view, no cooperation",
+    "random": "a random compass move every 5 steps",
 }
-"""Coverage (%) of the hand-made controllers from ``ennc-ql eval --policy NAME --trials 10 --steps 1000 --seed 0``
-(README): the protocol of the learner's own evaluations (10 seeded trials of 1000 steps), so the levels compare
-directly with the learning curve; force-6d-shared is the force law on what the shared8d state holds; the oracle
-reads target positions no robot senses. A test re-measures them."""
-FINAL_REFERENCE = ("A-CMOMMT", 50, 73.07)
-"""A-CMOMMT on the final figure's protocol, ``ennc-ql eval --policy a-cmommt --trials 50 --seed 0``: drawn beside
-the final policy's figure when that is measured on as many trials (a test re-measures it)."""
-_REFERENCE_COLOURS = {
-    "random": "#999999",
-    "local": "#e69f00",
-    "force-6d-shared": "#cc79a7",
-    "A-CMOMMT": "#009e73",
-    "A-CMOMMT oracle": "#0072b2",
-}
+"""Every hand-made reference, in the order a result lists them (strongest first), with what it is."""
+LEARNED_COLOUR = "#000000"
+"""The learned policy in the charts: Okabe and Ito's black (the viewer's yellow would vanish on white)."""
 
 
 def _coverage(value: float | None) -> str:
     return "–" if value is None else f"{value:.2f} %"
+
+
+def _label(name: str) -> str:
+    return STYLES[name][0] if name in STYLES else name
+
+
+def _colour(name: str) -> str:
+    rgb = STYLES[name][1] if name in STYLES else (150, 150, 150)
+    return "#{:02x}{:02x}{:02x}".format(*rgb)
+
+
+def _references(levels: Mapping[str, float]) -> list[tuple[str, float]]:
+    """(name, coverage) in the order of :data:`REFERENCE_NOTES`, then any other controller."""
+    order = [n for n in REFERENCE_NOTES if n in levels] + [n for n in levels if n not in REFERENCE_NOTES]
+    return [(name, float(levels[name])) for name in order]
+
+
+def _formulation(report: Mapping[str, Any]) -> str | None:
+    name = (report.get("config") or {}).get("formulation")
+    return str(name) if name else None
+
+
+def _run_dir(report: Mapping[str, Any]) -> Path:
+    return Path(str(report.get("run_dir") or Path(str(report["checkpoint"])).parent))
+
+
+def headline(report: Mapping[str, Any]) -> list[str]:
+    """The result in two lines: the final figure, and its references on the same trials."""
+    final = report.get("final_coverage_mean")
+    if final is None:
+        return ["result: no policy was learned (the first fit waits for --learner-min-tuples tuples)"]
+    formulation = _formulation(report)
+    trials = report.get("final_eval_trials", 50)
+    what = f", formulation {formulation}" if formulation else ""
+    lines = [f"result: the learned policy observes {final:.2f} % of the targets ({trials} seeded test trials{what})"]
+    references = _references(report.get("final_reference_coverage") or {})
+    if references:
+        lines.append("on the same trials: " + ", ".join(f"{_label(n)} {v:.2f} %" for n, v in references))
+    return lines
+
+
+def next_commands(report: Mapping[str, Any]) -> list[tuple[str, str]]:
+    """What a user runs next, as (command line, why): score the policy, open the recording, repeat or go on."""
+    run_dir = _run_dir(report)
+    commands: list[tuple[str, str]] = []
+    if report.get("policy_file"):
+        trials = report.get("final_eval_trials", 50)
+        commands.append(
+            (
+                f"ennc-ql eval --policy {report['policy_file']} --trials {trials}",
+                "score the policy again (--seed 1: other trials)",
+            )
+        )
+    recording = (report.get("recording") or {}).get("path")
+    if recording:
+        commands.append((f"rerun {recording}", "open the recording in the Rerun viewer"))
+    if report.get("command"):
+        duration = (report.get("config") or {}).get("duration")
+        commands.append((str(report["command"]), "repeat the run exactly"))
+        if duration:
+            commands.append((f"{report['command']} --duration {2 * float(duration):g}", "train twice as long"))
+    else:
+        commands.append(
+            (f"ennc-ql learner --run-dir {run_dir} --resume ...", "continue from the checkpoint, with the same flags")
+        )
+    return commands
 
 
 def result_rows(report: Mapping[str, Any]) -> list[tuple[str, str]]:
@@ -65,23 +124,58 @@ def result_rows(report: Mapping[str, Any]) -> list[tuple[str, str]]:
         ("coverage curve", ", ".join(f"{t:.0f}s: {c:.1f}%" for t, c in curve)),
         ("policy file", str(report["policy_file"])),
     ]
-    formulation = report.get("config", {}).get("formulation")
+    formulation = _formulation(report)
     if formulation in FORMULATIONS:
         rows.insert(1, ("formulation", f"{formulation} ({FORMULATIONS[formulation].describe()})"))
     return rows
 
 
 def results_table(report: Mapping[str, Any]) -> str:
-    """The table ``ennc-ql up`` prints at the end of a run."""
+    """The figures of a run, aligned."""
     rows = result_rows(report)
     width = max(len(k) for k, _ in rows)
     return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
+
+
+def terminal_summary(report: Mapping[str, Any]) -> str:
+    """What ``ennc-ql up`` prints at the end of a run: the result, the figures, where the report is, and next."""
+    lines = [*headline(report), "", results_table(report), ""]
+    if report.get("report_md"):
+        lines += [f"report: {report['report_md']} (learning curve {report.get('learning_curve', '–')})", ""]
+    commands = next_commands(report)
+    width = max(len(line) for line, _ in commands)
+    lines += ["next:", *(f"  {line:<{width}}  # {why}" for line, why in commands)]
+    return "\n".join(lines)
 
 
 def _table(header: tuple[str, ...], rows: list[tuple[Any, ...]]) -> list[str]:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(str(cell) for cell in row) + " |" for row in rows]
     return [*lines, ""]
+
+
+def _result(report: Mapping[str, Any], curve_png: str) -> list[str]:
+    final = report.get("final_coverage_mean")
+    lines = ["## Result", ""]
+    if final is None:
+        return [*lines, headline(report)[0].removeprefix("result: ").capitalize() + ".", ""]
+    trials = report.get("final_eval_trials", 50)
+    formulation = _formulation(report)
+    learned = f"version {report['policy_version']}" + (f", formulation {formulation}" if formulation else "")
+    rows = [("**learned policy**", learned, f"**{final:.2f}**")]
+    rows += [
+        (_label(name), REFERENCE_NOTES.get(name, "hand-made"), f"{value:.2f}")
+        for name, value in _references(report.get("final_reference_coverage") or {})
+    ]
+    lines += [
+        f"The learned policy observes **{final:.2f} %** of the targets on {trials} seeded test trials of 1000 steps; "
+        "the hand-made controllers on the same trials:",
+        "",
+        *_table(("policy", "what it is", f"% of targets observed ({trials} trials)"), rows),
+        f"![the learning curve beside the hand-made controllers' levels]({curve_png})",
+        "",
+    ]
+    return lines
 
 
 def _throughput(report: Mapping[str, Any]) -> list[str]:
@@ -105,7 +199,8 @@ def _integrity(report: Mapping[str, Any]) -> list[str]:
     lag: dict[str, int] = report.get("policy_lag") or {}
     rows = [
         ("duplicate batches", report["duplicates"]),
-        ("sequence gaps", report["gaps"]),
+        ("sequence gaps (never filled)", report["gaps"]),
+        ("out-of-order arrivals (filled later unless counted as gaps)", report.get("out_of_order", "–")),
         ("rejected messages", report["rejected"]),
         ("rejected by type", ", ".join(f"{k}: {v}" for k, v in sorted(rejected_by_type.items())) or "–"),
         ("table increments merged / stale", f"{report['increments']} / {report['stale_increments']}"),
@@ -129,16 +224,34 @@ def _policy(report: Mapping[str, Any]) -> list[str]:
         lines += _table(tuple(COMPASS_NAMES[: len(sizes)]), [tuple(sizes)])
     if report.get("policy_figure"):
         name = Path(str(report["policy_figure"])).name
-        lines += ["", f"![a test arena under the policy, and its prototypes per action coloured by Q]({name})"]
+        lines += [f"![a test arena under the policy, and its prototypes per action coloured by Q]({name})", ""]
+    return lines
+
+
+def _curve(report: Mapping[str, Any]) -> list[str]:
+    curve = report.get("coverage_curve") or []
+    lines = ["## Learning curve", ""]
+    if not curve:
+        return [*lines, "No evaluation: no policy was learned in this run.", ""]
+    trials = report.get("eval_trials", 10)
+    lines += [
+        f"The policy of the moment on {trials} seeded test trials, every evaluation interval:",
+        "",
+        *_table(("seconds", "coverage %"), [(f"{t:.0f}", f"{c:.2f}") for t, c in curve]),
+    ]
+    references = _references(report.get("reference_coverage") or {})
+    if references:
+        levels = ", ".join(f"{_label(n)} {v:.2f} %" for n, v in references)
+        lines += [f"The hand-made controllers on the same {trials} trials: {levels}.", ""]
     return lines
 
 
 def markdown_report(report: Mapping[str, Any], curve_png: str = LEARNING_CURVE_PNG) -> str:
-    """``report.md``: configuration, results, the coverage curve as a table, throughput, integrity and policy."""
-    curve = report.get("coverage_curve") or []
+    """``report.md``: the result beside its references, then configuration, figures, the learning curve,
+    throughput, integrity and policy, and the commands that come next."""
     config: dict[str, Any] = report.get("config") or {}
-    title = report.get("run_id") or Path(str(report.get("run_dir", "run"))).name
-    lines = [f"# ennc-ql run {title}", ""]
+    title = report.get("run_id") or _run_dir(report).name
+    lines = [f"# ennc-ql run {title}", "", *_result(report, curve_png)]
     if "command" in report:
         lines += ["```", str(report["command"]), "```", ""]
     took = f"{report['seconds']:.0f} s of training"
@@ -148,68 +261,64 @@ def markdown_report(report: Mapping[str, Any], curve_png: str = LEARNING_CURVE_P
     if config:
         settings = [(k, f"{v:g}" if isinstance(v, float) else v) for k, v in config.items()]
         lines += ["## Configuration", "", *_table(("setting", "value"), settings)]
-    lines += ["## Results", "", *_table(("figure", "value"), result_rows(report))]
-    lines += ["## Learning curve", "", f"![evaluation coverage over training time]({curve_png})", ""]
-    if curve:
-        lines += _table(("seconds", "coverage %"), [(f"{t:.0f}", f"{c:.2f}") for t, c in curve])
-    else:
-        lines += ["No evaluation: no policy was learned in this run.", ""]
-    references = ", ".join(f"{name} {value:.2f} %" for name, value in HAND_MADE_COVERAGE.items())
-    name, trials, level = FINAL_REFERENCE
-    lines += [
-        f"Hand-made controllers on the same test protocol (10 trials of 1000 steps, seed 0): {references}; "
-        f"on the final figure's {trials} trials {name} scores {level:.2f} %.",
-        "",
-    ]
-    lines += _throughput(report) + _integrity(report) + _policy(report)
+    lines += ["## Figures", "", *_table(("figure", "value"), result_rows(report))]
+    lines += _curve(report) + _throughput(report) + _integrity(report) + _policy(report)
+    lines += ["## Next", "", "```", *(f"{line}    # {why}" for line, why in next_commands(report)), "```", ""]
     return "\n".join(lines)
 
 
 def learning_curve_figure(report: Mapping[str, Any]) -> Figure:
-    """Evaluation coverage against training seconds, with the hand-made controllers' levels as horizontal lines."""
+    """Evaluation coverage against training seconds, titled by the result and the formulation, with the hand-made
+    controllers' levels on the same trials: lines on the curve's trials, diamonds on the final figure's."""
     # Imported here: every command line builds up's parser, and matplotlib is needed only once a run has ended. The
     # object-oriented Figure needs no pyplot: no global backend switch, no figure registry to leak into.
     from matplotlib.figure import Figure
 
     curve = report.get("coverage_curve") or []
     duration = (report.get("config") or {}).get("duration") or report["seconds"]
-    fig = Figure(figsize=(8, 4.5))
-    ax = fig.subplots()
-    for name, level in HAND_MADE_COVERAGE.items():
-        ax.axhline(level, ls="--", lw=1, color=_REFERENCE_COLOURS[name], label=f"{name}, hand-made ({level:.2f} %)")
-    if curve:
-        ax.plot([t for t, _ in curve], [c for _, c in curve], "o-", color="#3b7dd8", label="learned policy")
+    end = float(report["seconds"])
+    trials, final_trials = report.get("eval_trials", 10), report.get("final_eval_trials", 50)
     final = report.get("final_coverage_mean")
+    finals = dict(report.get("final_reference_coverage") or {})
+    fig = Figure(figsize=(10, 4.8))
+    ax = fig.subplots()
+    for name, level in _references(report.get("reference_coverage") or {}):
+        label = f"{_label(name)}: {level:.1f} %"
+        if name in finals:
+            label += f", {finals[name]:.1f} % ◆"
+            ax.plot([end], [finals[name]], "D", ms=6, color=_colour(name), label="_nolegend_")
+        ax.axhline(level, ls="--", lw=1.2, color=_colour(name), label=label)
+    if curve:
+        ax.plot([t for t, _ in curve], [c for _, c in curve], "o-", color=LEARNED_COLOUR, label="learned policy")
     if final is not None:
-        trials = report.get("final_eval_trials", report.get("eval_trials", 10))
-        ax.plot([report["seconds"]], [final], "*", ms=14, color="#d84b3b", label=f"final policy ({trials} test trials)")
-        name, reference_trials, level = FINAL_REFERENCE
-        if trials == reference_trials:
-            ax.plot(
-                [report["seconds"]],
-                [level],
-                "*",
-                ms=14,
-                color=_REFERENCE_COLOURS[name],
-                label=f"{name}, hand-made ({reference_trials} test trials, {level:.2f} %)",
-            )
+        label = f"final policy: {final:.2f} % ({final_trials} trials)"
+        ax.plot([end], [final], "*", ms=15, color=LEARNED_COLOUR, label=label)
     else:
         ax.text(0.5, 0.5, "no evaluation: no policy was learned", transform=ax.transAxes, ha="center")
-    ax.set_xlim(0, max([float(duration), *(t for t, _ in curve)]) * 1.02)
+    ax.set_xlim(0, max([float(duration), end, *(t for t, _ in curve)]) * 1.03)
     ax.set_ylim(0, 100)
     ax.set_xlabel("training time (s)")
-    ax.set_ylabel(f"% of targets observed ({report.get('eval_trials', 10)} test trials)")
-    title = report.get("run_id") or Path(str(report.get("run_dir", ""))).name
-    ax.set_title(f"run {title}: {report['tuples_received']:,} tuples from {len(report['actors'])} actor(s)")
-    ax.legend(loc="best", fontsize="small")
+    ax.set_ylabel("% of targets observed")
+    formulation = _formulation(report)
+    what = f"formulation {formulation}" if formulation else f"run {report.get('run_id') or _run_dir(report).name}"
+    result = "no policy learned" if final is None else f"the learned policy observes {final:.1f} % of the targets"
+    ax.set_title(f"{result} ({what})", fontsize="medium")
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(
+            loc="upper left",
+            bbox_to_anchor=(1.01, 1.0),
+            fontsize="small",
+            title=f"on the same {trials} test trials (- -)\nand on {final_trials} (◆ ★)",
+            title_fontsize="small",
+        )
     ax.grid(alpha=0.3)
     fig.tight_layout()
     return fig
 
 
 def learning_curve_png(report: Mapping[str, Any], path: Path) -> Path:
-    """The learning curve as an 880 x 495 PNG."""
-    learning_curve_figure(report).savefig(path, dpi=110)
+    """The learning curve as a 1000 x 480 PNG."""
+    learning_curve_figure(report).savefig(path, dpi=100)
     return path
 
 

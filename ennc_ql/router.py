@@ -19,14 +19,15 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import sys
 import threading
 from typing import Any
 
 import zenoh
 
+from ennc_ql.command import fail, zenoh_conf, zenoh_message
+from ennc_ql.parser import CommandHelp, add_command
 from ennc_ql.system import stop_on_signals
-from protocol import add_connection_args, config_from_args
+from protocol import add_connection_args
 
 log = logging.getLogger(__name__)
 
@@ -57,27 +58,37 @@ def run_router(conf: zenoh.Config, stop: threading.Event) -> None:
 def cmd_router(args: argparse.Namespace) -> int:
     """The ``router`` subcommand: run until SIGTERM or SIGINT."""
     if args.mode not in (None, "router"):
-        raise SystemExit(f"ennc-ql router: --mode must be router, got {args.mode!r}")
+        fail("router", f"--mode {args.mode}: a router runs in router mode (leave --mode out)")
     # argparse's append action would add to a non-empty default instead of replacing it, hence the default here.
     if not args.listen and not args.zenoh_config:
         args.listen = [DEFAULT_LISTEN]
+    conf = zenoh_conf(args, "router")
     try:
-        conf = config_from_args(args)
-    except (ValueError, OSError, zenoh.ZError) as exc:
-        # ennc_ql.command's fail() says the same, but importing it would load the monitoring the router keeps out.
-        print(f"ennc-ql router: error: zenoh configuration: {exc}", file=sys.stderr)
-        return 2
-    run_router(conf, stop_on_signals())
+        run_router(conf, stop_on_signals())
+    except zenoh.ZError as exc:
+        fail("router", f"zenoh could not open the router: {zenoh_message(exc)}")
     return 0
+
+
+HELP = CommandHelp(
+    "router",
+    "a Zenoh router, for runs over several machines",
+    "A Zenoh router from the eclipse-zenoh package (PyPI has no zenohd): learners and actors on other machines "
+    "join it with --mode client --connect tcp/HOST:7447 instead of reaching each other directly. Without --listen "
+    f"or --zenoh-config it listens on {DEFAULT_LISTEN} (7447 is Zenoh's registered port). With the "
+    "--zenoh-config that ennc-ql secure init writes it accepts only mutual-TLS sessions with a password, and lets "
+    "each actor publish only under its own key. It runs until SIGTERM or Ctrl-C.",
+    (
+        ("ennc-ql router", f"listen on {DEFAULT_LISTEN}"),
+        ("ennc-ql router --zenoh-config secrets/router.json5", "the secure router of ennc-ql secure init"),
+    ),
+    "until stopped; ready in under a second",
+)
 
 
 def add_router_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Register the ``router`` subcommand on ``subparsers`` (from ``ArgumentParser.add_subparsers``)."""
-    p: argparse.ArgumentParser = subparsers.add_parser(
-        "router",
-        help="a zenoh router for multi-machine runs (clients connect with --mode client --connect tcp/HOST:7447)",
-        epilog=f"Without --listen or --zenoh-config it listens on {DEFAULT_LISTEN}.",
-    )
+    p = add_command(subparsers, HELP)
     add_connection_args(p)
     p.set_defaults(func=cmd_router)
     return p

@@ -2,7 +2,7 @@
 
 A certificate authority, a certificate and key per identity (the router, the learner, every actor, the observer
 that read-only tools use), a password per identity with the router's credential file, and one zenoh JSON5
-configuration per process whose access-control rules are those of :mod:`protocol.security`::
+configuration per process whose access-control rules are those of ``protocol.security``::
 
     ennc-ql secure init secrets --actors 2 --host 10.0.0.5        # the router's address, as clients dial it
     ennc-ql router  --zenoh-config secrets/router.json5
@@ -25,6 +25,7 @@ import ipaddress
 import json
 import logging
 import os
+import re
 import secrets
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -36,7 +37,10 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
-from ennc_ql.command import fail
+from ennc_ql.command import check_folder, fail
+from ennc_ql.config import positive
+from ennc_ql.parser import CommandHelp, add_command, add_commands
+from protocol import check_id
 from protocol.keys import KeySpace
 from protocol.security import OBSERVER, ROUTER, TlsFiles, access_control, client_config, router_config
 
@@ -197,24 +201,61 @@ def write_secure_set(spec: SecureSet) -> list[str]:
     return written
 
 
-def cmd_secure_init(args: argparse.Namespace) -> int:
-    if args.actors < 1:
-        fail("secure init", f"--actors must be at least 1, got {args.actors}")
-    port = args.port
+_HOST = re.compile(r"[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?(\.[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?)*")
+
+
+def _port(text: str) -> int:
+    if not text.isdigit() or not 1 <= int(text) <= 65535:
+        raise argparse.ArgumentTypeError(f"expected a TCP port from 1 to 65535, got {text!r}")
+    return int(text)
+
+
+def _checked_spec(args: argparse.Namespace) -> SecureSet:
+    """The set ``args`` asks for, every value checked before a file is written: a bad one fails, and nothing is
+    left half-written."""
+    for host in args.host:
+        try:
+            ipaddress.ip_address(host)
+        except ValueError:
+            if not _HOST.fullmatch(host):
+                fail("secure init", f"--host {host}: not a host name or an IP address")
+    actor_ids = tuple(f"actor-{i}" for i in range(args.actors))
+    try:
+        check_id(args.learner_id, "--learner-id")
+        KeySpace(args.namespace)
+    except ValueError as exc:
+        fail("secure init", str(exc))
+    if args.learner_id in (ROUTER, OBSERVER, *actor_ids):
+        fail("secure init", f"--learner-id {args.learner_id}: already the id of another identity of the set")
+    if args.mount is not None and not args.mount.is_absolute():
+        fail("secure init", f"--mount {args.mount}: give an absolute path (the processes read it wherever they run)")
     hosts = tuple(args.host)
-    connect_host = hosts[0] if hosts else "localhost"
-    spec = SecureSet(
+    return SecureSet(
         folder=args.dir,
-        actor_ids=tuple(f"actor-{i}" for i in range(args.actors)),
+        actor_ids=actor_ids,
         learner_id=args.learner_id,
         namespace=args.namespace,
         hosts=hosts or DEFAULT_HOSTS,
-        listen=(f"tls/0.0.0.0:{port}",),
-        connect=(f"tls/{connect_host}:{port}",),
+        listen=(f"tls/0.0.0.0:{args.port}",),
+        connect=(f"tls/{hosts[0] if hosts else 'localhost'}:{args.port}",),
         mount=args.mount,
     )
+
+
+def _ours(folder: Path) -> bool:
+    """Whether ``folder`` holds a set written by ``secure init`` and nothing else (run again, it adds actors and
+    replaces keys and passwords, keeping the CA)."""
+    names = [p.name for p in folder.iterdir()]
+    written = {CA_FILE, CA_KEY_FILE, CREDENTIALS_FILE}
+    return CA_FILE in names and all(n in written or n.endswith((".pem", ".key", ".json5")) for n in names)
+
+
+def cmd_secure_init(args: argparse.Namespace) -> int:
+    spec = _checked_spec(args)
+    check_folder(args.dir, "secure init", "DIR")
+    if args.dir.is_dir() and any(args.dir.iterdir()) and not _ours(args.dir) and not args.force:
+        fail("secure init", f"{args.dir}: the folder holds files secure init did not write; give --force to use it")
     try:
-        KeySpace(spec.namespace)
         written = write_secure_set(spec)
     except (OSError, ValueError) as exc:
         fail("secure init", str(exc))
@@ -224,25 +265,52 @@ def cmd_secure_init(args: argparse.Namespace) -> int:
     return 0
 
 
+SECURE = CommandHelp(
+    "secure",
+    "certificates, passwords and access control for secure runs over several machines",
+    "Writes what a secure run needs (ennc-ql secure init DIR); see its own help: ennc-ql secure init --help.",
+    (
+        ("ennc-ql secure init secrets --actors 4 --host A.example.org", "a set for a router on A and 4 actors"),
+        ("ennc-ql secure init --help", "what it writes, and where each file goes"),
+    ),
+    "under a second",
+)
+
+INIT = CommandHelp(
+    "init",
+    "write a CA, a certificate, key and password per process, and one Zenoh configuration per process",
+    "Writes into DIR a certificate authority, a certificate, key and password per identity (the router, the "
+    "learner, every actor, and the observer that read-only tools use), the router's credential file, and one Zenoh "
+    "JSON5 configuration per process whose access control lets each actor publish only under its own key. Give "
+    "each machine only its own files (ca.pem, ID.pem, ID.key, ID.json5); ca.key and credentials.txt stay with the "
+    "router. Keys, passwords and configurations are written 0600, the folder 0700. Run it again on the same folder "
+    "for more actors: the CA is kept, every key and password replaced. It refuses a folder that holds other files "
+    "unless --force.",
+    (
+        ("ennc-ql secure init secrets --actors 4 --host A.example.org", "the router on A, 4 actors"),
+        ("ennc-ql secure init secrets --mount /run/secrets/enncql", "files that containers mount elsewhere"),
+    ),
+    "under a second",
+)
+
+
 def add_secure_parser(sub: Any) -> None:
-    p = sub.add_parser("secure", help="certificates, credentials and access-control configurations for secure runs")
-    inner = p.add_subparsers(dest="secure_command", required=True)
-    init = inner.add_parser(
-        "init",
-        help="write a CA, a certificate, key and password per process, and one zenoh config per process",
-        description=__doc__.split("\n\n")[1],
-    )
-    init.add_argument("dir", type=Path, help="folder to write into (created 0700)")
-    init.add_argument("--actors", type=int, default=2, help="actor identities actor-0 ... (default 2)")
+    p = add_command(sub, SECURE)
+    init = add_command(add_commands(p, dest="secure_command"), INIT)
+    init.add_argument("dir", type=Path, metavar="DIR", help="folder to write into (created 0700)")
+    init.add_argument("--actors", type=positive(int), default=2, help="actor identities actor-0, actor-1, ...")
     init.add_argument(
         "--host",
         action="append",
         default=[],
         help="name or address of the router as clients dial it (repeatable; the first is the one they dial; "
-        "default localhost)",
+        "default: localhost)",
     )
-    init.add_argument("--port", type=int, default=7447, help="the router's TLS port (default 7447)")
-    init.add_argument("--learner-id", default="learner", help="the learner's id (default learner)")
-    init.add_argument("--namespace", default="", help="the runs' --namespace: the rules cover its keys only")
-    init.add_argument("--mount", type=Path, help="where the processes will see DIR (default: DIR itself)")
+    init.add_argument("--port", type=_port, default=7447, help="the router's TLS port")
+    init.add_argument("--learner-id", default="learner", help="the learner's id")
+    init.add_argument(
+        "--namespace", default="", help="the runs' --namespace: the rules cover its keys only (default: none)"
+    )
+    init.add_argument("--mount", type=Path, help="absolute path where the processes will see DIR (default: DIR)")
+    init.add_argument("--force", action="store_true", help="write into a folder that holds other files")
     init.set_defaults(func=cmd_secure_init)

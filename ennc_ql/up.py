@@ -33,40 +33,64 @@ from ennc_ql.cluster import (
     run_serial,
     write_configs,
 )
-from ennc_ql.command import configure, emit, fail, writable_dir
+from ennc_ql.command import check_device, check_folder, configure, emit, fail, make_folder, registry_choices
 from ennc_ql.config import add_config_flags
 from ennc_ql.figures import policy_figure
-from ennc_ql.report import results_table, write_run_report
+from ennc_ql.parser import CommandHelp, add_command
+from ennc_ql.report import terminal_summary, write_run_report
 from learner.config import LearnerConfig
 from learner.report import LearnerReport
 from monitor import Sink, add_rerun_args, paths
 from protocol import check_id
 
+HELP = CommandHelp(
+    "up",
+    "train on this machine: one learner and N actor processes, then a report (what make run does)",
+    "Trains ENNC-QL (collaborative, option 2: every robot learns its own table) on this machine: one learner and "
+    "--actors actor processes, real OS processes joined by Zenoh on a loopback endpoint (nothing leaves the "
+    "machine), for --duration seconds of training with a progress bar. The learner then scores the final policy on "
+    "50 seeded test trials, beside the hand-made controllers on the same trials, and up prints that result. It "
+    "writes runs/<id>/: the policy file (policy.npz), the checkpoint, report.md and report.json, "
+    "learning_curve.png, policy.png, the Rerun recording of every process (recording.rrd) and one log per process; "
+    "up.toml repeats the run exactly. --serial runs the same objects in this one process (for a debugger or a "
+    "profiler); --secure joins them through a router with mutual TLS, a password per process and access control.",
+    (
+        ("ennc-ql up", "the main job, as make run: 2 actors, 480 s of training"),
+        ("ennc-ql up --duration 120 --rerun spawn", "a 2-minute run, watched live in the Rerun viewer"),
+        ("ennc-ql up --config runs/<id>/up.toml", "repeat a run exactly"),
+    ),
+    "--duration (480 s) plus start-up, the final evaluation and the report: 8.5 min in all with the defaults",
+)
+
 
 def add_up_parser(sub: Any) -> None:
-    p = sub.add_parser("up", help="learner + N actors as local processes (embedded Zenoh, peer mode on loopback)")
-    p.add_argument("--config", metavar="FILE", help="TOML file of up's configuration (e.g. a run's up.toml)")
+    p = add_command(sub, HELP)
+    p.add_argument(
+        "--config", metavar="FILE", help="TOML file of up's configuration, e.g. a run's up.toml (default: none)"
+    )
     p.add_argument("--serial", action="store_true", help="learner and actors as objects in this one process")
     p.add_argument(
         "--secure",
         action="store_true",
         help="through a router with mutual TLS, a password per process and access control (files in runs/<id>/secure)",
     )
-    p.add_argument("--runs", type=Path, default=Path("runs"), help="parent folder of the run folder (default runs/)")
-    p.add_argument("--run-id", help="run folder name (default: a timestamp)")
+    p.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR", help="parent folder of the run folder")
+    p.add_argument("--run-id", metavar="ID", help="run folder name (default: the start time, YYYYMMDD-HHMMSS)")
     p.add_argument("--json", action="store_true", help="print the learner's report as one JSON object")
     add_config_flags(
         p.add_argument_group("run configuration (ennc_ql.cluster.UpConfig)"),
         UpConfig,
         exclude=SET_BY_UP,
         defaults=UP_PRESETS,
+        choices=registry_choices(),
     )
     add_rerun_args(p, default=None, default_text="save runs/<id>/recording.rrd")
     p.set_defaults(func=cmd_up)
 
 
 def cmd_up(args: argparse.Namespace) -> int:
-    # Every configuration is checked here, before any process starts: a bad value is one line naming it.
+    # Everything is checked here, before any process starts or any folder is made: a bad value is one line naming
+    # it, and nothing is left behind.
     config: UpConfig = configure(UpConfig, args, "up", defaults=UP_PRESETS)
     if args.serial and args.secure:
         fail("up", "--serial runs on the in-memory bus, which has no network to secure; drop one of them")
@@ -75,7 +99,9 @@ def cmd_up(args: argparse.Namespace) -> int:
         check_id(run_id, "--run-id")
     except ValueError as exc:
         fail("up", str(exc))
-    run_dir = writable_dir(args.runs / run_id, "up", "--runs")
+    check_folder(args.runs / run_id, "up", "--runs", empty=True)
+    check_device(config.learner.phase1.device, "up", "--learner-phase1-device")
+    run_dir = make_folder(args.runs / run_id, "up", "--runs")
     learner, actors = child_configs(config)
     write_configs(config, learner, actors, run_dir)
     started = time.monotonic()
@@ -107,7 +133,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     markdown, png = write_run_report(out, run_dir)
     out.update(report_md=str(markdown), learning_curve=str(png))
     (run_dir / "report.json").write_text(json.dumps(out, indent=2))
-    emit(out, args.json, f"{results_table(out)}\nreport: {markdown} (learning curve {png})")
+    emit(out, args.json, terminal_summary(out))
     return 0
 
 

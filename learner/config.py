@@ -96,7 +96,7 @@ class LearnerConfig:
             status_interval=self.status_interval,
             duration=self.duration,
         )
-        require_at_least(0, threads=self.threads)
+        require_at_least(0, threads=self.threads, seed=self.seed)
         if self.refit_growth != 0 and not self.refit_growth > 1:
             raise ValueError(f"refit_growth must be 0 (never) or above 1, got {self.refit_growth}")
 

@@ -57,6 +57,8 @@ class IntakeFigures:
     duplicates: int
     """Messages received again and ignored: re-sends, of a message stored or of one already rejected."""
     gaps: int
+    out_of_order: int
+    """Arrivals past the next expected sequence number, filled later or not (see ``gaps``)."""
     rejected_by_type: dict[str, int]
     """Messages refused over the run (resumes included), by error class of docs/protocol.md §6, each once."""
     refused: int
@@ -207,6 +209,7 @@ class ExperienceIntake:
                 accepted=self._ledger.accepted,
                 duplicates=self._ledger.duplicates,
                 gaps=self._ledger.gaps,
+                out_of_order=self._ledger.gap_events,
                 rejected_by_type=dict(self._rejected),
                 refused=self._refused,
                 tuples_per_s=(self._received - self._received_before) / max(time.monotonic() - self._started, 1e-9),

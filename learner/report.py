@@ -109,6 +109,9 @@ class LearnerReport:
     prototypes_per_action: list[int]
     duplicates: int
     gaps: int
+    out_of_order: int
+    """Messages that arrived before an earlier one of their sender, which came later (or, counted in ``gaps``,
+    never): usual, since experience and table increments travel on two subscriptions."""
     rejected: int
     rejected_by_type: dict[str, int]
     """Messages refused, each once, by error class (docs/protocol.md §6) or ``StateDimension``."""
@@ -123,6 +126,11 @@ class LearnerReport:
     final_eval_trials: int
     eval_trials: int
     coverage_curve: list[list[float]]
+    reference_coverage: dict[str, float]
+    """Metric A (%) of each hand-made controller (``sim.HAND_MADE``) on the curve's test trials; empty when no
+    policy was learned."""
+    final_reference_coverage: dict[str, float]
+    """The same on the final figure's test trials: the levels the final coverage is read against."""
     policy_file: str | None
     checkpoint: str
     seconds: float
@@ -143,7 +151,7 @@ class LearnerReport:
         checkpoint: Path,
     ) -> LearnerReport:
         """The report of a run that ended with ``status`` (built from the same ``intake`` figures) and the final
-        figure ``final`` (None: no policy was learned)."""
+        figure ``final`` (None: no policy was learned, and no reference is measured)."""
         disc = state.discretization
         return cls(
             learner_id=config.learner_id,
@@ -157,6 +165,7 @@ class LearnerReport:
             prototypes_per_action=[] if disc is None else [int(s) for s in disc.sizes()],
             duplicates=status.duplicates,
             gaps=status.gaps,
+            out_of_order=intake.out_of_order,
             rejected=status.rejected,
             rejected_by_type=intake.rejected_by_type,
             refused_tokens=members.refused,
@@ -169,6 +178,8 @@ class LearnerReport:
             final_eval_trials=config.final_eval_trials,
             eval_trials=config.eval_trials,
             coverage_curve=[list(p) for p in evaluator.curve],
+            reference_coverage={} if final is None else evaluator.references(),
+            final_reference_coverage={} if final is None else evaluator.references(config.final_eval_trials),
             policy_file=None if policy_file is None else str(policy_file),
             checkpoint=str(checkpoint),
             seconds=round(status.elapsed, 2),
@@ -181,9 +192,10 @@ class LearnerReport:
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> LearnerReport:
         names = {f.name for f in fields(cls)} - {"extra"}
-        return cls(
-            **{k: v for k, v in data.items() if k in names}, extra={k: v for k, v in data.items() if k not in names}
-        )
+        # Reports written before these figures existed lack them.
+        given = {k: v for k, v in data.items() if k in names}
+        known = {"reference_coverage": {}, "final_reference_coverage": {}, "out_of_order": 0, **given}
+        return cls(**known, extra={k: v for k, v in data.items() if k not in names})
 
     def with_extra(self, **extra: Any) -> LearnerReport:
         return dataclasses.replace(self, extra={**self.extra, **extra})

@@ -102,12 +102,22 @@ def add_connection_args(parser: argparse.ArgumentParser) -> None:
     """Add the zenoh connection flags shared by every process CLI (read back by :func:`config_from_args`)."""
     group = parser.add_argument_group("zenoh connection")
     group.add_argument(
-        "--connect", action="append", default=[], metavar="ENDPOINT", help="endpoint to connect to (repeatable)"
+        "--connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="endpoint to connect to (repeatable; default: none, or as in --zenoh-config)",
     )
     group.add_argument(
-        "--listen", action="append", default=[], metavar="ENDPOINT", help="endpoint to listen on (repeatable)"
+        "--listen",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="endpoint to listen on (repeatable; default: none, or as in --zenoh-config)",
     )
-    group.add_argument("--zenoh-config", metavar="FILE", help="zenoh JSON5 config file; the flags above override it")
+    group.add_argument(
+        "--zenoh-config", metavar="FILE", help="zenoh JSON5 config file; the flags above override it (default: none)"
+    )
     group.add_argument(
         "--mode", choices=MODES, default=None, help="zenoh session mode (default: peer, or as in --zenoh-config)"
     )
@@ -117,7 +127,9 @@ def add_connection_args(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="discover peers by UDP multicast (default: off, or as in --zenoh-config)",
     )
-    group.add_argument("--namespace", default="", help="key prefix isolating this run from others on the same network")
+    group.add_argument(
+        "--namespace", default="", help="key prefix isolating this run from others on the same network (default: none)"
+    )
 
 
 def config_from_args(args: argparse.Namespace) -> zenoh.Config:

@@ -21,7 +21,7 @@ from ennc_ql.bench.sim import sim_rate
 from ennc_ql.progress import ProgressBar
 from protocol import Header
 from sim import N_ACTIONS, ScenarioConfig, scenario
-from sim.features import FORMULATIONS
+from sim.features import Formulation
 
 ACTOR_TARGET_RATIO = 0.25
 """An actor's phase-2 slice must run at this fraction of the bare simulator's robot-steps/s (actor throughput issue)."""
@@ -49,18 +49,22 @@ def bench_policy(cfg: ScenarioConfig, arenas: int = 500, explore_trials: int = 2
 def _actor_trials(
     cfg: ScenarioConfig, agent: TabularAgent, arenas: int, seconds: float, batch_size: int, seed: int
 ) -> dict[str, float]:
-    """Phase-2 learning trials as an actor runs them (every robot learns), with its experience messages built.
+    """Phase-2 learning trials as an actor runs them (every robot learns), with its experience messages built, in
+    the formulation the agent's policy was learned in.
 
     Returns the robot-steps, tuples and the seconds spent in the slice and in building the messages.
     """
-    experience = ExperienceSlice(cfg, SliceConfig(n_arenas=arenas, featurizer="collab6d"), seed)
+    policy = agent.template
+    formulation = Formulation(policy.featurizer, policy.reward, actions=policy.actions)
+    parts = SliceConfig(arenas, formulation.featurizer, formulation.reward, formulation.actions)
+    experience = ExperienceSlice(cfg, parts, seed)
     steps = tuples = 0
     slice_s = message_s = 0.0
     while steps == 0 or slice_s + message_s < seconds:
         start = time.perf_counter()
         batch = experience.run_trial(agent, learn=True)
         built = time.perf_counter()
-        for seq, build in enumerate(experience_batches(batch, batch_size, FORMULATIONS["paper"])):
+        for seq, build in enumerate(experience_batches(batch, batch_size, formulation)):
             build(Header(actor_id="bench", incarnation=1, seq=seq, policy_version=1))
         message_s += time.perf_counter() - built
         slice_s += built - start

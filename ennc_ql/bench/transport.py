@@ -297,19 +297,15 @@ def transport_table(out: dict[str, Any]) -> str:
 
 
 def add_bench_transport_args(parser: argparse.ArgumentParser) -> None:
-    """The ``bench transport`` flags (its measuring time per phase is the bench command's ``--seconds``)."""
-    parser.add_argument("--actors", type=positive(int), default=2, help="transport: publisher processes (default 2)")
-    parser.add_argument(
-        "--batch-size", type=positive(int), default=16384, help="transport: tuples per batch (default 16384)"
-    )
+    """The ``bench transport`` flags, besides its measuring time per phase (``--seconds``)."""
+    parser.add_argument("--actors", type=positive(int), default=2, help="publisher processes")
+    parser.add_argument("--batch-size", type=positive(int), default=16384, help="tuples per batch")
     parser.add_argument(
         "--shared-memory",
         action=argparse.BooleanOptionalAction,
         default=False,
-        help="transport: let zenoh use shared memory, as between processes of one host (default: off, as across hosts)",
+        help="let zenoh use shared memory, as between processes of one host (default: off, as across hosts)",
     )
     parser.add_argument(
-        "--secure",
-        action="store_true",
-        help="transport: mutual TLS and password authentication on every link, as in a secure run",
+        "--secure", action="store_true", help="mutual TLS and password authentication on every link, as a secure run"
     )

@@ -28,8 +28,9 @@ from ennc_ql.chaos.options import (
 )
 from ennc_ql.chaos.run import Chaos
 from ennc_ql.cluster import SET_BY_UP, UP_PRESETS, UpConfig
-from ennc_ql.command import configure, fail, writable_dir
+from ennc_ql.command import configure, fail, registry_choices, writable_dir
 from ennc_ql.config import add_config_flags, positive
+from ennc_ql.parser import CommandHelp, add_command
 from protocol import check_id
 
 LEARNER_EXTRA_S = 3600.0
@@ -85,25 +86,41 @@ def without_unavailable_network(options: ChaosOptions) -> tuple[ChaosOptions, di
     return dataclasses.replace(options, faults=rest), dict.fromkeys(wanted, reason)
 
 
-def add_chaos_parser(sub: Any) -> None:
-    from ennc_ql import chaos  # the package's docstring: the command's usage and fault table (imported by now)
+HELP = CommandHelp(
+    "chaos",
+    "the fault suite: a real cluster trains under injected faults, then the reliability contract is checked",
+    "Starts a router, the learner and the actors as real processes (secure by default: mutual TLS, a password "
+    "per process and access control; --no-secure for plain TCP) and, once the first policy is checkpointed, "
+    "injects one fault every --fault-interval seconds in rotation: the learner killed just after a checkpoint "
+    "and resumed, the router restarted, an actor stopped past the Zenoh lease, an actor killed and restarted, a "
+    "poisoned batch, batches spoofing another actor, a peer without a password, a peer with another CA's "
+    "certificate, a 160 MiB message, and (in network namespaces it creates, as root) a partition, delay and loss "
+    "on an actor's link. It then checks the reliability contract from the figures of different "
+    "processes (exactly-once storage, every acknowledged visit in the final tables, versions strictly increasing "
+    "across restarts, the poisoned stream flowing on, nothing stored from hostile peers, bounded memory), prints "
+    "them and exits 1 if a check fails. RUN/chaos.json holds what --json prints.",
+    (
+        ("ennc-ql chaos", "120 s, secure, every fault, one every 20 s"),
+        ("ennc-ql chaos --no-secure --duration 90", "plain TCP (the two TLS faults do not apply)"),
+        ("ennc-ql chaos --soak 30m", "a long run at full load, memory sampled every minute"),
+    ),
+    "--duration (120 s, at least one round of faults) plus start-up and the drain",
+)
 
-    p = sub.add_parser(
-        "chaos",
-        help="the fault suite: a real cluster trains under injected faults, then the reliability contract is checked",
-        description=(chaos.__doc__ or "").split("\n\n")[0],
-    )
+
+def add_chaos_parser(sub: Any) -> None:
+    p = add_command(sub, HELP)
     p.add_argument(
         "--duration",
         dest="chaos_duration",
         type=positive(float),
         metavar="SECONDS",
-        help=f"run length from the cluster's start (default {DEFAULT_DURATION_S:.0f}; one round of faults at least)",
+        help=f"run length from the cluster's start (default: {DEFAULT_DURATION_S:.0f}; one round of faults at least)",
     )
     p.add_argument(
         "--soak",
         metavar="DURATION",
-        help=f"a long run, e.g. 90s, 30m, 2h (sets the duration; RSS every {SOAK_RSS_INTERVAL_S:.0f} s)",
+        help=f"a long run, e.g. 90s, 30m, 2h (sets the duration; RSS every {SOAK_RSS_INTERVAL_S:.0f} s; default: none)",
     )
     p.add_argument(
         "--secure",
@@ -116,24 +133,29 @@ def add_chaos_parser(sub: Any) -> None:
         type=positive(float),
         default=DEFAULT_FAULT_INTERVAL_S,
         metavar="SECONDS",
-        help=f"seconds between fault starts (default {DEFAULT_FAULT_INTERVAL_S:.0f})",
+        help=f"seconds between fault starts (default: {DEFAULT_FAULT_INTERVAL_S:.0f})",
     )
-    p.add_argument("--faults", metavar="NAME,...", help=f"faults in rotation (default all: {', '.join(FAULTS)})")
+    p.add_argument("--faults", metavar="NAME,...", help=f"faults in rotation (default: all of {', '.join(FAULTS)})")
     p.add_argument(
         "--rss-interval",
         type=positive(float),
         metavar="SECONDS",
         help="seconds between RSS samples "
-        f"(default {DEFAULT_RSS_INTERVAL_S:.0f}, {SOAK_RSS_INTERVAL_S:.0f} with --soak)",
+        f"(default: {DEFAULT_RSS_INTERVAL_S:.0f}, {SOAK_RSS_INTERVAL_S:.0f} with --soak)",
     )
-    p.add_argument("--runs", type=Path, default=Path("runs"), help="parent folder of the run folder (default runs/)")
-    p.add_argument("--run-id", help="run folder name (default chaos-<timestamp>)")
-    p.add_argument("--config", metavar="FILE", help="TOML file of the cluster's configuration (e.g. a run's up.toml)")
+    p.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR", help="parent folder of the run folder")
+    p.add_argument("--run-id", metavar="ID", help="run folder name (default: chaos-<start time>)")
+    p.add_argument(
+        "--config",
+        metavar="FILE",
+        help="TOML file of the cluster's configuration, e.g. a run's up.toml (default: none)",
+    )
     p.add_argument("--json", action="store_true", help="print the figures and checks as one JSON object")
     add_config_flags(
         p.add_argument_group("cluster configuration (ennc_ql.cluster.UpConfig)"),
         UpConfig,
         exclude=(*SET_BY_UP, "duration"),
         defaults=UP_PRESETS,
+        choices=registry_choices(),
     )
     p.set_defaults(func=cmd_chaos)

@@ -43,6 +43,7 @@ class UpConfig:
 
     def __post_init__(self) -> None:
         require_at_least(1, actors=self.actors)
+        require_at_least(0, seed=self.seed)
         require_positive(duration=self.duration)
         require_known("formulation", self.formulation, FORMULATIONS)
         parts = [

@@ -29,11 +29,12 @@ import numpy as np
 
 from algorithm.experiments import METHODS, Budget, Outcome
 from algorithm.policy import LostBehaviour
-from ennc_ql.command import emit, fail
+from ennc_ql.command import check_folder, emit, fail
 from ennc_ql.config import ConfigError, parse_setting, positive, replace_setting
 from ennc_ql.experiments.jobs import Job, JobsBar, learn
 from ennc_ql.experiments.reproduce import PAPER
 from ennc_ql.experiments.results import write_results
+from ennc_ql.parser import CommandHelp, add_command
 from ennc_ql.progress import ProgressBar
 from monitor.style import REFERENCES as STYLES
 from sim import FEATURIZERS, HAND_MADE, ScenarioConfig, evaluate
@@ -72,9 +73,9 @@ class Setup:
         if self.actions is not None and self.actions not in ACTION_SETS:
             raise ConfigError(f"actions {self.actions!r}: known: {', '.join(ACTION_SETS)}")
         if self.featurizer is not None and self.featurizer not in FEATURIZERS:
-            raise ConfigError(f"featurizer {self.featurizer!r}: known: {', '.join(FEATURIZERS)}")
+            raise ConfigError(f"unknown {self.featurizer!r}; known: {', '.join(FEATURIZERS)}")
         if self.reward is not None and self.reward not in REWARD_NAMES:
-            raise ConfigError(f"reward {self.reward!r}: known: {', '.join(REWARD_NAMES)}")
+            raise ConfigError(f"unknown {self.reward!r}; known: {', '.join(REWARD_NAMES)}")
         if self.act_every is not None and self.act_every < 1:
             raise ConfigError(f"act_every must be at least 1, got {self.act_every}")
 
@@ -259,35 +260,55 @@ def chart(report: dict[str, Any]) -> Figure:
     return fig
 
 
+HELP = CommandHelp(
+    "ablate",
+    "one learned method under parameter overrides (a sweep), K learning processes per variant, the same tests",
+    "Runs one learned method under overrides of any field of its setup, named by dotted path: the budget "
+    "(budget.phase2.alpha, budget.phase1.max_classes, ...), the scenario (scenario.action_steps, ...), the "
+    "test-time rule of a robot that sees no target (lost_behaviour) and the formulation (featurizer, reward, "
+    "act_every). Several values sweep a key and several --set sweep their product; every variant runs --processes "
+    "learning processes, each tested on the same seeded trials, and each row carries A-CMOMMT and the "
+    "state-limited force laws on those trials. Writes results.md, results.json, ablation.png and every policy file "
+    "into --out.",
+    (
+        ("ennc-ql ablate ennc-ql-collab-option2 --set budget.phase2.alpha=0.05,0.1 --quick", "two step sizes"),
+        ("ennc-ql ablate ennc-ql-collab-option2 --set featurizer=collab6d,shared8d --jobs 2", "two states"),
+    ),
+    "about 20 s per learning process with --quick, about 3 min at the full budget (2 cores; reproduce's timings), "
+    "times variants x --processes / --jobs",
+)
+
+
 def add_ablate_parser(sub: Any) -> None:
-    p = sub.add_parser(
-        "ablate", help="one method under parameter overrides (a sweep), K learning processes per variant, same tests"
-    )
-    p.add_argument("method", choices=list(METHODS), help="the learned method")
+    p = add_command(sub, HELP)
+    p.add_argument("method", choices=list(METHODS), metavar="METHOD", help=f"the learned method: {', '.join(METHODS)}")
     p.add_argument(
         "--set",
         action="append",
         default=[],
         metavar="KEY=V1[,V2...]",
         help="override a field of the setup by dotted path (budget.phase2.alpha, budget.phase1.max_classes, "
-        "scenario.action_steps, lost_behaviour, ...); several values sweep it, several --set sweep their product",
+        "scenario.action_steps, lost_behaviour, ...); several values sweep it, several --set sweep their product "
+        "(default: none, the method as configured)",
     )
-    p.add_argument("--processes", type=positive(int), default=3, help="learning processes per variant (default 3)")
-    p.add_argument("--jobs", type=positive(int), default=1, help="learning processes run at once (default 1)")
+    p.add_argument("--processes", type=positive(int), default=3, help="learning processes per variant")
+    p.add_argument("--jobs", type=positive(int), default=1, help="learning processes run at once")
     p.add_argument("--quick", action="store_true", help="reproduce's reduced budget as the base")
-    p.add_argument("--out", help="output folder (default runs/ablate-METHOD)")
+    p.add_argument("--out", type=Path, metavar="DIR", help="output folder (default: runs/ablate-METHOD)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_ablate)
 
 
 def cmd_ablate(args: argparse.Namespace) -> int:
-    out_dir = Path(args.out) if args.out else Path("runs") / f"ablate-{args.method}"
+    out_dir = args.out or Path("runs") / f"ablate-{args.method}"
     try:
         sweep = parse_sets(args.set)
         base = Setup(budget=Budget.quick() if args.quick else Budget())
-        report = ablate(args.method, sweep, base, args.processes, out_dir, jobs=args.jobs)
+        variants(base, sweep)  # every combination checked before the first process starts
     except ConfigError as exc:
         fail("ablate", str(exc))
+    check_folder(out_dir, "ablate", "--out")
+    report = ablate(args.method, sweep, base, args.processes, out_dir, jobs=args.jobs)
     report["output"] = str(out_dir)
     emit(
         report, args.json, markdown_table(report) + f"\nwritten to {out_dir}/ (results.md, results.json, ablation.png)"

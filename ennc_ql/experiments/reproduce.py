@@ -19,10 +19,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from algorithm.experiments import METHODS, Budget, Outcome
-from ennc_ql.command import emit
+from ennc_ql.command import check_folder, emit
 from ennc_ql.config import positive
 from ennc_ql.experiments.jobs import Job, JobsBar, learn
 from ennc_ql.experiments.results import write_results
+from ennc_ql.parser import CommandHelp, add_command
 from ennc_ql.progress import ProgressBar
 from sim import HAND_MADE, EvalResult, ScenarioConfig, evaluate, scenario
 
@@ -190,14 +191,41 @@ def method_names() -> list[str]:
     return [*HAND_MADE_ORDER, *(m for m in METHODS if m in PAPER)]
 
 
+HELP = CommandHelp(
+    "reproduce",
+    "the paper's Figures 5 and 6: every method, 5 learning processes each, tables and a bar chart",
+    "Runs random, local, A-CMOMMT and every learning method of the paper's Figure 5 (VQQL with 16 to 2048 "
+    "codewords, local ENNC-QL, collaborative ENNC-QL options 1 and 2), 5 independent learning processes each, "
+    "every process tested on the same 10 seeded 1000-step trials with 10 robots; writes results.md, results.json, "
+    "figure5.png and every learned policy file into --out. --quick runs one process per method with a smaller "
+    "budget.",
+    (
+        ("ennc-ql reproduce --quick", "a first look: one process per method, smaller budget"),
+        ("ennc-ql reproduce --jobs 2", "the full run, two learning processes at a time"),
+        ("ennc-ql reproduce --methods a-cmommt ennc-ql-collab-option2", "two methods only"),
+    ),
+    "--quick about 3 min; the full run about 1 h with --jobs 2 (2 cores)",
+)
+
+
 def add_reproduce_parser(sub: Any) -> None:
-    p = sub.add_parser("reproduce", help="the paper's Figure 5 and 6: every method, tables and a bar chart")
+    p = add_command(sub, HELP)
     p.add_argument("--quick", action="store_true", help="reduced budget: 1 process per method, shorter learning")
-    p.add_argument("--processes", type=positive(int), help="learning processes per method (default 5, quick 1)")
+    p.add_argument(
+        "--processes", type=positive(int), help="learning processes per method (default: 5, or 1 with --quick)"
+    )
     names = method_names()
-    p.add_argument("--methods", nargs="+", choices=names, metavar="METHOD", help=f"run only these: {', '.join(names)}")
-    p.add_argument("--out", help="output folder (default runs/reproduce[-quick])")
-    p.add_argument("--jobs", type=positive(int), default=1, help="learning processes run at once (default 1)")
+    p.add_argument(
+        "--methods",
+        nargs="+",
+        choices=names,
+        metavar="METHOD",
+        help=f"run only these (default: all): {', '.join(names)}",
+    )
+    p.add_argument(
+        "--out", type=Path, metavar="DIR", help="output folder (default: runs/reproduce or runs/reproduce-quick)"
+    )
+    p.add_argument("--jobs", type=positive(int), default=1, help="learning processes run at once")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_reproduce)
 
@@ -205,7 +233,8 @@ def add_reproduce_parser(sub: Any) -> None:
 def cmd_reproduce(args: argparse.Namespace) -> int:
     budget = Budget.quick() if args.quick else Budget()
     processes = args.processes or (1 if args.quick else 5)
-    out_dir = Path(args.out) if args.out else Path("runs") / ("reproduce-quick" if args.quick else "reproduce")
+    out_dir = args.out or Path("runs") / ("reproduce-quick" if args.quick else "reproduce")
+    check_folder(out_dir, "reproduce", "--out")
     report = reproduce(budget, processes, out_dir, methods=args.methods or None, jobs=args.jobs)
     report["output"] = str(out_dir)
     table = markdown_table(report) + f"\nwritten to {out_dir}/ (results.md, results.json, figure5.png)"

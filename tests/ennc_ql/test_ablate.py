@@ -27,8 +27,8 @@ from sim import HAND_MADE, evaluate, scenario
         (["--set", "budget.phase2.alpha=2"], "budget.phase2.alpha: alpha must lie in (0, 1], got 2.0"),
         (["--set", "lost_behaviour=fly"], "invalid choice: 'fly'"),
         (["--set", "scenario.action_steps=3", "--set", "scenario.action_steps=5"], "given twice"),
-        (["--set", "featurizer=pixels"], "featurizer 'pixels': known: local2d, collab6d, shared8d"),
-        (["--set", "reward=money"], "reward 'money': known: paper, observed, eq2, difference"),
+        (["--set", "featurizer=pixels"], "featurizer: unknown 'pixels'; known: local2d, collab6d, shared8d"),
+        (["--set", "reward=money"], "reward: unknown 'money'; known: paper, observed, eq2, difference"),
     ],
 )
 def test_bad_settings_are_one_line_errors(

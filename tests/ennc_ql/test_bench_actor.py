@@ -15,12 +15,15 @@ from ennc_ql.cli import main
 from sim import scenario
 
 
-@pytest.fixture
-def policy_file(tmp_path: Path) -> Path:
+@pytest.fixture(params=[("collab6d", "eq2", 6), ("shared8d", "difference", 8)], ids=["paper", "shared-difference"])
+def policy_file(tmp_path: Path, request: pytest.FixtureRequest) -> Path:
+    """A policy of each formulation: the slice acts and learns in the state the policy was learned in."""
+    featurizer, reward, dim = request.param
     cfg = scenario()
     rng = np.random.default_rng(0)
-    disc = Discretization.from_per_action([rng.uniform(-150, 150, (size, 6)) for size in (3, 5, 2, 7, 1, 4, 6, 2)])
-    policy = Policy("collab6d", disc, np.zeros((cfg.n_robots, disc.size), np.float32), np.arange(cfg.n_robots))
+    disc = Discretization.from_per_action([rng.uniform(-150, 150, (size, dim)) for size in (3, 5, 2, 7, 1, 4, 6, 2)])
+    tables = np.zeros((cfg.n_robots, disc.size), np.float32)
+    policy = Policy(featurizer, disc, tables, np.arange(cfg.n_robots), reward=reward)
     return save_policy(policy, cfg, tmp_path / "policy.npz")
 
 

@@ -1,4 +1,5 @@
-"""Run reports: ``report.md`` carries the run's figures, ``learning_curve.png`` is a real chart of the curve."""
+"""Run reports: the terminal summary and ``report.md`` open with the result beside the references the learner
+measured on the same trials and end with the next commands; ``learning_curve.png`` draws those references."""
 
 from __future__ import annotations
 
@@ -15,18 +16,27 @@ from actors.config import ActorConfig
 from ennc_ql.cli import build_parser
 from ennc_ql.cluster import UP_PRESETS, UpConfig, child_configs, write_configs
 from ennc_ql.config import ConfigError, load_config
-from ennc_ql.report import (
-    FINAL_REFERENCE,
-    HAND_MADE_COVERAGE,
-    learning_curve_figure,
-    results_table,
-    write_run_report,
-)
+from ennc_ql.report import learning_curve_figure, terminal_summary, write_run_report
 from learner.config import LearnerConfig
-from sim import HAND_MADE, evaluate, scenario
 from sim.features import DEFAULT_FORMULATION, FORMULATIONS
 
-CURVE_BLUE = (0x3B / 255, 0x7D / 255, 0xD8 / 255)
+# Levels no constant holds: the charts and tables must take them from the report.
+CURVE_REFERENCES = {
+    "random": 16.5,
+    "local": 55.25,
+    "a-cmommt": 66.75,
+    "a-cmommt-oracle": 71.5,
+    "force-6d": 63.0,
+    "force-6d-shared": 67.5,
+}
+FINAL_REFERENCES = {
+    "random": 16.75,
+    "local": 57.0,
+    "a-cmommt": 72.25,
+    "a-cmommt-oracle": 74.5,
+    "force-6d": 69.75,
+    "force-6d-shared": 71.0,
+}
 
 
 def run_report(run_dir: Path) -> dict[str, Any]:
@@ -43,6 +53,7 @@ def run_report(run_dir: Path) -> dict[str, Any]:
         "prototypes_per_action": [201, 188, 247, 230, 196, 215, 260, 221],
         "duplicates": 3,
         "gaps": 1,
+        "out_of_order": 12,
         "rejected": 2,
         "rejected_by_type": {"ExperienceBatch": 2},
         "increments": 412,
@@ -54,121 +65,143 @@ def run_report(run_dir: Path) -> dict[str, Any]:
         "final_eval_trials": 50,
         "eval_trials": 10,
         "coverage_curve": [[95.2, 48.5], [215.7, 57.125], [337.9, 60.4], [480.3, 61.234]],
+        "reference_coverage": CURVE_REFERENCES,
+        "final_reference_coverage": FINAL_REFERENCES,
         "policy_file": str(run_dir / "policy.npz"),
         "checkpoint": str(run_dir / "checkpoint.npz"),
         "seconds": 480.31,
         "run_id": "20260101-120000",
         "run_dir": str(run_dir),
-        "command": "ennc-ql up --actors 2 --duration 480",
-        "config": {"actors": 2, "duration": 480.0, "arenas": 500, "seed": 0},
+        "command": f"ennc-ql up --config {run_dir / 'up.toml'}",
+        "config": {"actors": 2, "duration": 480.0, "seed": 0, "formulation": "shared-difference"},
         "wall_seconds": 512.4,
+        "recording": {"path": str(run_dir / "recording.rrd")},
     }
 
 
-def blue_pixels(image: np.ndarray) -> int:
-    """Pixels of the learned curve's colour (its filled markers; the thin reference lines blend with white)."""
-    return int((np.abs(image[..., :3] - np.asarray(CURVE_BLUE)) < 0.02).all(axis=-1).sum())
+def dark_pixels(image: np.ndarray) -> int:
+    """Pixels of the learned curve's colour, black (text is anti-aliased grey at this size)."""
+    return int((image[..., :3] < 0.05).all(axis=-1).sum())
 
 
-def test_markdown_report_carries_the_figures(tmp_path: Path) -> None:
+def test_markdown_report_opens_with_the_result_beside_its_references(tmp_path: Path) -> None:
     report = run_report(tmp_path)
     markdown_path, png_path = write_run_report(report, tmp_path)
     assert (markdown_path, png_path) == (tmp_path / "report.md", tmp_path / "learning_curve.png")
-    text = markdown_path.read_text()
-    assert text.startswith("# ennc-ql run 20260101-120000\n")
-    assert "ennc-ql up --actors 2 --duration 480" in text
-    assert "| duration | 480 |" in text and "| arenas | 500 |" in text
-    assert "| tuples received | 2,457,600 |" in text
-    assert "| final coverage | 61.23 % |" in text
+    lines = markdown_path.read_text().splitlines()
+    assert lines[:3] == ["# ennc-ql run 20260101-120000", "", "## Result"]
+    assert lines[4].startswith("The learned policy observes **61.23 %** of the targets on 50 seeded test trials")
+    table = lines[lines.index("| policy | what it is | % of targets observed (50 trials) |") :][2:9]
+    assert table == [
+        "| **learned policy** | version 37, formulation shared-difference | **61.23** |",
+        "| A-CMOMMT | hand-made; reads only what its robots sense or are told | 72.25 |",
+        "| A-CMOMMT oracle (true positions) | hand-made; reads true target positions that no robot senses | 74.50 |",
+        "| force law, 6-D state + shared flags | A-CMOMMT's force law fed the 6-D state and the shared-observation "
+        "flags | 71.00 |",
+        "| force law on the 6-D state | A-CMOMMT's force law fed the paper's 6-D state | 69.75 |",
+        "| local | hand-made; attraction to the targets in view, no cooperation | 57.00 |",
+        "| random | a random compass move every 5 steps | 16.75 |",
+    ]
+    assert "![the learning curve beside the hand-made controllers' levels](learning_curve.png)" in lines
+
+
+def test_markdown_report_carries_the_figures_and_ends_with_the_next_commands(tmp_path: Path) -> None:
+    report = run_report(tmp_path)
+    text = write_run_report(report, tmp_path)[0].read_text()
+    assert "| duration | 480 |" in text and "| formulation | shared-difference |" in text
+    assert "| tuples received | 2,457,600 |" in text and "| final coverage | 61.23 % |" in text
     for row in ("| 95 | 48.50 |", "| 216 | 57.12 |", "| 338 | 60.40 |", "| 480 | 61.23 |"):
         assert row in text
+    assert "The hand-made controllers on the same 10 trials: A-CMOMMT 66.75 %, A-CMOMMT oracle" in text
     assert "| actor-0 | 1,228,800 | 50.0 % |" in text
     assert "5,120 tuples/s" in text and "2,057,600 overwritten" in text
-    assert "| duplicate batches | 3 |" in text and "| sequence gaps | 1 |" in text
+    assert "| duplicate batches | 3 |" in text and "| sequence gaps (never filled) | 1 |" in text
+    assert "| out-of-order arrivals (filled later unless counted as gaps) | 12 |" in text
     assert "| rejected by type | ExperienceBatch: 2 |" in text
     assert "| policy lag per actor (versions) | actor-0: 0, actor-1: 1 |" in text
     assert "| 201 | 188 | 247 | 230 | 196 | 215 | 260 | 221 |" in text and "mean 219.8" in text
-    assert f"`{tmp_path / 'policy.npz'}`" in text
-    assert "](learning_curve.png)" in text
-    assert "A-CMOMMT 68.26 %" in text and "on the final figure's 50 trials A-CMOMMT scores 73.07 %" in text
+    assert text.endswith(
+        "## Next\n\n```\n"
+        f"ennc-ql eval --policy {tmp_path / 'policy.npz'} --trials 50    # score the policy again (--seed 1: other "
+        "trials)\n"
+        f"rerun {tmp_path / 'recording.rrd'}    # open the recording in the Rerun viewer\n"
+        f"ennc-ql up --config {tmp_path / 'up.toml'}    # repeat the run exactly\n"
+        f"ennc-ql up --config {tmp_path / 'up.toml'} --duration 960    # train twice as long\n"
+        "```\n"
+    )
 
 
-def test_learning_curve_plots_the_curve_and_the_reference_levels(tmp_path: Path) -> None:
+def test_terminal_summary_opens_with_the_result_and_ends_with_what_comes_next(tmp_path: Path) -> None:
+    lines = terminal_summary({**run_report(tmp_path), "report_md": str(tmp_path / "report.md")}).splitlines()
+    assert lines[0] == (
+        "result: the learned policy observes 61.23 % of the targets (50 seeded test trials, formulation "
+        "shared-difference)"
+    )
+    assert lines[1] == (
+        "on the same trials: A-CMOMMT 72.25 %, A-CMOMMT oracle (true positions) 74.50 %, force law, 6-D state + "
+        "shared flags 71.00 %, force law on the 6-D state 69.75 %, local 57.00 %, random 16.75 %"
+    )
+    assert "coverage curve         95s: 48.5%, 216s: 57.1%, 338s: 60.4%, 480s: 61.2%" in lines
+    assert "duplicates / gaps      3 / 1" in lines
+    assert any(line.startswith(f"report: {tmp_path / 'report.md'}") for line in lines)
+    assert lines[-5] == "next:"
+    assert lines[-4].startswith(f"  ennc-ql eval --policy {tmp_path / 'policy.npz'} --trials 50")
+    assert lines[-3].startswith(f"  rerun {tmp_path / 'recording.rrd'} ")
+    assert lines[-1].startswith(f"  ennc-ql up --config {tmp_path / 'up.toml'} --duration 960 ")
+
+
+def test_learning_curve_is_titled_by_its_result_and_draws_the_measured_references(tmp_path: Path) -> None:
     report = run_report(tmp_path)
     ax = learning_curve_figure(report).axes[0]
-    lines = {line.get_label(): line for line in ax.get_lines()}
+    assert ax.get_title() == "the learned policy observes 61.2 % of the targets (formulation shared-difference)"
+    lines = {line.get_label(): line for line in ax.get_lines() if not line.get_label().startswith("_")}
     np.testing.assert_allclose(np.asarray(lines["learned policy"].get_xydata()), report["coverage_curve"])
-    assert set(lines) == {
-        "learned policy",
-        "random, hand-made (16.60 %)",
-        "local, hand-made (56.92 %)",
-        "force-6d-shared, hand-made (69.09 %)",
-        "A-CMOMMT, hand-made (68.26 %)",
-        "A-CMOMMT oracle, hand-made (72.14 %)",
-        "final policy (50 test trials)",
-        "A-CMOMMT, hand-made (50 test trials, 73.07 %)",
-    }
-    assert np.asarray(lines["A-CMOMMT, hand-made (68.26 %)"].get_ydata()).tolist() == [68.26, 68.26]
-    # The final figure is its own point, at the end of training.
-    assert lines["final policy (50 test trials)"].get_xydata().tolist() == [[report["seconds"], 61.234]]
-    assert lines["A-CMOMMT, hand-made (50 test trials, 73.07 %)"].get_xydata().tolist() == [[report["seconds"], 73.07]]
+    assert lines["final policy: 61.23 % (50 trials)"].get_xydata().tolist() == [[report["seconds"], 61.234]]
+    assert lines["A-CMOMMT: 66.8 %, 72.2 % ◆"].get_ydata() == [66.75, 66.75]
+    assert lines["A-CMOMMT oracle (true positions): 71.5 %, 74.5 % ◆"].get_ydata() == [71.5, 71.5]
+    assert len(lines) == 2 + len(CURVE_REFERENCES)
+    # The levels on the final trials are diamonds at the end of training, one per reference.
+    diamonds = sorted(line.get_ydata()[0] for line in ax.get_lines() if line.get_marker() == "D")
+    assert diamonds == sorted(FINAL_REFERENCES.values())
     assert ax.get_xlim()[1] >= 480.3 and ax.get_ylim() == (0, 100)
-
-
-def test_the_reference_levels_are_what_eval_measures() -> None:
-    names = {
-        "random": "random",
-        "local": "local",
-        "force-6d-shared": "force-6d-shared",
-        "A-CMOMMT": "a-cmommt",
-        "A-CMOMMT oracle": "a-cmommt-oracle",
-    }
-    for label, level in HAND_MADE_COVERAGE.items():
-        assert evaluate(scenario(), HAND_MADE[names[label]], 10, 1000, seed=0).coverage_mean == pytest.approx(
-            level, abs=0.005
-        )
-    name, trials, level = FINAL_REFERENCE
-    assert evaluate(scenario(), HAND_MADE[names[name]], trials, 1000, seed=0).coverage_mean == pytest.approx(
-        level, abs=0.005
-    )
 
 
 def test_learning_curve_png_is_an_image_of_the_chart(tmp_path: Path) -> None:
     _, png_path = write_run_report(run_report(tmp_path), tmp_path)
     image = imread(png_path)
-    assert image.shape == (495, 880, 4)  # 8 x 4.5 inches at 110 dpi
-    assert blue_pixels(image) > 200  # the learned policy's markers and line
+    assert image.shape == (480, 1000, 4)  # 10 x 4.8 inches at 100 dpi
+    assert dark_pixels(image) > 300  # the learned policy's markers, line and star
 
 
 def test_a_run_without_a_policy_still_gets_a_report(tmp_path: Path) -> None:
     report = run_report(tmp_path)
-    report.update(coverage_curve=[], final_coverage_mean=None, prototypes_per_action=[], policy_file=None)
+    report.update(
+        coverage_curve=[],
+        final_coverage_mean=None,
+        prototypes_per_action=[],
+        policy_file=None,
+        reference_coverage={},
+        final_reference_coverage={},
+    )
     markdown_path, png_path = write_run_report(report, tmp_path)
     text = markdown_path.read_text()
+    assert "## Result\n\nNo policy was learned (the first fit waits for --learner-min-tuples tuples).\n" in text
     assert "| final coverage | – |" in text and "No evaluation: no policy was learned" in text
-    assert "Prototypes per action" not in text
-    assert [line.get_label() for line in learning_curve_figure(report).axes[0].get_lines()] == [
-        f"{name}, hand-made ({level:.2f} %)" for name, level in HAND_MADE_COVERAGE.items()
-    ]
-    image = imread(png_path)
-    assert image.shape == (495, 880, 4) and blue_pixels(image) == 0
+    assert "Prototypes per action" not in text and "ennc-ql eval" not in text
+    assert learning_curve_figure(report).axes[0].get_lines() == []
+    assert imread(png_path).shape == (480, 1000, 4)
+    assert terminal_summary(report).splitlines()[0].startswith("result: no policy was learned")
 
 
 def test_the_learner_report_alone_is_enough(tmp_path: Path) -> None:
-    """The launcher's keys are optional: a learner run on its own can be reported too."""
+    """The launcher's keys are optional: a learner run on its own can be reported, and resumed."""
     report = run_report(tmp_path)
-    for key in ("run_id", "command", "config", "wall_seconds"):
+    for key in ("run_id", "command", "config", "wall_seconds", "recording"):
         del report[key]
     text = write_run_report(report, tmp_path)[0].read_text()
     assert text.startswith(f"# ennc-ql run {tmp_path.name}\n")
     assert "## Configuration" not in text and "| tuples received | 2,457,600 |" in text
-
-
-def test_results_table_lists_the_figures(tmp_path: Path) -> None:
-    lines = results_table(run_report(tmp_path)).splitlines()
-    assert lines[0].split() == ["run", "folder", str(tmp_path)]
-    assert "coverage curve         95s: 48.5%, 216s: 57.1%, 338s: 60.4%, 480s: 61.2%" in lines
-    assert "duplicates / gaps      3 / 1" in lines
+    assert f"ennc-ql learner --run-dir {tmp_path} --resume ...    # continue from the checkpoint" in text
 
 
 def test_up_writes_every_process_configuration_and_they_load_back(tmp_path: Path) -> None:
@@ -212,5 +245,6 @@ def test_up_writes_every_process_configuration_and_they_load_back(tmp_path: Path
     (tmp_path / "mixed.toml").write_text('formulation = "paper"\n[learner]\nreward = "difference"\n')
     with pytest.raises(ConfigError, match=r"learner.reward: up gives every process the formulation it names"):
         load_config(UpConfig, file=tmp_path / "mixed.toml")
+    (tmp_path / "best.toml").write_text('formulation = "best"\n')
     with pytest.raises(ConfigError, match="formulation: unknown 'best'"):
-        load_config(UpConfig, args=build_parser().parse_args(["up", "--formulation", "best"]), defaults=UP_PRESETS)
+        load_config(UpConfig, file=tmp_path / "best.toml")

@@ -60,10 +60,15 @@ def test_eval_runs_a_saved_policy_file(tmp_path: Path, capsys: pytest.CaptureFix
     assert out["coverage_per_trial"] == pytest.approx(report["methods"][0]["coverage_per_trial"][0], abs=1e-3)
 
 
-def test_eval_names_a_bad_policy_file(tmp_path: Path) -> None:
+def test_eval_names_a_bad_policy_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     bad = tmp_path / "bad.npz"
     bad.write_bytes(b"nope")
-    with pytest.raises(SystemExit, match="not a readable policy file"):
-        main(["eval", "--policy", str(bad)])
-    with pytest.raises(SystemExit, match="neither a hand-made policy"):
-        main(["eval", "--policy", str(tmp_path / "missing.npz")])
+    for policy, message in (
+        (bad, "not a policy file (not an .npz archive of plain arrays)"),
+        (tmp_path / "missing.npz", "neither a hand-made controller (random, local, a-cmommt, "),
+    ):
+        with pytest.raises(SystemExit) as exc:
+            main(["eval", "--policy", str(policy)])
+        err = capsys.readouterr().err
+        assert exc.value.code == 2 and err.count("\n") == 1
+        assert err.startswith(f"ennc-ql eval: error: --policy {policy}: {message}")

@@ -17,7 +17,7 @@ from ennc_ql.cli import main
 @pytest.mark.parametrize(
     ("flags", "message"),
     [
-        (["--actors", "0"], "--actors must be at least 1, got 0"),
+        (["--actors", "0"], "--actors: expected a positive integer, got '0'"),
         (["--namespace", "a b"], "namespace chunk"),
     ],
 )
@@ -30,8 +30,9 @@ def test_bad_flags_are_one_line_errors(flags: list[str], message: str, tmp_path:
     )
     assert out.returncode == 2
     lines = out.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("ennc-ql secure init: error:") and message in lines[0]
-    assert not (tmp_path / "s" / "ca.key").exists()
+    assert len(lines) <= 2 and lines[0].startswith("ennc-ql secure init: error:") and message in lines[0]
+    assert lines[1:] in ([], ["usage: ennc-ql secure init [OPTIONS] DIR  (all options: ennc-ql secure init --help)"])
+    assert not (tmp_path / "s").exists()
 
 
 def test_a_second_run_keeps_the_ca_and_replaces_keys_and_passwords(tmp_path: Path) -> None:
@@ -77,5 +78,4 @@ def test_a_configuration_the_process_cannot_read_is_a_one_line_error_naming_it(a
     )
     assert out.returncode == 2
     lines = out.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith(f"ennc-ql {argv[0]}: error: zenoh configuration:"), out.stderr
-    assert str(missing) in lines[0] and "No such file or directory" in lines[0]
+    assert len(lines) == 1 and lines[0] == f"ennc-ql {argv[0]}: error: --zenoh-config {missing}: no such file", out.stderr

@@ -1,0 +1,184 @@
+"""The argparse machinery of every ``ennc-ql`` command: one error contract, and help pages that teach.
+
+The contract (after clap, as in ``rerun`` and ``zenohd``): bad input is one line on stderr, ``ennc-ql <command>:
+error: <what is wrong>``, then at most one line of short usage, and exit status 2, before anything starts. The
+command that was given answers for its own flags (an unknown flag of ``up`` is ``up``'s error, with the closest
+flag it has), and argparse's own wording is turned into the same style. A command's help page carries a description,
+two examples and its typical run time (:class:`CommandHelp`). Usage::
+
+    parser = CommandParser(prog="ennc-ql")
+    sub = add_commands(parser, dest="command")
+    p = add_command(sub, CommandHelp("eval", "score a policy", "Scores ...", (("ennc-ql eval", "A-CMOMMT"),), "1 s"))
+"""
+
+from __future__ import annotations
+
+import argparse
+import difflib
+import re
+import shutil
+import sys
+import textwrap
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, NoReturn
+
+PROG = "ennc-ql"
+
+_ROLE = re.compile(r":[a-z]+:`~?([^`]+)`")  # :mod:`x`, :class:`~x.Y`
+
+
+def plain(text: str) -> str:
+    """``text`` without reStructuredText markup, for the terminal: ``:mod:`x``` and ````x```` become ``x``.
+
+    >>> plain("see :mod:`protocol.security` and ``ennc-ql up``")
+    'see protocol.security and ennc-ql up'
+    """
+    return _ROLE.sub(r"\1", text).replace("``", "")
+
+
+def wrap(text: str) -> str:
+    """Paragraphs (blank-line separated) wrapped to the terminal, at most 100 columns, as argparse wraps help."""
+    width = min(shutil.get_terminal_size().columns, 102) - 2
+    return "\n\n".join(textwrap.fill(" ".join(p.split()), width) for p in text.split("\n\n"))
+
+
+def suggestion(word: str, known: Sequence[str]) -> str:
+    """``"; did you mean 'x'?"`` for the closest of ``known``, or nothing.
+
+    >>> suggestion("--durtion", ["--duration", "--seed"])
+    "; did you mean '--duration'?"
+    """
+    close = difflib.get_close_matches(word, list(known), n=1, cutoff=0.6)
+    return f"; did you mean {close[0]!r}?" if close else ""
+
+
+@dataclass(frozen=True, slots=True)
+class CommandHelp:
+    """What a command's help page teaches besides its flags."""
+
+    name: str
+    summary: str
+    """One line, in the list of commands."""
+    description: str
+    """What it does and what it writes, a paragraph or two."""
+    examples: tuple[tuple[str, str], ...]
+    """(command line, what it does), two or more."""
+    runtime: str
+    """How long it typically takes, measured or derived from its defaults (the README's table of commands)."""
+
+    def epilog(self) -> str:
+        width = max(len(line) for line, _ in self.examples)
+        lines = [f"  {line:<{width}}  # {what}" for line, what in self.examples]
+        return "examples:\n" + "\n".join(lines) + f"\n\ntypical run time: {self.runtime}"
+
+
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Descriptions and examples as written; each flag's default appended where its help does not state it."""
+
+    def __init__(self, prog: str) -> None:
+        super().__init__(prog, max_help_position=32)
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        default = action.default
+        empty = isinstance(default, str | list | tuple) and not default
+        unset = default is None or default is False or default == argparse.SUPPRESS
+        if "default" in text or empty or unset or not action.option_strings:
+            return text
+        if isinstance(default, list | tuple):
+            default = " ".join(str(v) for v in default)
+        return f"{text} (default: {str(default).replace('%', '%%')})"
+
+
+class CommandParser(argparse.ArgumentParser):
+    """An ArgumentParser whose errors follow the contract above; subcommand parsers are of the same class."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("formatter_class", HelpFormatter)
+        # Abbreviated flags would make a typo of one flag silently another (--learner-min and --learner-min-tuples).
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
+
+    def parse_known_args(  # type: ignore[override]
+        self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None
+    ) -> tuple[argparse.Namespace, list[str]]:
+        parsed, extras = super().parse_known_args(args, namespace)
+        if extras and self._subparsers is None:
+            # A command without subcommands answers for words it does not know; argparse would leave them to the
+            # top-level parser, which knows neither the command nor its flags.
+            self.error(self._unrecognized(extras))
+        return parsed, extras
+
+    def error(self, message: str) -> NoReturn:
+        sys.stderr.write(f"{self.prog}: error: {self._reword(message)}\n{self.short_usage()}\n")
+        raise SystemExit(2)
+
+    def format_help(self) -> str:
+        # The generated usage of a command with 60 flags is a block of 40 lines; they are listed below it anyway.
+        if self.usage is None:
+            self.usage = self._synopsis()
+        return super().format_help()
+
+    def short_usage(self) -> str:
+        """One line: the command, ``[OPTIONS]`` and its positional arguments, and where the full list is."""
+        return f"usage: {self._synopsis()}  (all options: {self.prog} --help)"
+
+    def _synopsis(self) -> str:
+        words = [self.prog, "[OPTIONS]"]
+        for action in self._actions:
+            if action.option_strings or action.help == argparse.SUPPRESS:
+                continue
+            if isinstance(action, argparse._SubParsersAction):
+                words.append("COMMAND")
+            else:
+                name = action.metavar if isinstance(action.metavar, str) else action.dest.upper()
+                words.append(f"{name} ..." if action.nargs in ("+", "*") else name)
+        return " ".join(words)
+
+    def _commands(self) -> list[str]:
+        action = next(a for a in self._actions if isinstance(a, argparse._SubParsersAction))
+        return list(action.choices)
+
+    def _unrecognized(self, extras: Sequence[str]) -> str:
+        word = extras[0]
+        if word.startswith("-"):
+            flag = word.split("=", 1)[0]
+            return f"unknown option {flag!r}{suggestion(flag, list(self._option_string_actions))}"
+        if self._subparsers is not None:
+            return f"unknown command {word!r}{suggestion(word, self._commands())}"
+        return f"unexpected argument {word!r}"
+
+    def _reword(self, message: str) -> str:
+        """argparse's wording in the contract's: flags named first, choices with the closest one."""
+        if message.startswith("unrecognized arguments: "):
+            return self._unrecognized(message.removeprefix("unrecognized arguments: ").split())
+        if message.startswith("the following arguments are required: "):
+            missing = message.removeprefix("the following arguments are required: ")
+            if self._subparsers is not None and missing.split(", ")[0] == "COMMAND":
+                return f"which command? one of {', '.join(self._commands())}"
+            return f"missing {missing}"
+        choice = re.fullmatch(r"argument (\S+?): invalid choice: '(.*)' \(choose from (.*)\)", message, re.DOTALL)
+        if choice:
+            name, value, listed = choice.groups()
+            known = [c.strip("'") for c in listed.split(", ")]
+            if name == "COMMAND":
+                return f"unknown command {value!r}{suggestion(value, known)} (one of {', '.join(known)})"
+            return f"{name}: unknown value {value!r}{suggestion(value, known)} (one of {', '.join(known)})"
+        message = re.sub(r"^argument (\S+): ", r"\1: ", message)
+        return message.replace("expected one argument", "needs a value")
+
+
+def add_commands(parser: argparse.ArgumentParser, dest: str, title: str = "commands") -> Any:
+    """The subcommand list of ``parser`` (its subparsers action), required and named COMMAND in messages; the
+    name given is stored as ``dest``."""
+    return parser.add_subparsers(dest=dest, metavar="COMMAND", title=title, required=True)
+
+
+def add_command(sub: Any, info: CommandHelp) -> CommandParser:
+    """A command's parser on ``sub`` (from :func:`add_commands`), with its description, examples and run time."""
+    parser: CommandParser = sub.add_parser(
+        info.name, help=info.summary, description=wrap(plain(info.description)), epilog=info.epilog()
+    )
+    parser.set_defaults(prog=parser.prog)  # the name errors are reported under, for main's last-resort message
+    return parser

@@ -1,0 +1,107 @@
+"""Help that teaches: every command's page has a description, two examples and its typical run time; every flag
+has help text and its default; values that come from a registry are offered as choices; no markup leaks."""
+
+from __future__ import annotations
+
+import argparse
+import re
+import subprocess
+import sys
+from collections.abc import Iterator
+from importlib.metadata import version
+from pathlib import Path
+
+import pytest
+
+from ennc_ql.cli import build_parser
+from sim import FEATURIZERS
+from sim.features import FORMULATIONS, REWARD_NAMES
+
+ENNC_QL = Path(sys.executable).with_name("ennc-ql")
+
+
+def commands(parser: argparse.ArgumentParser) -> Iterator[argparse.ArgumentParser]:
+    """Every command's parser under ``parser``, subcommands included."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for child in action.choices.values():
+                yield child
+                yield from commands(child)
+
+
+def options(parser: argparse.ArgumentParser) -> Iterator[argparse.Action]:
+    for action in parser._actions:
+        if not isinstance(action, argparse._HelpAction | argparse._VersionAction | argparse._SubParsersAction):
+            yield action
+
+
+PARSERS = {p.prog: p for p in commands(build_parser())}
+
+
+def test_every_command_is_listed() -> None:
+    assert set(PARSERS) == {
+        *(f"ennc-ql {name}" for name in ("eval", "up", "learner", "actor", "router", "chaos", "reproduce", "ablate")),
+        "ennc-ql secure",
+        "ennc-ql secure init",
+        "ennc-ql bench",
+        *(f"ennc-ql bench {name}" for name in ("sim", "ennc", "transport", "actor", "broadcast", "phase1")),
+    }
+
+
+@pytest.mark.parametrize("prog", sorted(PARSERS))
+def test_every_help_page_has_a_description_two_examples_and_a_run_time(prog: str) -> None:
+    text = PARSERS[prog].format_help()
+    assert text.startswith(f"usage: {prog} [OPTIONS]")
+    description = text.split("\n\n")[1]
+    assert len(description.split()) >= 12, description
+    examples = text.split("examples:\n")[1].split("\n\n")[0].splitlines()
+    assert len(examples) >= 2 and all(line.startswith("  ennc-ql ") and "  # " in line for line in examples)
+    assert re.search(r"\ntypical run time: \S.*\n$", text), text[-300:]
+    for leak in ("``", ":mod:", ":class:", ":data:", ":func:"):
+        assert leak not in text
+
+
+@pytest.mark.parametrize("prog", sorted(PARSERS))
+def test_every_flag_has_help_text_and_its_default(prog: str) -> None:
+    parser = PARSERS[prog]
+    formatter = parser._get_formatter()
+    for action in options(parser):
+        text = formatter._get_help_string(action) or ""
+        name = "/".join(action.option_strings) or action.dest
+        # Something besides the default: what the flag is for.
+        assert re.sub(r"\((default: [^)]*|required)\)", "", text).strip(), f"{prog} {name} has no help"
+        if action.option_strings and action.nargs != 0:  # a flag that takes a value says what it is without one
+            assert "default" in text or "required" in text, f"{prog} {name}: {text!r}"
+
+
+@pytest.mark.parametrize(
+    ("prog", "flag", "names"),
+    [
+        ("ennc-ql up", "--formulation", FORMULATIONS),
+        ("ennc-ql learner", "--formulation", FORMULATIONS),
+        ("ennc-ql learner", "--featurizer", FEATURIZERS),
+        ("ennc-ql actor", "--featurizer", FEATURIZERS),
+        ("ennc-ql actor", "--reward", REWARD_NAMES),
+        ("ennc-ql chaos", "--formulation", FORMULATIONS),
+    ],
+)
+def test_registry_values_are_offered_as_choices(prog: str, flag: str, names: object) -> None:
+    action = PARSERS[prog]._option_string_actions[flag]
+    assert isinstance(action.metavar, str)
+    offered = action.metavar.removesuffix("|none").strip("{}").split(",")
+    assert offered == list(names)  # type: ignore[call-overload]
+
+
+def test_a_flag_says_its_table_once() -> None:
+    up = PARSERS["ennc-ql up"]._option_string_actions
+    assert "--learner-id" in up and "--learner-learner-id" not in up
+    assert up["--learner-id"].dest == "learner.learner_id"
+
+
+def test_version_and_top_level_help() -> None:
+    out = subprocess.run([str(ENNC_QL), "--version"], capture_output=True, text=True, timeout=60, check=True)
+    assert out.stdout == f"ennc-ql {version('ennc-ql')}\n"
+    text = build_parser().format_help()
+    assert "first steps:\n  ennc-ql eval --policy a-cmommt" in text
+    for name in ("eval", "up", "learner", "actor", "router", "secure", "chaos", "reproduce", "ablate", "bench"):
+        assert re.search(rf"\n    {name} +\S", text), name
