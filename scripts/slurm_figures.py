@@ -19,16 +19,27 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from ennc_ql.cluster import ennc_ql_argv  # noqa: E402
-from tests.e2e.slurm import LocalSlurm  # noqa: E402
-from tests.e2e.test_cluster import checkpoint_version  # noqa: E402
+from ennc_ql.cluster import ennc_ql_argv
+from tests.e2e.slurm import LocalSlurm
+from tests.e2e.test_cluster import checkpoint_version
 
-SMALL = ["--actors=2", "--actor-arenas=100", "--learner-min-tuples=50000", "--learner-eval-interval=1000"]
+SMALL = [
+    "--actors=2",
+    "--actor-arenas=100",
+    "--learner-min-tuples=50000",
+    "--learner-phase1-n-cycles=50",
+    "--learner-phase1-max-patterns=5000",
+    "--learner-eval-interval=1000",
+]
+"""2 actors x 100 arenas; the first fit (two iterations, 50 ENNC cycles on at most 5 000 tuples per action) once
+50 000 tuples are in."""
+TIMEOUT_S = 300.0
 SWEEP = [
     "ablate",
     "ennc-ql-collab-option2",
@@ -51,16 +62,22 @@ def kill_learner_after_checkpoints(run_dir: Path, kills: int, every: float) -> l
     more: each restart then waits the shortest back-off); the wall time of each kill."""
     done: list[float] = []
     while len(done) < kills:
-        deadline = time.monotonic() + (every if done else 0.0)
-        while checkpoint_version(run_dir) < 1 or time.monotonic() < deadline:
-            time.sleep(0.2)
+        earliest = time.monotonic() + (every if done else 0.0)
+        wait(lambda t=earliest: checkpoint_version(run_dir) >= 1 and time.monotonic() >= t, "a checkpointed policy")
         landed = (run_dir / "checkpoint.npz").stat().st_mtime_ns
-        while (run_dir / "checkpoint.npz").stat().st_mtime_ns == landed:
-            time.sleep(0.05)
+        wait(lambda t=landed: (run_dir / "checkpoint.npz").stat().st_mtime_ns != t, "the next checkpoint")
         pid = learner_task(run_dir)
         os.kill(pid, signal.SIGKILL)
         done.append(time.time())
     return done
+
+
+def wait(predicate: Callable[[], bool], what: str) -> None:
+    deadline = time.monotonic() + TIMEOUT_S
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"no {what} within {TIMEOUT_S:.0f} s: a longer --duration?")
+        time.sleep(0.05)
 
 
 def learner_task(run_dir: Path) -> int:
@@ -124,19 +141,21 @@ def main() -> None:
         same = (work / "array" / "results.md").read_text() == (work / "local" / "results.md").read_text()
         figures["sweep"] = {"tasks": 6, "array_s": round(array_s, 1), "local_jobs2_s": round(local_s, 1), "same": same}
         # The learner of up, killed just after a checkpoint a minute apart.
+        argv = ennc_ql_argv("up", f"--duration={args.duration + 70 * args.kills}", *SMALL, "--rerun=off", "--json")
         up = subprocess.Popen(
-            ennc_ql_argv("up", f"--duration={args.duration + 70 * args.kills}", *SMALL, "--rerun=off", "--json"),
-            cwd=work,
+            [*argv, f"--runs={work / 'runs'}", "--run-id=up"],
             stdout=subprocess.PIPE,
             stderr=subprocess.DEVNULL,
             text=True,
         )
-        up_dir = next(iter((work / "runs").glob("2*")), None)
-        while up_dir is None:
-            time.sleep(0.2)
-            up_dir = next(iter((work / "runs").glob("2*")), None)
-        kills = kill_learner_after_checkpoints(up_dir, args.kills, 65.0)
-        report = json.loads(up.communicate()[0])
+        try:
+            wait(lambda: (work / "runs" / "up" / "learner.toml").exists(), "run folder of up")
+            kills = kill_learner_after_checkpoints(work / "runs" / "up", args.kills, 65.0)
+            report = json.loads(up.communicate()[0])
+        finally:
+            if up.poll() is None:
+                up.send_signal(signal.SIGINT)  # up stops its children on the way out
+                up.wait()
         figures["up"] = {
             "learner_kill_to_first_broadcast_s": back_in(report, kills),
             "learner_restarts": report["learner_restarts"],

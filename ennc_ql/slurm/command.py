@@ -26,6 +26,7 @@ from ennc_ql.slurm.job import JOB_SCRIPT, SlurmJob, run_training_job, write_trai
 from ennc_ql.slurm.sbatch import SlurmError, submit
 from ennc_ql.system import stop_on_signals
 from ennc_ql.up import emit_run_report
+from learner.checkpoint import CHECKPOINT
 from protocol import check_id
 
 
@@ -77,6 +78,12 @@ def cmd_train(args: argparse.Namespace) -> int:
     except ValueError as exc:
         fail("slurm train", str(exc))
     run_dir = writable_dir(args.runs / run_id, "slurm train", "--runs")
+    if (run_dir / CHECKPOINT).exists():
+        fail(
+            "slurm train",
+            f"{run_dir} holds a run already ({CHECKPOINT}): choose another --run-id, or continue it with "
+            f"sbatch {run_dir / JOB_SCRIPT}",
+        )
     script = write_training_job(config, job, run_dir)
     result: dict[str, Any] = {"run_dir": str(script.parent), "job_script": str(script), "job_id": None}
     if args.submit:
@@ -98,7 +105,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     started = time.monotonic()
     try:
         done = run_training_job(run_dir, stop_on_signals())
-    except (SlurmError, LaunchError) as exc:
+    except (SlurmError, LaunchError, ConfigError) as exc:
         fail("slurm run", str(exc))
     alloc = done.allocation
     extra = {
@@ -131,6 +138,9 @@ def cmd_task(args: argparse.Namespace) -> int:
     task = args.task if args.task is not None else os.environ.get("SLURM_ARRAY_TASK_ID")
     if task is None:
         fail("slurm task", "no --task and no SLURM_ARRAY_TASK_ID: this runs inside an array job")
-    outcome = run_task(args.folder.resolve(), int(task))
+    try:
+        outcome = run_task(args.folder.resolve(), int(task))
+    except (ConfigError, OSError) as exc:
+        fail("slurm task", f"task {task} of {args.folder}: {exc}")
     print(f"task {task}: {outcome.method}[{outcome.seed}] {outcome.coverage_mean:.2f}% in {outcome.seconds:.0f} s")
     return 0

@@ -73,6 +73,23 @@ def test_bad_slurm_input_is_one_line(capsys: pytest.CaptureFixture[str], argv: l
     assert last.startswith(f"ennc-ql {argv[0]}") and message in last
 
 
+def test_slurm_train_never_writes_over_a_run(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    assert main(["slurm", "train", f"--runs={tmp_path}", "--run-id=r"]) == 0
+    (tmp_path / "r" / "checkpoint.npz").write_bytes(b"a run's checkpoint")
+    with pytest.raises(SystemExit) as exit_info:
+        main(["slurm", "train", f"--runs={tmp_path}", "--run-id=r", "--actors=5"])
+    assert exit_info.value.code == 2
+    assert (
+        capsys.readouterr()
+        .err.strip()
+        .endswith(
+            f"holds a run already (checkpoint.npz): choose another --run-id, or continue it with sbatch "
+            f"{tmp_path / 'r' / 'job.sh'}"
+        )
+    )
+    assert load_config(UpConfig, file=tmp_path / "r" / "up.toml").actors == 2  # untouched
+
+
 def test_slurm_run_outside_a_job_says_so(tmp_path: Path) -> None:
     assert main(["slurm", "train", f"--runs={tmp_path}", "--run-id=r"]) == 0
     env = {"PATH": "/usr/bin:/bin"}  # no SLURM_* variables
