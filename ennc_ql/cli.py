@@ -57,6 +57,7 @@ def build_parser(router_only: bool = False) -> argparse.ArgumentParser:
     from ennc_ql.experiments.reproduce import add_reproduce_parser
     from ennc_ql.learner import add_learner_parser
     from ennc_ql.secure import add_secure_parser
+    from ennc_ql.slurm.command import add_slurm_parser
     from ennc_ql.up import add_up_parser
 
     for add in (
@@ -66,6 +67,7 @@ def build_parser(router_only: bool = False) -> argparse.ArgumentParser:
         add_actor_parser,
         add_router_parser,
         add_secure_parser,
+        add_slurm_parser,
         add_chaos_parser,
         add_reproduce_parser,
         add_ablate_parser,

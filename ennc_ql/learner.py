@@ -6,6 +6,7 @@ cleanly: it checkpoints and writes its report. Usage::
 
     ennc-ql learner --listen tcp/0.0.0.0:7447 --run-dir runs/exp1 --duration 600
     ennc-ql learner --config runs/exp1/learner.toml --run-dir runs/exp1 --listen tcp/0.0.0.0:7447
+    ennc-ql learner --run-dir runs/exp1 --resume auto ...   # under a restart policy: resume if a checkpoint exists
 """
 
 from __future__ import annotations
@@ -58,7 +59,14 @@ def add_learner_parser(sub: Any) -> None:
     p.add_argument(
         "--run-dir", type=Path, required=True, help="folder for checkpoint, policy file and report (required)"
     )
-    p.add_argument("--resume", action="store_true", help="continue from the checkpoint in --run-dir")
+    p.add_argument(
+        "--resume",
+        nargs="?",
+        const="yes",
+        choices=("yes", "auto"),
+        help="continue from the checkpoint in --run-dir (an error if there is none); --resume auto: continue from it "
+        "if there is one, else start afresh (what a restart policy or a requeued job runs)",
+    )
     add_process_args(
         p, LearnerConfig, "learner configuration (learner.config.LearnerConfig)", choices=registry_choices()
     )
@@ -69,24 +77,25 @@ def cmd_learner(args: argparse.Namespace) -> int:
     # Everything is checked before anything starts: a resume from a folder without a checkpoint creates nothing
     # and opens no session.
     config: LearnerConfig = configure(LearnerConfig, args, "learner")
-    if args.resume:
+    if args.resume == "yes":
         check_checkpoint(args.run_dir)
+    resume = args.resume == "yes" or (args.resume == "auto" and Checkpointer(args.run_dir).path.exists())
     check_folder(args.run_dir, "learner", "--run-dir")
     check_device(config.phase1.device, "learner", "--phase1-device")
     conf = checked_zenoh(args, "learner", config.learner_id)
-    if config.threads > 0:
-        import torch  # only a learner that fits loads it
-
-        torch.set_num_threads(config.threads)
     stop = stop_on_signals()
     # The session first: a port in use is then an error before the run folder exists.
     with open_transport(conf, args, "learner") as transport:
         run_dir = make_folder(args.run_dir, "learner", "--run-dir")
         with open_monitor(sink_from_args(args), process=config.learner_id, recording_id=args.recording_id) as monitor:
             try:
-                service = LearnerService(transport, config, run_dir, resume=args.resume, monitor=monitor)
+                service = LearnerService(transport, config, run_dir, resume=resume, monitor=monitor)
             except CheckpointError as exc:
                 fail("learner", str(exc))
+            if config.threads > 0:
+                import torch  # loaded by the service already, after its checkpoint was read: only a learner fits
+
+                torch.set_num_threads(config.threads)
             handles = connect(service, transport)
             try:
                 report = service.run(stop)

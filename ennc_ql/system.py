@@ -12,7 +12,8 @@ log = logging.getLogger(__name__)
 
 
 def stop_on_signals() -> threading.Event:
-    """An event set by SIGTERM or SIGINT (the process then winds down instead of dying mid-write)."""
+    """An event set by SIGTERM, SIGINT or SIGUSR1 (the process then winds down instead of dying mid-write). SIGUSR1 is
+    for SLURM: ``srun`` forwards it to its task, while it turns a SIGTERM into killing the job step."""
     stop = threading.Event()
 
     def handler(signum: int, _frame: object) -> None:
@@ -21,16 +22,17 @@ def stop_on_signals() -> threading.Event:
 
     signal.signal(signal.SIGTERM, handler)
     signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGUSR1, handler)
     return stop
 
 
-def free_port() -> int:
-    """A loopback TCP port that is free now, below Linux's ephemeral range so Zenoh's own sockets cannot take it."""
+def free_port(host: str = "127.0.0.1") -> int:
+    """A TCP port free on ``host`` now, below Linux's ephemeral range so Zenoh's own sockets cannot take it."""
     for port in range(20000 + (int(time.time() * 1000) % 9000), 32000):
         with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
             try:
-                s.bind(("127.0.0.1", port))
+                s.bind((host, port))
             except OSError:
                 continue
             return port
-    raise RuntimeError("no free TCP port in 20000-32000 on 127.0.0.1")
+    raise RuntimeError(f"no free TCP port in 20000-32000 on {host}")

@@ -27,6 +27,7 @@ from ennc_ql.cluster import (
     UP_PRESETS,
     LaunchError,
     Monitoring,
+    ProcessRun,
     UpConfig,
     child_configs,
     run_processes,
@@ -105,18 +106,18 @@ def cmd_up(args: argparse.Namespace) -> int:
     learner, actors = child_configs(config)
     write_configs(config, learner, actors, run_dir)
     started = time.monotonic()
-    endpoint: str | None = None
-    restarts: dict[str, int] = {}
+    supervision: dict[str, Any] = {}
     recording: dict[str, Any] | None = None
     if args.serial:
         report = run_serial(learner, actors, run_dir)
     else:
-        report, endpoint, restarts, recording = _processes(args, learner, actors, run_id)
-    out = report.with_extra(
-        run_id=run_id,
-        run_dir=str(run_dir),
-        command=f"ennc-ql up --config {run_dir / 'up.toml'}",
-        config={
+        report, run, recording = _processes(args, config, learner, actors, run_id)
+        supervision = run.report_extra(report)
+    extra = {
+        "run_id": run_id,
+        "run_dir": str(run_dir),
+        "command": f"ennc-ql up --config {run_dir / 'up.toml'}",
+        "config": {
             "actors": config.actors,
             "duration": config.duration,
             "seed": config.seed,
@@ -124,29 +125,40 @@ def cmd_up(args: argparse.Namespace) -> int:
             "serial": args.serial,
             "secure": args.secure,
         },
-        endpoint=endpoint,
-        actor_restarts=restarts,
-        wall_seconds=round(time.monotonic() - started, 1),
-        recording=recording,
-        **_policy_figure(report, run_dir),
-    ).to_dict()
-    markdown, png = write_run_report(out, run_dir)
-    out.update(report_md=str(markdown), learning_curve=str(png))
-    (run_dir / "report.json").write_text(json.dumps(out, indent=2))
-    emit(out, args.json, terminal_summary(out))
+        **supervision,
+        "wall_seconds": round(time.monotonic() - started, 1),
+        "recording": recording,
+    }
+    emit_run_report(report, run_dir, extra, args.json)
     return 0
 
 
+def emit_run_report(report: LearnerReport, run_dir: Path, extra: dict[str, Any], as_json: bool) -> None:
+    """The learner's report completed with the launcher's ``extra`` figures and the policy's figure, written as
+    ``report.json``, ``report.md`` and ``learning_curve.png``, and printed (``up`` and a SLURM job alike)."""
+    out = report.with_extra(**extra, **_policy_figure(report, run_dir)).to_dict()
+    markdown, png = write_run_report(out, run_dir)
+    out.update(report_md=str(markdown), learning_curve=str(png))
+    (run_dir / "report.json").write_text(json.dumps(out, indent=2))
+    emit(out, as_json, terminal_summary(out))
+
+
 def _processes(
-    args: argparse.Namespace, learner: LearnerConfig, actors: list[ActorConfig], run_id: str
-) -> tuple[LearnerReport, str, dict[str, int], dict[str, Any] | None]:
-    """The run as OS processes: the learner's report from the run folder, the endpoint, each child's restarts and
-    the summary of the merged recording."""
+    args: argparse.Namespace, config: UpConfig, learner: LearnerConfig, actors: list[ActorConfig], run_id: str
+) -> tuple[LearnerReport, ProcessRun, dict[str, Any] | None]:
+    """The run as OS processes: the learner's report from the run folder, what its supervision saw and the summary
+    of the merged recording."""
     run_dir = args.runs / run_id
     monitoring = Monitoring(args.rerun or Sink("save", str(run_dir / paths.RECORDING_FILE)), run_id, run_dir)
     try:
-        endpoint, restarts = run_processes(
-            learner, actors, run_dir, monitoring, namespace=f"run-{run_id}", secure=args.secure
+        run = run_processes(
+            learner,
+            actors,
+            run_dir,
+            monitoring,
+            namespace=f"run-{run_id}",
+            secure=args.secure,
+            max_restarts=config.max_restarts,
         )
     except LaunchError as exc:
         fail("up", str(exc))
@@ -156,7 +168,7 @@ def _processes(
     if not report_path.exists():
         fail("up", f"the learner wrote no report; see {run_dir / 'learner.log'}")
     report = LearnerReport.from_dict(json.loads(report_path.read_text()))
-    return report, endpoint, restarts, recording
+    return report, run, recording
 
 
 def _policy_figure(report: LearnerReport, run_dir: Path) -> dict[str, str]:

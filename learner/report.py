@@ -5,7 +5,8 @@ as ``ennc-ql up`` turn the counters back into it instead of reading them by name
 parts, never field by field by the learner::
 
     status = LearnerStatus.of(intake.figures(), state, members, evaluator, fits=fitter.fits, elapsed=clock())
-    report = LearnerReport.of(config, status, figures, state, members, evaluator, final, policy_file, checkpoint)
+    report = LearnerReport.of(config, status, figures, state, members, evaluator, final, policy_file, checkpoint,
+                              resumes)
     status = LearnerStatus.from_counters(msg.counters)
     status.policy_version, status.coverage
 """
@@ -134,6 +135,9 @@ class LearnerReport:
     policy_file: str | None
     checkpoint: str
     seconds: float
+    resumes: list[dict[str, Any]] = field(default_factory=list)
+    """Every time the run was resumed from its checkpoint: the run clock it resumed at (``at_s``), the policy version
+    of its first broadcast, that broadcast's wall time and the seconds from the process's start to it."""
     extra: dict[str, Any] = field(default_factory=dict)
     """Figures added by whoever ran the learner (``ennc-ql up``: run id, command, configuration, recording)."""
 
@@ -149,6 +153,7 @@ class LearnerReport:
         final: float | None,
         policy_file: Path | None,
         checkpoint: Path,
+        resumes: list[dict[str, Any]] | None = None,
     ) -> LearnerReport:
         """The report of a run that ended with ``status`` (built from the same ``intake`` figures) and the final
         figure ``final`` (None: no policy was learned, and no reference is measured)."""
@@ -183,6 +188,7 @@ class LearnerReport:
             policy_file=None if policy_file is None else str(policy_file),
             checkpoint=str(checkpoint),
             seconds=round(status.elapsed, 2),
+            resumes=list(resumes or []),
         )
 
     def to_dict(self) -> dict[str, Any]:

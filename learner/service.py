@@ -25,11 +25,14 @@ import logging
 import threading
 import time
 from pathlib import Path
+from typing import Any
+
+import psutil
 
 from algorithm.discretization import Discretization
 from algorithm.phase1 import estimator
 from algorithm.policy_file import save_policy
-from learner.checkpoint import Checkpointer, VersionMark
+from learner.checkpoint import Checkpointer, CheckpointError, VersionMark
 from learner.config import LearnerConfig
 from learner.evaluator import Evaluator
 from learner.fitting import Fitter
@@ -84,9 +87,12 @@ class LearnerService:
         self._checkpoint_lock = threading.Lock()  # the loop and a finished fit both checkpoint
         self._elapsed_before = 0.0
         self._started = time.monotonic()
-        estimator()  # torch and scikit-learn load now, not at the first fit while the actors wait for a policy
-        if resume:
+        self.resumes: list[dict[str, Any]] = []
+        """Every resume of this run (restored with the checkpoint, this one's added at its first broadcast)."""
+        self._resumed = resume
+        if resume:  # first: a bad checkpoint fails in a second, before the libraries load
             self._restore()
+        estimator()  # torch and scikit-learn load now, not at the first fit while the actors wait for a policy
 
     # -- handlers (called by the transport's threads, see learner.wiring) -------------------------------------------
 
@@ -100,6 +106,17 @@ class LearnerService:
         current = self.state.current
         if current is not None:
             self.transport.publish(self.transport.keys.policy(), current)
+        if self._resumed:
+            now = time.time()
+            self.resumes.append(
+                {
+                    "at_s": round(self._elapsed_before, 2),
+                    "policy_version": self.state.version,
+                    "wall_time": now,
+                    # From the process's start (interpreter and imports included) to this first broadcast.
+                    "startup_s": round(now - psutil.Process().create_time(), 2),
+                }
+            )
         log.info("learner %s started (policy version %d)", self.config.learner_id, self.state.version)
 
     # -- the loop ---------------------------------------------------------------------------------------------------
@@ -178,6 +195,7 @@ class LearnerService:
                 **self.evaluator.to_meta(),
                 **self.members.to_meta(),
                 "elapsed": self.elapsed(),
+                "resumes": self.resumes,
                 "config": dataclasses.asdict(self.config),
             }
             path = self.checkpointer.save({**arrays, **policy_arrays}, meta)
@@ -188,12 +206,17 @@ class LearnerService:
 
     def _restore(self) -> None:
         arrays, meta = self.checkpointer.load()
-        self.intake.restore(arrays)
-        self.state.restore(arrays, meta, published=self.version_mark.load())
-        self.fitter.restore(meta)
-        self.evaluator.restore(meta)
-        self.members.restore(meta)
-        self._elapsed_before = float(meta["elapsed"])
+        try:
+            self.intake.restore(arrays)
+            self.state.restore(arrays, meta, published=self.version_mark.load())
+            self.fitter.restore(meta)
+            self.evaluator.restore(meta)
+            self.members.restore(meta)
+            self._elapsed_before = float(meta["elapsed"])
+            self.resumes = list(meta["resumes"])
+        except (KeyError, ValueError, TypeError, IndexError) as exc:
+            # A readable file that is not a whole checkpoint of this learner: one line, not a traceback.
+            raise CheckpointError(f"--resume: {self.checkpointer.path} is not a usable checkpoint: {exc!r}") from None
         log.info(
             "resumed from %s: %d tuples stored, policy version %d",
             self.checkpointer.path,
@@ -217,7 +240,16 @@ class LearnerService:
         figures = self.intake.figures()
         status = LearnerStatus.of(figures, self.state, self.members, self.evaluator, self.fitter.fits, self.elapsed())
         report = LearnerReport.of(
-            self.config, status, figures, self.state, self.members, self.evaluator, final, policy_file, checkpoint
+            self.config,
+            status,
+            figures,
+            self.state,
+            self.members,
+            self.evaluator,
+            final,
+            policy_file,
+            checkpoint,
+            resumes=self.resumes,
         )
         (self.run_dir / "report.json").write_text(json.dumps(report.to_dict(), indent=2))
         return report

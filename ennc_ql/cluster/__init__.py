@@ -8,17 +8,17 @@ Usage::
     learner, actors = child_configs(config)
     write_configs(config, learner, actors, run_dir)
     report = run_serial(learner, actors, run_dir)                                      # one process
-    endpoint, restarts = run_processes(learner, actors, run_dir, monitoring, "run-x")  # as OS processes
+    run = run_processes(learner, actors, run_dir, monitoring, "run-x")                 # as OS processes
 """
 
 # The package, by role: config (UpConfig, up's presets, each child's configuration), serial (the serial topology),
-# processes (the process topology and its progress bar), children (child processes and their supervision),
+# processes (the process topology, its placement and its progress bar), children (child processes, their supervision),
 # endpoints (how each process joins a run: peer-to-peer or through a router, plain or secure), recording (Rerun).
 
-from ennc_ql.cluster.children import ACTOR_NICENESS, Children, Supervisor, ennc_ql_argv, log_tail
+from ennc_ql.cluster.children import ACTOR_NICENESS, Children, Restart, Supervisor, ennc_ql_argv, log_tail
 from ennc_ql.cluster.config import SET_BY_UP, UP_PRESETS, UpConfig, child_configs, write_configs
 from ennc_ql.cluster.endpoints import Endpoints, make_endpoints
-from ennc_ql.cluster.processes import LaunchError, cluster_status, run_processes
+from ennc_ql.cluster.processes import LaunchError, Placement, ProcessRun, cluster_status, run_processes
 from ennc_ql.cluster.recording import Monitoring
 from ennc_ql.cluster.serial import run_serial
 
@@ -30,6 +30,9 @@ __all__ = [
     "Endpoints",
     "LaunchError",
     "Monitoring",
+    "Placement",
+    "ProcessRun",
+    "Restart",
     "Supervisor",
     "UpConfig",
     "child_configs",

@@ -36,6 +36,10 @@ class UpConfig:
     """State, reward and action set of every process, by name: shared-difference (the shared8d state, the difference
     reward, deciding every step in tests: the best formulation of the README's ablations) or paper (the paper's
     collab6d state and Eq. 2 reward, deciding once per action)."""
+    max_restarts: int = 3
+    """Times in a row a child that dies (the learner, an actor, the router) is started again, after 1, 2, 4 ... s,
+    before the run gives up on it (the learner resumes from its checkpoint; one that ran a minute starts a new
+    row); a learner given up ends the run."""
     learner: LearnerConfig = field(default_factory=LearnerConfig)
     """The learner process."""
     actor: ActorConfig = field(default_factory=ActorConfig)
@@ -44,6 +48,7 @@ class UpConfig:
     def __post_init__(self) -> None:
         require_at_least(1, actors=self.actors)
         require_at_least(0, seed=self.seed)
+        require_at_least(0, max_restarts=self.max_restarts)
         require_positive(duration=self.duration)
         require_known("formulation", self.formulation, FORMULATIONS)
         parts = [

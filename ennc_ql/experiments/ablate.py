@@ -30,12 +30,14 @@ import numpy as np
 from algorithm.experiments import METHODS, Budget, Outcome
 from algorithm.policy import LostBehaviour
 from ennc_ql.command import check_folder, emit, fail
-from ennc_ql.config import ConfigError, parse_setting, positive, replace_setting
+from ennc_ql.config import ConfigError, add_config_flags, load_config, parse_setting, positive, replace_setting
 from ennc_ql.experiments.jobs import Job, JobsBar, learn
 from ennc_ql.experiments.reproduce import PAPER
 from ennc_ql.experiments.results import write_results
 from ennc_ql.parser import CommandHelp, add_command
 from ennc_ql.progress import ProgressBar
+from ennc_ql.slurm.array import ArrayConfig, learn_on_slurm
+from ennc_ql.slurm.sbatch import SlurmError
 from monitor.style import REFERENCES as STYLES
 from sim import FEATURIZERS, HAND_MADE, ScenarioConfig, evaluate
 from sim.actions import ACTION_SETS
@@ -120,9 +122,17 @@ def _trials(setup: Setup) -> TestTrials:
     return setup.scenario, budget.test_trials, budget.test_steps, budget.test_seed
 
 
-def ablate(method: str, sweep: Sweep, base: Setup, processes: int, out_dir: Path, jobs: int = 1) -> dict[str, Any]:
-    """Run every variant ``processes`` times; write ``results.json``, ``results.md``, ``ablation.png`` and each
-    policy under ``out_dir``; return the report."""
+def ablate(
+    method: str,
+    sweep: Sweep,
+    base: Setup,
+    processes: int,
+    out_dir: Path,
+    jobs: int = 1,
+    slurm: ArrayConfig | None = None,
+) -> dict[str, Any]:
+    """Run every variant ``processes`` times (``jobs`` at once here, or as a SLURM job array with ``slurm``); write
+    ``results.json``, ``results.md``, ``ablation.png`` and each policy under ``out_dir``; return the report."""
     if method not in METHODS:
         raise ConfigError(f"unknown method {method!r}; learned methods: {', '.join(METHODS)}")
     start = time.perf_counter()
@@ -146,7 +156,7 @@ def ablate(method: str, sweep: Sweep, base: Setup, processes: int, out_dir: Path
     ]
     with ProgressBar("ablate", total=len(todo) + len(setups), unit="jobs") as bar:
         progress = JobsBar(bar)
-        results = learn(todo, jobs, progress)
+        results = learn_on_slurm(todo, out_dir / "slurm", slurm, progress) if slurm else learn(todo, jobs, progress)
         references = _references([setup for _, setup in setups], progress)
     runs = {
         i: sorted((o for job, o in results if job.variant == i), key=lambda o: o.seed)
@@ -296,6 +306,7 @@ def add_ablate_parser(sub: Any) -> None:
     p.add_argument("--quick", action="store_true", help="reproduce's reduced budget as the base")
     p.add_argument("--out", type=Path, metavar="DIR", help="output folder (default: runs/ablate-METHOD)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    add_config_flags(p.add_argument_group("on a SLURM cluster (ennc_ql.slurm.array.ArrayConfig)"), ArrayConfig)
     p.set_defaults(func=cmd_ablate)
 
 
@@ -305,10 +316,14 @@ def cmd_ablate(args: argparse.Namespace) -> int:
         sweep = parse_sets(args.set)
         base = Setup(budget=Budget.quick() if args.quick else Budget())
         variants(base, sweep)  # every combination checked before the first process starts
+        slurm: ArrayConfig = load_config(ArrayConfig, args=args)
     except ConfigError as exc:
         fail("ablate", str(exc))
     check_folder(out_dir, "ablate", "--out")
-    report = ablate(args.method, sweep, base, args.processes, out_dir, jobs=args.jobs)
+    try:
+        report = ablate(args.method, sweep, base, args.processes, out_dir, args.jobs, slurm if slurm.slurm else None)
+    except SlurmError as exc:
+        fail("ablate", str(exc))
     report["output"] = str(out_dir)
     emit(
         report, args.json, markdown_table(report) + f"\nwritten to {out_dir}/ (results.md, results.json, ablation.png)"

@@ -19,12 +19,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from algorithm.experiments import METHODS, Budget, Outcome
-from ennc_ql.command import check_folder, emit
-from ennc_ql.config import positive
+from ennc_ql.command import check_folder, emit, fail
+from ennc_ql.config import ConfigError, add_config_flags, load_config, positive
 from ennc_ql.experiments.jobs import Job, JobsBar, learn
 from ennc_ql.experiments.results import write_results
 from ennc_ql.parser import CommandHelp, add_command
 from ennc_ql.progress import ProgressBar
+from ennc_ql.slurm.array import ArrayConfig, learn_on_slurm
+from ennc_ql.slurm.sbatch import SlurmError
 from sim import HAND_MADE, EvalResult, ScenarioConfig, evaluate, scenario
 
 if TYPE_CHECKING:
@@ -60,6 +62,7 @@ def reproduce(
     out_dir: Path,
     methods: Sequence[str] | None = None,
     jobs: int = 1,
+    slurm: ArrayConfig | None = None,
 ) -> dict[str, Any]:
     """Run every method (``processes`` independent learning processes each), write table, JSON and chart.
 
@@ -78,7 +81,8 @@ def reproduce(
     with ProgressBar("reproduce", total=len(todo) + len(hand_made), unit="jobs") as bar:
         progress = JobsBar(bar)
         outcomes: dict[str, list[Outcome]] = {job.method: [] for job in todo}
-        for _, outcome in learn(todo, jobs, progress):
+        learned = learn_on_slurm(todo, out_dir / "slurm", slurm, progress) if slurm else learn(todo, jobs, progress)
+        for _, outcome in learned:
             outcomes[outcome.method].append(outcome)
         measured = {name: _hand_made(name, cfg, budget, progress) for name in hand_made}
     runs = {name: sorted(found, key=lambda o: o.seed) for name, found in outcomes.items()}
@@ -227,6 +231,7 @@ def add_reproduce_parser(sub: Any) -> None:
     )
     p.add_argument("--jobs", type=positive(int), default=1, help="learning processes run at once")
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    add_config_flags(p.add_argument_group("on a SLURM cluster (ennc_ql.slurm.array.ArrayConfig)"), ArrayConfig)
     p.set_defaults(func=cmd_reproduce)
 
 
@@ -235,7 +240,11 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     processes = args.processes or (1 if args.quick else 5)
     out_dir = args.out or Path("runs") / ("reproduce-quick" if args.quick else "reproduce")
     check_folder(out_dir, "reproduce", "--out")
-    report = reproduce(budget, processes, out_dir, methods=args.methods or None, jobs=args.jobs)
+    try:
+        slurm: ArrayConfig = load_config(ArrayConfig, args=args)
+        report = reproduce(budget, processes, out_dir, args.methods or None, args.jobs, slurm if slurm.slurm else None)
+    except (ConfigError, SlurmError) as exc:
+        fail("reproduce", str(exc))
     report["output"] = str(out_dir)
     table = markdown_table(report) + f"\nwritten to {out_dir}/ (results.md, results.json, figure5.png)"
     emit(report, args.json, table)

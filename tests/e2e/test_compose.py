@@ -70,6 +70,8 @@ def test_compose_structure() -> None:
         assert args.multicast_scouting is False
     learner_args = parser.parse_args(services["learner"]["command"])
     assert str(learner_args.run_dir).startswith("/runs/")
+    # A learner that dies comes back by itself and continues from its checkpoint, a limited number of times.
+    assert learner_args.resume == "auto" and services["learner"]["restart"] == "on-failure:5"
     assert "runs:/runs" in services["learner"]["volumes"]
     assert services["actor"]["deploy"]["replicas"] >= 2
     # One command line for every replica: the id must be derived at start-up.
@@ -213,6 +215,8 @@ def test_secure_compose_mounts_for_each_service_exactly_its_own_secrets(tmp_path
         assert {f for f in files if f.endswith(".key")} == {f"{ident}.key"}
         if args.command == "actor":
             assert args.actor_id == name
+        if args.command == "learner":  # it comes back by itself, as in compose.yaml
+            assert args.resume == "auto" and service["restart"] == "on-failure:5"
     router_config = (tmp_path / "router.json5").read_text()
     assert '"tls/0.0.0.0:7447"' in router_config and "7447:7447/tcp" in services["router"]["ports"]
     assert '"tls/router:7447"' in (tmp_path / "learner.json5").read_text()

@@ -1,9 +1,11 @@
-"""``ennc-ql up --secure`` supervises its children: a killed actor is reported at once and restarted, so is the
-router (and every client authenticates to the new one); a dead learner ends the run with a non-zero exit and the end
-of its log (one run, all three faults)."""
+"""``ennc-ql up --secure`` supervises every child: the learner SIGKILLed just after a checkpoint landed comes back by
+itself (``--resume auto``) and the run ends with its report, the restart counted, versions strictly increasing and
+tuples stored exactly once; a killed actor and a killed router are restarted too (one run, all three faults). A
+learner that cannot resume (a corrupt checkpoint) is given up after the limit, with the reason in one message."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -12,7 +14,14 @@ from pathlib import Path
 
 import pytest
 
+from actors.config import ActorConfig
+from ennc_ql.cluster import LaunchError, Monitoring, run_processes
+from ennc_ql.config import dump_config
+from learner.checkpoint import VersionMark
+from learner.config import LearnerConfig
+from monitor import Sink
 from tests.e2e import ennc_ql
+from tests.e2e.test_cluster import checkpoint_version, wait_for
 
 pytestmark = pytest.mark.slow
 
@@ -56,13 +65,27 @@ def wait_for_log(path: Path, text: str, timeout: float = 120.0, count: int = 1) 
     raise AssertionError(f"{text!r} never appeared in {path}")
 
 
-def test_a_killed_actor_and_router_are_restarted_and_a_dead_learner_ends_the_run(tmp_path: Path) -> None:
+def kill_learner_after_a_checkpoint(run_dir: Path) -> int:
+    """SIGKILL the learner just after a checkpoint holding a policy landed, once versions went out that it does not
+    hold (the most unsaved state); the highest version it broadcast."""
+    wait_for(lambda: checkpoint_version(run_dir) >= 1, 120, "a checkpointed policy")
+    landed = (run_dir / "checkpoint.npz").stat().st_mtime_ns
+    wait_for(lambda: (run_dir / "checkpoint.npz").stat().st_mtime_ns != landed, 30, "the next checkpoint")
+    saved = checkpoint_version(run_dir)
+    wait_for(lambda: VersionMark(run_dir).load() > saved, 30, "a broadcast after the checkpoint")
+    os.kill(child_pid(run_dir / "learner.toml"), signal.SIGKILL)
+    return VersionMark(run_dir).load()
+
+
+def test_a_killed_learner_actor_and_router_come_back_and_the_run_ends_exactly(tmp_path: Path) -> None:
     run_dir, err_path = tmp_path / "sup", tmp_path / "up.err"
-    argv = ennc_ql("up", "--secure", "--duration=300", *SMALL, f"--runs={tmp_path}", "--run-id=sup")
+    argv = ennc_ql("up", "--secure", "--duration=45", *SMALL, f"--runs={tmp_path}", "--run-id=sup")
     with open(err_path, "w") as err_file:
-        up = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=err_file, text=True)
+        up = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=err_file, text=True)
         try:
-            wait_for_log(run_dir / "actor-0.log", "incarnation")
+            killed_at = kill_learner_after_a_checkpoint(run_dir)
+            wait_for_log(err_path, "learner exited with status -9; restarting in 1 s")
+            wait_for_log(run_dir / "learner.log", "resumed from")
             os.kill(child_pid(run_dir / "actor-0.toml"), signal.SIGKILL)
             wait_for_log(err_path, "actor-0 exited with status -9; restarting in 1 s")
             # The restarted actor is a new incarnation under the same id, with its own log lines.
@@ -70,18 +93,57 @@ def test_a_killed_actor_and_router_are_restarted_and_a_dead_learner_ends_the_run
             # The router: its clients (learner, two actors, up's own observer) authenticate to the new one.
             router_log = run_dir / "router.log"
             wait_for_log(router_log, " connected", count=4)
+            connected = router_log.read_text().count(" connected")
             os.kill(child_pid(run_dir / "secure" / "router.json5"), signal.SIGKILL)
             wait_for_log(err_path, "router exited with status -9; restarting in 1 s")
-            wait_for_log(router_log, " connected", count=8)
-            wait_for_log(run_dir / "learner.log", "learner learner started")
-            os.kill(child_pid(run_dir / "learner.toml"), signal.SIGKILL)
-            up.wait(timeout=120)
+            wait_for_log(router_log, " connected", count=connected + 4)
+            out, _ = up.communicate(timeout=240)
         finally:
             if up.poll() is None:
                 up.kill()
                 up.wait()
-    err = err_path.read_text()
-    assert up.returncode == 2
-    assert "ennc-ql up: error: the learner exited with status -9" in err
-    last_line = (run_dir / "learner.log").read_text().strip().splitlines()[-1]
-    assert last_line in err  # the end of its log comes with the message
+    assert up.returncode == 0, err_path.read_text()[-3000:]
+    report = json.loads(out)
+    assert json.loads((run_dir / "report.json").read_text())["policy_version"] == report["policy_version"]
+    # The learner came back once, resumed from its checkpoint, its first broadcast above every version it had sent.
+    [restart] = report["learner_restarts"]
+    assert restart["status"] == -9 and restart["delay_s"] == 1 and restart["back_in_s"] > 0
+    [resume] = report["resumes"]
+    assert resume["policy_version"] > killed_at
+    assert report["actor_restarts"] == {"actor-0": 1, "router": 1}
+    # Versions strictly increasing on the wire across the restart, up to the final one.
+    versions = report["policy_versions"]
+    assert versions["increasing"] and versions["last"] == report["policy_version"] > killed_at
+    # Exactly once: actor-1 stopped before the learner's end and every tuple it sent is stored once, acknowledged.
+    # actor-0's first incarnation died with what it held; its second sent all it said, and nothing is missing.
+    assert report["gaps"] == 0
+    sent = report["actors_sent"]
+    assert sent["actor-1"] == {
+        "incarnations": 1,
+        "reported": 1,
+        "tuples_sent": report["tuples_by_actor"]["actor-1"],
+        "tuples_acked": report["tuples_by_actor"]["actor-1"],
+    }
+    assert sent["actor-0"]["incarnations"] == 2 and sent["actor-0"]["reported"] == 1
+    assert report["tuples_by_actor"]["actor-0"] > sent["actor-0"]["tuples_sent"] == sent["actor-0"]["tuples_acked"]
+    assert report["final_coverage_mean"] is not None
+
+
+def test_a_learner_that_cannot_resume_is_given_up_after_the_limit(tmp_path: Path) -> None:
+    """A run resumed on a corrupt checkpoint (a requeued job's first start): the learner fails, is restarted once
+    (the limit here), fails again and the run ends with a message naming the cause."""
+    run_dir = tmp_path / "bad"
+    run_dir.mkdir()
+    (run_dir / "checkpoint.npz").write_bytes(b"not a checkpoint")
+    learner = LearnerConfig(duration=30.0, min_tuples=5000)
+    actor = ActorConfig(actor_id="actor-0", arenas=16, flush_timeout=1.0)
+    for name, config in (("learner.toml", learner), ("actor-0.toml", actor)):
+        (run_dir / name).write_text(dump_config(config))
+    monitoring = Monitoring(Sink("off"), "bad", run_dir)
+    with pytest.raises(LaunchError) as failure:
+        run_processes(learner, [actor], run_dir, monitoring, namespace="run-bad", resume=True, max_restarts=1)
+    message = str(failure.value)
+    assert message.startswith("the learner exited with status 2 2 times in a row (1 restarts with --resume auto)")
+    assert f"unreadable checkpoint {run_dir / 'checkpoint.npz'}" in message
+    log = (run_dir / "learner.log").read_text()
+    assert log.count("ennc-ql learner: error: --resume: unreadable checkpoint") == 2

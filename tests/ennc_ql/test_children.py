@@ -44,3 +44,21 @@ def test_close_stops_every_child_even_a_stopped_one_and_each_incarnation_keeps_i
     assert children.exited() == ["a"] and list(children.running()) == ["b"]
     children.close()
     assert children.running() == {} and children.procs["b"].returncode == -signal.SIGTERM
+
+
+def test_a_restart_runs_its_own_command_and_a_child_that_exits_0_has_finished(tmp_path: Path) -> None:
+    # The first start fails; the restart (the learner's --resume auto, here another command line) succeeds.
+    supervisor = Supervisor(Children(tmp_path, keep_stdout=True), max_restarts=3)
+    fail = [sys.executable, "-c", "print('first'); raise SystemExit(3)"]
+    supervisor.start("l", fail, restart_argv=[sys.executable, "-c", "print('resumed')"])
+    messages: list[str] = []
+    deadline = time.monotonic() + 60
+    while "l" not in supervisor.finished and time.monotonic() < deadline:
+        messages += supervisor.check()
+        time.sleep(0.1)
+    assert messages == ["l exited with status 3; restarting in 1 s"]
+    assert supervisor.finished == {"l"} and supervisor.given_up == {} and supervisor.restarts == {"l": 1}
+    [event] = supervisor.events
+    assert (event.name, event.status, event.delay_s) == ("l", 3, 1.0)
+    children = supervisor.children
+    assert (children.stdout("l", 1).read_text(), children.stdout("l", 2).read_text()) == ("first\n", "resumed\n")

@@ -78,4 +78,4 @@ def test_a_configuration_the_process_cannot_read_is_a_one_line_error_naming_it(a
     )
     assert out.returncode == 2
     lines = out.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0] == f"ennc-ql {argv[0]}: error: --zenoh-config {missing}: no such file", out.stderr
+    assert lines == [f"ennc-ql {argv[0]}: error: --zenoh-config {missing}: no such file"], out.stderr

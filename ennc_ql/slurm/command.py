@@ -1,0 +1,146 @@
+"""``ennc-ql slurm``: training runs as SLURM batch jobs, and the two commands that jobs run.
+
+    ennc-ql slurm train --actors 4 --nodes 3 --duration 3600 --run-id exp1 [--submit]   # runs/exp1/job.sh
+    sbatch runs/exp1/job.sh                                                              # if not --submit
+    ennc-ql slurm run runs/exp1        # what job.sh runs, inside the allocation
+    ennc-ql slurm task FOLDER          # what an array task of ablate/reproduce --slurm runs
+
+``train`` takes ``up``'s run configuration (``--actors``, ``--duration``, ``--learner-*``, ``--actor-*``, or
+``--config up.toml``) and the job's (``--nodes``, ``--partition``, ``--time-limit``, ``--account``, ``--sbatch``,
+``--no-secure``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+from ennc_ql.cluster import SET_BY_UP, UP_PRESETS, LaunchError, UpConfig
+from ennc_ql.command import configure, emit, fail, writable_dir
+from ennc_ql.config import ConfigError, add_config_flags, load_config
+from ennc_ql.slurm.array import run_task
+from ennc_ql.slurm.job import JOB_SCRIPT, SlurmJob, run_training_job, write_training_job
+from ennc_ql.slurm.sbatch import SlurmError, submit
+from ennc_ql.system import stop_on_signals
+from ennc_ql.up import emit_run_report
+from learner.checkpoint import CHECKPOINT
+from protocol import check_id
+
+
+def add_slurm_parser(sub: Any) -> None:
+    p = sub.add_parser("slurm", help="training runs as SLURM batch jobs (sweeps: ablate/reproduce --slurm)")
+    inner = p.add_subparsers(dest="slurm_command", required=True)
+
+    train = inner.add_parser(
+        "train",
+        help="write a training run's folder and job script (router and learner on the first node, actors on the "
+        "others); --submit to sbatch it",
+    )
+    train.add_argument("--config", metavar="FILE", help="TOML file of the run's configuration (e.g. a run's up.toml)")
+    train.add_argument(
+        "--runs", type=Path, default=Path("runs"), help="parent folder of the run folder (default runs/)"
+    )
+    train.add_argument("--run-id", help="run folder name (default: a timestamp)")
+    train.add_argument("--submit", action="store_true", help="submit the job script with sbatch")
+    train.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    add_config_flags(
+        train.add_argument_group("run configuration (ennc_ql.cluster.UpConfig)"),
+        UpConfig,
+        exclude=SET_BY_UP,
+        defaults=UP_PRESETS,
+    )
+    add_config_flags(train.add_argument_group("the job (ennc_ql.slurm.job.SlurmJob)"), SlurmJob)
+    train.set_defaults(func=cmd_train)
+
+    run = inner.add_parser("run", help="a training job's own side, run by its job.sh inside the allocation")
+    run.add_argument("run_dir", type=Path, help="the run folder `slurm train` wrote")
+    run.add_argument("--json", action="store_true", help="print the report as one JSON object")
+    run.set_defaults(func=cmd_run)
+
+    task = inner.add_parser("task", help="one learning process of a sweep's job array (ablate/reproduce --slurm)")
+    task.add_argument("folder", type=Path, help="the sweep's slurm folder")
+    task.add_argument("--task", type=int, help="the task (default: $SLURM_ARRAY_TASK_ID)")
+    task.set_defaults(func=cmd_task)
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    config: UpConfig = configure(UpConfig, args, "slurm train", defaults=UP_PRESETS)
+    try:
+        job = load_config(SlurmJob, args=args)  # flags only: --config is the run's configuration
+    except ConfigError as exc:
+        fail("slurm train", str(exc))
+    run_id = args.run_id or time.strftime("%Y%m%d-%H%M%S")
+    try:
+        check_id(run_id, "--run-id")
+    except ValueError as exc:
+        fail("slurm train", str(exc))
+    run_dir = writable_dir(args.runs / run_id, "slurm train", "--runs")
+    if (run_dir / CHECKPOINT).exists():
+        fail(
+            "slurm train",
+            f"{run_dir} holds a run already ({CHECKPOINT}): choose another --run-id, or continue it with "
+            f"sbatch {run_dir / JOB_SCRIPT}",
+        )
+    script = write_training_job(config, job, run_dir)
+    result: dict[str, Any] = {"run_dir": str(script.parent), "job_script": str(script), "job_id": None}
+    if args.submit:
+        try:
+            result["job_id"] = submit(script)
+        except SlurmError as exc:
+            fail("slurm train", str(exc))
+    nodes = job.node_count(config.actors)
+    line = f"{script}: {config.actors} actors on {nodes} node(s), {config.duration:g} s of training; "
+    line += f"submitted as job {result['job_id']}" if result["job_id"] else f"submit it with: sbatch {script}"
+    emit(result, args.json, line)
+    return 0
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    run_dir = args.run_dir.resolve()
+    if not (run_dir / JOB_SCRIPT).exists():
+        fail("slurm run", f"{run_dir} is not a run folder written by `ennc-ql slurm train` (no {JOB_SCRIPT})")
+    started = time.monotonic()
+    try:
+        done = run_training_job(run_dir, stop_on_signals())
+    except (SlurmError, LaunchError, ConfigError) as exc:
+        fail("slurm run", str(exc))
+    alloc = done.allocation
+    extra = {
+        "run_id": run_dir.name,
+        "run_dir": str(run_dir),
+        "command": f"sbatch {run_dir / JOB_SCRIPT}",
+        "config": {
+            "actors": done.config.actors,
+            "duration": done.config.duration,
+            "seed": done.config.seed,
+            "formulation": done.config.formulation,
+            "serial": False,
+            "secure": done.job.secure,
+        },
+        **done.run.report_extra(done.report),
+        "slurm": {
+            "job_id": alloc.job_id,
+            "requeued": alloc.restarts,
+            "nodes": list(alloc.nodes),
+            "placement": dict(done.placement.node_of),
+        },
+        "wall_seconds": round(time.monotonic() - started, 1),
+        "recording": done.recording,
+    }
+    emit_run_report(done.report, run_dir, extra, args.json)
+    return 0
+
+
+def cmd_task(args: argparse.Namespace) -> int:
+    task = args.task if args.task is not None else os.environ.get("SLURM_ARRAY_TASK_ID")
+    if task is None:
+        fail("slurm task", "no --task and no SLURM_ARRAY_TASK_ID: this runs inside an array job")
+    try:
+        outcome = run_task(args.folder.resolve(), int(task))
+    except (ConfigError, OSError) as exc:
+        fail("slurm task", f"task {task} of {args.folder}: {exc}")
+    print(f"task {task}: {outcome.method}[{outcome.seed}] {outcome.coverage_mean:.2f}% in {outcome.seconds:.0f} s")
+    return 0
