@@ -65,7 +65,7 @@ def add_learner_parser(sub: Any) -> None:
         const="yes",
         choices=("yes", "auto"),
         help="continue from the checkpoint in --run-dir (an error if there is none); --resume auto: continue from it "
-        "if there is one, else start afresh (what a restart policy or a requeued job runs)",
+        "if there is one, else start afresh (what a restart policy or a requeued job runs; default: start afresh)",
     )
     add_process_args(
         p, LearnerConfig, "learner configuration (learner.config.LearnerConfig)", choices=registry_choices()

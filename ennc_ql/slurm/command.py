@@ -21,6 +21,7 @@ from typing import Any
 from ennc_ql.cluster import SET_BY_UP, UP_PRESETS, LaunchError, UpConfig
 from ennc_ql.command import configure, emit, fail, writable_dir
 from ennc_ql.config import ConfigError, add_config_flags, load_config
+from ennc_ql.parser import CommandHelp, add_command, add_commands
 from ennc_ql.slurm.array import run_task
 from ennc_ql.slurm.job import JOB_SCRIPT, SlurmJob, run_training_job, write_training_job
 from ennc_ql.slurm.sbatch import SlurmError, submit
@@ -30,19 +31,72 @@ from learner.checkpoint import CHECKPOINT
 from protocol import check_id
 
 
-def add_slurm_parser(sub: Any) -> None:
-    p = sub.add_parser("slurm", help="training runs as SLURM batch jobs (sweeps: ablate/reproduce --slurm)")
-    inner = p.add_subparsers(dest="slurm_command", required=True)
+SLURM = CommandHelp(
+    "slurm",
+    "training runs as SLURM batch jobs (sweeps: ablate/reproduce --slurm)",
+    "Trains on a SLURM allocation: slurm train writes a run folder and its job script (router and learner on the "
+    "first node, actors round-robin on the others as job steps), and slurm run is what the script runs inside the "
+    "allocation. Sweeps (ablate and reproduce --slurm) run their learning processes as one job array of slurm task. "
+    "See each subcommand's help, and docs/slurm.md.",
+    (
+        ("ennc-ql slurm train --actors 4 --nodes 3 --submit", "a training job on 3 nodes"),
+        ("ennc-ql ablate --slurm ennc-ql-local vqql", "a sweep as one job array"),
+    ),
+    "under a second to write or submit; the job runs --duration plus about a minute",
+)
 
-    train = inner.add_parser(
-        "train",
-        help="write a training run's folder and job script (router and learner on the first node, actors on the "
-        "others); --submit to sbatch it",
-    )
-    train.add_argument("--config", metavar="FILE", help="TOML file of the run's configuration (e.g. a run's up.toml)")
+TRAIN = CommandHelp(
+    "train",
+    "write a training run's folder and job script; --submit to sbatch it",
+    "Writes runs/<id>/: up.toml (the run's configuration, as ennc-ql up takes it) and job.sh, a batch script whose "
+    "router and learner run on the first node of the allocation and whose actors run round-robin on the others, as "
+    "srun job steps, joined by the nodes' addresses with mutual TLS unless --no-secure. The script asks SLURM to "
+    "requeue it; a requeued job continues from the run's checkpoint. --submit submits it with sbatch; otherwise the "
+    "line printed says how. It refuses a folder that holds a run already.",
+    (
+        ("ennc-ql slurm train --actors 4 --nodes 3 --duration 3600 --submit", "one hour on 3 nodes, submitted"),
+        ("ennc-ql slurm train --config runs/<id>/up.toml --run-id again", "a local run's configuration, as a job"),
+        ("ennc-ql slurm train --partition gpu --sbatch '--mem=8G'", "the job's own sbatch options"),
+    ),
+    "under a second (sbatch with --submit); the job itself: --duration plus about a minute",
+)
+
+RUN = CommandHelp(
+    "run",
+    "a training job's own side, run by its job.sh inside the allocation",
+    "Runs the training of a folder slurm train wrote, inside its SLURM allocation: the router and learner here, "
+    "each actor as a job step on its node, supervised as ennc-ql up supervises them (a learner that dies is "
+    "restarted from its checkpoint), then the report in the run folder. Outside a job it says so and stops.",
+    (
+        ("ennc-ql slurm run runs/exp1", "what runs/exp1/job.sh runs"),
+        ("ennc-ql slurm run runs/exp1 --json", "the report as one JSON object"),
+    ),
+    "the run's --duration plus start-up and the final evaluation (about a minute)",
+)
+
+TASK = CommandHelp(
+    "task",
+    "one learning process of a sweep's job array (ablate/reproduce --slurm)",
+    "Runs one task of a sweep's job array: the variant and seed that the task number names in the sweep's slurm "
+    "folder, whose outcome it writes there for ablate or reproduce to collect. The task number comes from "
+    "SLURM_ARRAY_TASK_ID, or --task to run one by hand.",
+    (
+        ("ennc-ql slurm task runs/ablate-ennc-ql-local/slurm", "the array task SLURM_ARRAY_TASK_ID names"),
+        ("ennc-ql slurm task runs/ablate-ennc-ql-local/slurm --task 3", "task 3 by hand, e.g. to debug it"),
+    ),
+    "one learning process: about 20 s with --quick, about 3 min at the full budget (2 cores)",
+)
+
+
+def add_slurm_parser(sub: Any) -> None:
+    p = add_command(sub, SLURM)
+    inner = add_commands(p, dest="slurm_command")
+
+    train = add_command(inner, TRAIN)
     train.add_argument(
-        "--runs", type=Path, default=Path("runs"), help="parent folder of the run folder (default runs/)"
+        "--config", metavar="FILE", help="TOML file of the run's configuration, e.g. a run's up.toml (default: none)"
     )
+    train.add_argument("--runs", type=Path, default=Path("runs"), help="parent folder of the run folder")
     train.add_argument("--run-id", help="run folder name (default: a timestamp)")
     train.add_argument("--submit", action="store_true", help="submit the job script with sbatch")
     train.add_argument("--json", action="store_true", help="print the result as one JSON object")
@@ -55,13 +109,13 @@ def add_slurm_parser(sub: Any) -> None:
     add_config_flags(train.add_argument_group("the job (ennc_ql.slurm.job.SlurmJob)"), SlurmJob)
     train.set_defaults(func=cmd_train)
 
-    run = inner.add_parser("run", help="a training job's own side, run by its job.sh inside the allocation")
-    run.add_argument("run_dir", type=Path, help="the run folder `slurm train` wrote")
+    run = add_command(inner, RUN)
+    run.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="the run folder `slurm train` wrote")
     run.add_argument("--json", action="store_true", help="print the report as one JSON object")
     run.set_defaults(func=cmd_run)
 
-    task = inner.add_parser("task", help="one learning process of a sweep's job array (ablate/reproduce --slurm)")
-    task.add_argument("folder", type=Path, help="the sweep's slurm folder")
+    task = add_command(inner, TASK)
+    task.add_argument("folder", type=Path, metavar="FOLDER", help="the sweep's slurm folder")
     task.add_argument("--task", type=int, help="the task (default: $SLURM_ARRAY_TASK_ID)")
     task.set_defaults(func=cmd_task)
 

@@ -43,6 +43,7 @@ def test_every_command_is_listed() -> None:
         *(f"ennc-ql {name}" for name in ("eval", "up", "learner", "actor", "router", "chaos", "reproduce", "ablate")),
         "ennc-ql secure",
         "ennc-ql secure init",
+        *(f"ennc-ql slurm{name}" for name in ("", " train", " run", " task")),
         "ennc-ql bench",
         *(f"ennc-ql bench {name}" for name in ("sim", "ennc", "transport", "actor", "broadcast", "phase1")),
     }
@@ -103,5 +104,5 @@ def test_version_and_top_level_help() -> None:
     assert out.stdout == f"ennc-ql {version('ennc-ql')}\n"
     text = build_parser().format_help()
     assert "first steps:\n  ennc-ql eval --policy a-cmommt" in text
-    for name in ("eval", "up", "learner", "actor", "router", "secure", "chaos", "reproduce", "ablate", "bench"):
+    for name in ("eval", "up", "learner", "actor", "router", "secure", "slurm", "chaos", "reproduce", "ablate", "bench"):
         assert re.search(rf"\n    {name} +\S", text), name
