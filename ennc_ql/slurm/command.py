@@ -30,7 +30,6 @@ from ennc_ql.up import emit_run_report
 from learner.checkpoint import CHECKPOINT
 from protocol import check_id
 
-
 SLURM = CommandHelp(
     "slurm",
     "training runs as SLURM batch jobs (sweeps: ablate/reproduce --slurm)",

@@ -104,5 +104,17 @@ def test_version_and_top_level_help() -> None:
     assert out.stdout == f"ennc-ql {version('ennc-ql')}\n"
     text = build_parser().format_help()
     assert "first steps:\n  ennc-ql eval --policy a-cmommt" in text
-    for name in ("eval", "up", "learner", "actor", "router", "secure", "slurm", "chaos", "reproduce", "ablate", "bench"):
+    for name in (
+        "eval",
+        "up",
+        "learner",
+        "actor",
+        "router",
+        "secure",
+        "slurm",
+        "chaos",
+        "reproduce",
+        "ablate",
+        "bench",
+    ):
         assert re.search(rf"\n    {name} +\S", text), name
