@@ -39,6 +39,13 @@ from sim import FEATURIZERS, ScenarioConfig
 from sim.actions import action_set
 from sim.features import FEATURIZER_REGISTRY, REWARDS, resolve_reward
 
+FRAMES = {
+    "world": "world (x east, y north), target/robot position minus own position",
+    "target": "target (x towards the nearest target in view, y towards the furthest target's side), see the "
+    "policy file's documentation",
+}
+"""The header's description of each featurizer frame (informative)."""
+
 FORMAT = "ennc-ql-policy"
 FORMAT_VERSION = 1
 
@@ -59,7 +66,7 @@ def header_for(policy: Policy, cfg: ScenarioConfig) -> dict[str, Any]:
             "name": policy.featurizer,
             "dim": FEATURIZERS[policy.featurizer],
             "state": list(FEATURIZER_REGISTRY[policy.featurizer].state),
-            "frame": "world (x east, y north), target/robot position minus own position",
+            "frame": FRAMES[FEATURIZER_REGISTRY[policy.featurizer].frame],
             "mask_value": cfg.mask_value,
             "local_target": cfg.local_target,
         },

@@ -17,9 +17,9 @@ import numpy as np
 
 from algorithm.policy import Policy, PolicyController
 from monitor import style
-from monitor.geometry import COLORMAP, observed_targets, project_2d, q_colors, q_range
+from monitor.geometry import COLORMAP, VIEW_COLUMNS, VIEW_SUBJECT, observed_targets, project_2d, q_colors, q_range
 from sim import ScenarioConfig, evaluate
-from sim.controllers import COMPASS_NAMES
+from sim.actions import action_set
 from sim.world import Observation, WorldState
 
 SNAPSHOT_STEP = 300
@@ -74,11 +74,13 @@ def policy_figure(policy: Policy, cfg: ScenarioConfig, out: Path, seed: int = 0,
     )
 
     prototypes, q_values = policy.prototypes_by_action()
-    points = [project_2d(p) for p in prototypes]
+    points = [project_2d(p, policy.featurizer) for p in prototypes]
     colors = q_colors(q_values)
     scale = policy.discretization.scale
+    column = VIEW_COLUMNS.get(policy.featurizer, (0, 1))[0]
     # The masked feature value (nothing in view) sits far out; clip the panels to where the targets in view lie.
-    reach = cfg.sensing_range / (1.0 if scale is None else float(scale[0]))
+    reach = cfg.sensing_range / (1.0 if scale is None else float(scale[column]))
+    moves = action_set(policy.actions).moves
     axes = right.subplots(2, 4, sharex=True, sharey=True)
     for k, panel in enumerate(axes.flat):
         if k >= len(points):
@@ -87,7 +89,7 @@ def policy_figure(policy: Policy, cfg: ScenarioConfig, out: Path, seed: int = 0,
         inside = (np.abs(points[k]) <= 1.2 * reach).all(axis=1)
         panel.add_patch(Circle((0.0, 0.0), reach, fill=False, color=_rgb(style.BOUNDARY), lw=0.8))
         panel.scatter(*points[k][inside].T, s=9, c=colors[k][inside] / 255.0)
-        panel.set_title(f"move {COMPASS_NAMES[k]}: {len(points[k])} prototypes", fontsize=8)
+        panel.set_title(f"move {moves[k]}: {len(points[k])} prototypes", fontsize=8)
         panel.set_xlim(-1.2 * reach, 1.2 * reach)
         panel.set_ylim(-1.2 * reach, 1.2 * reach)
         panel.set_aspect("equal")
@@ -98,18 +100,27 @@ def policy_figure(policy: Policy, cfg: ScenarioConfig, out: Path, seed: int = 0,
     )
     bar.set_label("Q value of the move (mean over robots)", fontsize=8)
     bar.ax.tick_params(labelsize=7)
-    right.suptitle("prototypes per move: where the nearest target in view lies, seen from the robot", fontsize=9)
-    fig.supxlabel(CAPTION, fontsize=8, ha="left", x=0.01)
+    subject = VIEW_SUBJECT.get(policy.featurizer, "where the nearest target in view lies, seen from the robot")
+    right.suptitle(f"prototypes per move: {subject}", fontsize=9)
+    fig.supxlabel(caption(policy.featurizer), fontsize=8, ha="left", x=0.01)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=100)
     return out
 
 
-CAPTION = textwrap.fill(
-    "Left: one test trial under the learned policy; a target is observed when it lies within some robot's sensing "
-    "disk. Right: the learned discretization, one panel per compass move: each dot is a prototype placed by "
-    "(dx, dy) from the robot to the nearest target in view (standardized units, north up; the circle is the "
-    "sensing range), coloured by the Q value of making that move from there: brighter is better. States with no "
-    "target in view lie outside the panels.",
-    width=200,
-)
+def caption(featurizer: str) -> str:
+    """The figure's caption: what the two panels show for prototypes of ``featurizer``'s state."""
+    where = (
+        "(x, y) of the second target in view in the robot's target frame (x towards the nearest target, the second "
+        "mirrored to y >= 0; standardized units; the circle is the sensing range)"
+        if featurizer in VIEW_COLUMNS
+        else "(dx, dy) from the robot to the nearest target in view (standardized units, north up; the circle is the "
+        "sensing range)"
+    )
+    return textwrap.fill(
+        "Left: one test trial under the learned policy; a target is observed when it lies within some robot's "
+        f"sensing disk. Right: the learned discretization, one panel per move: each dot is a prototype placed by "
+        f"{where}, coloured by the Q value of making that move from there: brighter is better. States with nothing "
+        "there in view lie outside the panels.",
+        width=200,
+    )

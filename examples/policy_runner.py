@@ -88,6 +88,8 @@ class Observation:
     shared: NDArray[np.float32]  # (E, m, 2): another robot has the nearest / furthest target in view (1.0 / 0.0)
     lost: Bools  # (E, m): no target in view
     covered: Ints  # (E,): targets in view of at least one robot
+    n_seen: Ints  # (E, m): targets in view
+    sees_robot: Bools  # (E, m): another robot in view
 
 
 def _pick(offsets: Floats, index: Ints) -> Floats:
@@ -131,12 +133,34 @@ def sense(sc: dict[str, Any], robots: Floats, targets: Floats, rng: np.random.Ge
         shared=shared.astype(np.float32),
         lost=~any_t[..., 0],
         covered=seen_t.any(axis=1).sum(axis=1),
+        n_seen=seen_t.sum(axis=2),
+        sees_robot=any_r[..., 0],
     )
 
 
+def target_frame(obs: Observation) -> Floats:
+    """(E, m, 2, 2) every robot's target frame, rows its x and y axes in world coordinates (section "The target
+    frame"): x towards the nearest target in view, y a quarter turn counter-clockwise from it, mirrored so that the
+    furthest target (with one target in view: the nearest robot) lies on the y >= 0 side; the world's axes when
+    nothing is in view."""
+    f = obs.full_state.astype(np.float64)
+    seen = obs.n_seen
+    d = np.sqrt(f[..., 0] * f[..., 0] + f[..., 1] * f[..., 1])
+    has_axis = (seen >= 1) & (d > 1e-9)
+    safe = np.where(has_axis, d, 1.0)
+    x_axis = np.where(has_axis[..., None], f[..., 0:2] / safe[..., None], np.array([1.0, 0.0]))
+    y_axis = np.stack([-x_axis[..., 1], x_axis[..., 0]], axis=-1)
+    side = np.where(
+        seen >= 2,
+        (f[..., 2:4] * y_axis).sum(axis=-1),
+        np.where(obs.sees_robot & (seen >= 1), (f[..., 4:6] * y_axis).sum(axis=-1), 0.0),
+    )
+    y_axis = np.where((side < 0.0)[..., None], -y_axis, y_axis)
+    return np.stack([x_axis, y_axis], axis=-2)
+
+
 def featurize(policy: PolicyFile, obs: Observation) -> NDArray[np.float32]:
-    """(E·m, d) states: all six numbers (collab6d), and the two shared flags (shared8d), or one target pair (local2d,
-    by scenario.local_target)."""
+    """(E·m, d) states by the featurizer's name (section "The state")."""
     full = obs.full_state.reshape(-1, 6)
     name = policy.header["featurizer"]["name"]
     if name == "collab6d":
@@ -145,6 +169,28 @@ def featurize(policy: PolicyFile, obs: Observation) -> NDArray[np.float32]:
         return np.concatenate([full, obs.shared.reshape(-1, 2)], axis=1)
     if name == "local2d":
         return full[:, 2:4] if policy.scenario["local_target"] == "furthest" else full[:, 0:2]
+    f = obs.full_state.astype(np.float64)
+    has_target, has_second, has_robot = obs.n_seen >= 1, obs.n_seen >= 2, obs.sees_robot
+    present = [has_target, has_second, has_robot]
+    pairs = [np.where(p[..., None], f[..., k : k + 2], 0.0) for p, k in zip(present, (0, 2, 4), strict=True)]
+    flags = [has_second[..., None].astype(np.float64), has_robot[..., None].astype(np.float64)]
+    if name == "present10d":
+        columns = [pairs[0], pairs[1], flags[0], pairs[2], flags[1], obs.shared]
+        return np.concatenate(columns, axis=-1).reshape(full.shape[0], -1).astype(np.float32)
+    frame = target_frame(obs)
+    distance = np.where(has_target, np.sqrt((f[..., 0:2] ** 2).sum(axis=-1)), 0.0)[..., None]
+    # An offset in the frame: its components along the frame's x and y axes.
+    furthest, robot = (np.einsum("...k,...dk->...d", pair, frame) for pair in pairs[1:])
+    if name == "frame9d":
+        columns = [distance, furthest, flags[0], robot, flags[1], obs.shared]
+        return np.concatenate(columns, axis=-1).reshape(full.shape[0], -1).astype(np.float32)
+    if name == "frame7d":
+        mask = policy.scenario["mask_value"]
+        distance = np.where(has_target[..., None], distance, mask)
+        furthest = np.where(has_target[..., None], np.einsum("...k,...dk->...d", f[..., 2:4], frame), mask)
+        robot = np.where(has_robot[..., None], robot, mask)
+        columns = [distance, furthest, robot, obs.shared]
+        return np.concatenate(columns, axis=-1).reshape(full.shape[0], -1).astype(np.float32)
     raise SystemExit(f"unknown featurizer {name!r}")
 
 
@@ -214,6 +260,9 @@ def run(policy: PolicyFile, trials: int, steps: int, seed: int, violate: str | N
     if violate == "still-start":
         heading = np.zeros_like(heading)
     directions = np.array([a["direction"] for a in sorted(head["actions"], key=lambda a: a["index"])])
+    # Files without an action set name their moves in the world's frame (section "Header").
+    relative = head.get("action_set", {"frame": "world"})["frame"] == "target"
+    frame = np.broadcast_to(np.eye(2), (trials, m, 2, 2))  # each robot's frame as of its last decision
     # Table row of every state: robot i of arena e is state e·m + i.
     rows = np.tile(policy.robot_table[np.arange(m) % policy.robot_table.size], trials)
     mode, every, cap = head["action_mode"], int(head["action_steps"]), int(head["max_action_steps"])
@@ -225,6 +274,7 @@ def run(policy: PolicyFile, trials: int, steps: int, seed: int, violate: str | N
     for t in range(steps):
         # When robots decide: a shared clock (fixed) or each robot's own (until_change); everyone at t = 0.
         if mode == "fixed":
+            decide = np.full((trials, m), t % every == 0)
             if t % every == 0:
                 action = greedy(policy, cells(policy, featurize(policy, obs)), rows).reshape(trials, m)
         elif mode == "until_change":
@@ -237,10 +287,13 @@ def run(policy: PolicyFile, trials: int, steps: int, seed: int, violate: str | N
             count = np.where(decide, 1, count + 1)
         else:
             raise SystemExit(f"unknown action_mode {mode!r}")
+        if relative:  # the frame of a relative move is fixed when the robot decides
+            frame = np.where(decide[..., None, None], target_frame(obs), frame)
         # Lost robots: the heading is reflected for every robot, every step; lost-ness is checked every step.
         if violate != "no-reflect":
             heading = reflect(heading, robots, radius)
-        displacement = speed * directions[action]
+        # A move's direction given in the frame, in world coordinates: its x component along the frame's x axis.
+        displacement = speed * np.einsum("...k,...kd->...d", directions[action], frame)
         lost = obs.lost[..., None]
         if head["lost_behaviour"] == "wander":
             displacement = np.where(lost, speed * heading, displacement)

@@ -30,21 +30,35 @@ def circle(radius: float, segments: int = 128) -> np.ndarray:
     return radius * np.stack([np.cos(angle), np.sin(angle)], axis=-1)
 
 
-def project_2d(prototypes: np.ndarray) -> np.ndarray:
-    """(p, 2) view coordinates of (p, d) prototypes: their first two features (d = 1 gets y = 0).
+VIEW_COLUMNS: dict[str, tuple[int, int]] = {"frame7d": (1, 2), "frame9d": (1, 2)}
+"""The two state columns a featurizer's prototypes are drawn at, where they are not its first two: for the states in
+the target frame, the furthest target's (x, y) in that frame (x towards the nearest target, which adds no second
+axis of its own)."""
 
-    The first two features are kept rather than a PCA because they mean something in the arena and stay the same
-    axes from one policy version to the next: for ``collab6d`` they are (dx, dy) to the nearest target in view, for
-    ``local2d`` (dx, dy) to the tracked target, so each action's panel shows where the target lies relative to the
-    robot, coloured by the value of moving in that compass direction. A PCA's axes would rotate and flip with every
-    refit, and an animation over ``policy_version`` would jump.
+VIEW_SUBJECT: dict[str, str] = {
+    "frame7d": "where the second target in view lies, in the frame of the nearest (x towards it)",
+    "frame9d": "where the second target in view lies, in the frame of the nearest (x towards it)",
+}
+"""What a featurizer's drawn prototypes show, for a caption; by default where the nearest target in view lies."""
+
+
+def project_2d(prototypes: np.ndarray, featurizer: str | None = None) -> np.ndarray:
+    """(p, 2) view coordinates of (p, d) prototypes: two of their features, the first two unless
+    :data:`VIEW_COLUMNS` names others for ``featurizer`` (d = 1 gets y = 0).
+
+    Features are kept rather than a PCA because they mean something in the arena and stay the same axes from one
+    policy version to the next: for ``collab6d`` they are (dx, dy) to the nearest target in view, for ``local2d``
+    (dx, dy) to the tracked target, so each action's panel shows where the target lies relative to the robot,
+    coloured by the value of that move. A PCA's axes would rotate and flip with every refit, and an animation over
+    ``policy_version`` would jump.
     """
     points = np.asarray(prototypes, dtype=np.float64)
     if points.ndim != 2 or points.shape[1] < 1:
         raise ValueError(f"prototypes must have shape (p, d) with d >= 1, got {points.shape}")
     if points.shape[1] == 1:
         return np.concatenate([points, np.zeros_like(points)], axis=1)
-    return points[:, :2].copy()
+    columns = VIEW_COLUMNS.get(featurizer or "", (0, 1))
+    return points[:, list(columns)].copy()
 
 
 def q_range(q_values: Sequence[np.ndarray]) -> tuple[float, float]:

@@ -50,6 +50,7 @@ class RerunMonitor(Monitor):
         self._flipped: set[str] = set()
         self._references: dict[str, float] = {}
         self._learned = "learned policy"
+        self._featurizer: str | None = None  # which state columns the prototypes are drawn at (formulation)
         opened = time.monotonic()
         self._clock: Callable[[], float] = lambda: time.monotonic() - opened
         self._closed = False
@@ -162,7 +163,7 @@ class RerunMonitor(Monitor):
         self._at(None, policy_version, None)
         for k, (protos, q, rgba) in enumerate(zip(prototypes, q_values, colors, strict=True)):
             q = np.asarray(q, dtype=np.float64).reshape(-1)
-            points = geometry.project_2d(protos)
+            points = geometry.project_2d(protos, self._featurizer)
             if len(points) != len(q):
                 raise ValueError(f"action {k}: {len(points)} prototypes but {len(q)} Q values")
             self._north_up(paths.prototypes_of(k))
@@ -186,6 +187,7 @@ class RerunMonitor(Monitor):
 
     def formulation(self, featurizer: str, reward: str) -> None:
         self._learned = f"learned policy ({featurizer}, {reward} reward)"
+        self._featurizer = featurizer
 
     def eval_coverage(self, coverage: float, *, policy_version: int, learner_step: int | None = None) -> None:
         if self._closed:

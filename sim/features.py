@@ -64,6 +64,9 @@ class Featurizer:
     """(E, m, d) float32 states of every robot."""
     paper_reward: str
     """The reward ``paper`` stands for with this state."""
+    frame: str = "world"
+    """The frame its offsets are given in: ``world`` (x east, y north) or ``target``
+    (:func:`sim.actions.target_frame`)."""
 
     @property
     def dim(self) -> int:
@@ -156,6 +159,7 @@ FEATURIZER_REGISTRY: dict[str, Featurizer] = {
             ),
             _frame7d,
             "eq2",
+            frame="target",
         ),
         Featurizer(
             "frame9d",
@@ -172,6 +176,7 @@ FEATURIZER_REGISTRY: dict[str, Featurizer] = {
             ),
             _frame9d,
             "eq2",
+            frame="target",
         ),
     )
 }

@@ -1,9 +1,10 @@
 """docs/policy-file.md is complete: a runner written from it alone (examples/policy_runner.py, plain numpy) gives the
 coverage `ennc-ql eval` gives on the same policy file, trials and seed, and breaking one documented rule does not.
 
-Two small policies cover both decision modes: ENNC-QL option 2 on the shared8d state (collab6d's six numbers and the
-two shared flags; per-robot tables, a `scale`, `fixed` shared clock) and VQQL local (local2d, one table, no `scale`,
-`until_change` per-robot clocks).
+Three small policies cover both decision modes and both action sets: ENNC-QL option 2 on the shared8d state
+(collab6d's six numbers and the two shared flags; per-robot tables, a `scale`, `fixed` shared clock, compass moves),
+VQQL local (local2d, one table, no `scale`, `until_change` per-robot clocks), and the default formulation of `ennc-ql
+up`, frame-difference (the frame9d state and the relative moves in the target frame, deciding every step).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from algorithm.experiments import METHODS, train
 from algorithm.policy_file import save_policy
 from ennc_ql.cli import main
 from sim import scenario
+from sim.features import DEFAULT_FORMULATION, FORMULATIONS
 from tests.ennc_ql.test_reproduce import TINY as TINY_REPRODUCE
 
 RUNNER = Path(__file__).resolve().parents[1] / "examples" / "policy_runner.py"
@@ -30,14 +32,23 @@ TRIALS, STEPS, SEED = 20, 1000, 0
 TINY = dataclasses.replace(TINY_REPRODUCE, test_trials=1, test_steps=10)
 
 
-SHARED = dataclasses.replace(METHODS["ennc-ql-collab-option2"], featurizer="shared8d", reward="difference")
+OPTION2 = METHODS["ennc-ql-collab-option2"]
+FRAME = FORMULATIONS[DEFAULT_FORMULATION]
+SPECS = {
+    "shared8d": (dataclasses.replace(OPTION2, featurizer="shared8d", reward="difference"), None),
+    "vqql-local-16": (METHODS["vqql-local-16"], None),
+    DEFAULT_FORMULATION: (
+        dataclasses.replace(OPTION2, featurizer=FRAME.featurizer, reward=FRAME.reward, actions=FRAME.actions),
+        FRAME.act_every,
+    ),
+}
 
 
-@pytest.fixture(scope="module", params=["ennc-ql-collab-option2", "vqql-local-16"])
+@pytest.fixture(scope="module", params=list(SPECS))
 def policy_file(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    spec = SHARED if request.param == "ennc-ql-collab-option2" else METHODS[request.param]
-    outcome = train(spec, TINY, seed=0)
-    assert outcome.policy.featurizer == spec.featurizer
+    spec, act_every = SPECS[request.param]
+    outcome = train(spec, TINY, seed=0, act_every=act_every)
+    assert outcome.policy.featurizer == spec.featurizer and outcome.policy.actions == spec.actions
     return save_policy(outcome.policy, scenario(), tmp_path_factory.mktemp("policy") / f"{request.param}.npz")
 
 

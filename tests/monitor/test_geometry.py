@@ -34,6 +34,14 @@ def test_projection_keeps_the_first_two_features() -> None:
         project_2d(np.zeros(4))
 
 
+def test_states_in_the_target_frame_are_drawn_at_the_second_target() -> None:
+    # frame9d: (distance to the nearest target, the furthest target's x, y in its frame, ...); the distance alone is
+    # no position, the furthest target's offset in the frame is.
+    protos = np.array([[120.0, 30.0, 40.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]])
+    np.testing.assert_array_equal(project_2d(protos, "frame9d"), [[30.0, 40.0]])
+    np.testing.assert_array_equal(project_2d(protos[:, :8], "shared8d"), [[120.0, 30.0]])
+
+
 def test_q_colors_share_one_range_across_actions() -> None:
     low, high = q_colors([np.array([-1.0, 0.0]), np.array([1.0])])
     assert low.shape == (2, 4) and high.shape == (1, 4) and low.dtype == np.uint8
