@@ -23,7 +23,7 @@ from algorithm.policy_file import save_policy
 from ennc_ql.cli import main
 from sim import scenario
 from sim.features import DEFAULT_FORMULATION, FORMULATIONS
-from tests.ennc_ql.test_reproduce import TINY as TINY_REPRODUCE
+from tests.fakes import TINY as TINY_REPRODUCE
 
 RUNNER = Path(__file__).resolve().parents[1] / "examples" / "policy_runner.py"
 TRIALS, STEPS, SEED = 20, 1000, 0

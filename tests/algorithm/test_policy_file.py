@@ -14,22 +14,7 @@ from algorithm.discretization import Discretization
 from algorithm.policy import Policy, PolicyController
 from algorithm.policy_file import FORMAT_VERSION, PolicyFileError, load_policy, save_policy, scenario_from_header
 from sim import evaluate, scenario
-
-
-def make_policy(rng: np.random.Generator, robots: int = 10, rows: int = 10) -> Policy:
-    protos = [rng.normal(0, 100, (int(rng.integers(1, 6)), 6)) for _ in range(8)]
-    labels = [rng.normal(size=len(p)) for p in protos]
-    disc = Discretization.from_per_action(protos, labels, scale=np.full(6, 50.0, np.float32))
-    return Policy(
-        featurizer="collab6d",
-        discretization=disc,
-        tables=rng.normal(size=(rows, disc.size)).astype(np.float32),
-        robot_table=np.arange(robots) % rows,
-        visits=rng.integers(0, 100, (rows, disc.size)).astype(np.uint64),
-        version=7,
-        method="ennc-ql-collab-option2",
-        meta={"seed": 3},
-    )
+from tests.fakes import make_policy
 
 
 def test_round_trip_keeps_every_array_and_field(tmp_path: Path) -> None:

@@ -25,7 +25,7 @@ from protocol.messages import ExperienceBatch, PolicyUpdate, QTableIncrement
 from sim import COMPASS, scenario
 from sim.actions import ACTION_SETS
 from sim.features import FEATURIZERS, FORMULATIONS, REWARDS, Formulation
-from tests.algorithm.test_policy_file import make_policy
+from tests.fakes import make_policy
 
 
 def transitions(n: int, dim: int = 6, seed: int = 0) -> Transitions:

@@ -14,7 +14,7 @@ from ennc_ql.cluster import cluster_status
 from ennc_ql.experiments.reproduce import reproduce
 from ennc_ql.progress import ProgressBar, plain_line
 from learner.report import LearnerStatus
-from tests.ennc_ql.test_reproduce import TINY
+from tests.fakes import TINY
 
 
 def counters(**figures: float) -> dict[str, float]:

@@ -8,21 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from algorithm.experiments import Budget
-from algorithm.phase1 import Phase1Config
 from algorithm.policy_file import load_policy
 from ennc_ql.cli import main
 from ennc_ql.experiments.reproduce import reproduce
-
-TINY = Budget(
-    arenas=24,
-    explore_trials=1,
-    phase2_trials=2,
-    phase1=Phase1Config(max_iterations=1, n_cycles=25, max_patterns=1500),
-    codebook_patterns=1500,
-    test_trials=2,
-    test_steps=120,
-)
+from tests.fakes import TINY
 
 
 def test_tiny_reproduce_writes_consistent_results(tmp_path: Path) -> None:

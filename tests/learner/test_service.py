@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import threading
-import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -18,11 +16,11 @@ from algorithm.discretization import Discretization
 from algorithm.phase1 import Phase1Config
 from learner.config import LearnerConfig
 from learner.policy_state import PolicyState
-from learner.report import LearnerReport
 from learner.service import LearnerService
 from learner.wiring import connect as connect_learner
 from protocol import ExperienceBatch, InMemoryBus, InMemoryTransport, PolicyUpdate, QTableIncrement, Reject
 from sim.features import DEFAULT_FORMULATION, FEATURIZERS, FORMULATIONS
+from tests.fakes import run_until
 
 FAST = LearnerConfig(
     min_tuples=8000,
@@ -34,25 +32,6 @@ FAST = LearnerConfig(
     checkpoint_interval=0.5,
     duration=120.0,
 )
-
-
-def run_until(service: LearnerService, condition: Callable[[], bool]) -> LearnerReport:
-    """``service.run`` until ``condition()`` holds (or its duration ends): a loaded CI machine may need most of
-    the time for phase 1, so the tests end on the outcome, not on the clock."""
-    done = threading.Event()
-
-    def watch() -> None:
-        while not done.is_set() and not condition():
-            time.sleep(0.05)
-        done.set()
-
-    watcher = threading.Thread(target=watch)
-    watcher.start()
-    try:
-        return service.run(done)
-    finally:
-        done.set()
-        watcher.join()
 
 
 def test_serial_learner_and_actor_exchange_experience_and_policies(tmp_path: Path) -> None:

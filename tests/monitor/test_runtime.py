@@ -21,7 +21,7 @@ from learner.wiring import connect as connect_learner
 from monitor import Sink, merge_recordings, open_monitor, paths, summarize_recording
 from protocol import InMemoryBus, InMemoryTransport
 from sim import HAND_MADE, N_ACTIONS
-from tests.learner.test_service import run_until
+from tests.fakes import run_until
 from tests.monitor.rrd import rows
 
 CONFIG = LearnerConfig(

@@ -17,7 +17,7 @@ from sim.features import (
     reward_value,
     trial_reward,
 )
-from tests.sim.test_trial import situation
+from tests.fakes import situation
 
 MASK = 1000.0
 N, W = 0, 6  # compass action indices

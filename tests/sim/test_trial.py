@@ -5,54 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim import ScenarioConfig, TrialState, WorldState, featurize, reset_trial, scenario, sense, step_trial
-from sim.actions import action_set
+from sim import ScenarioConfig, reset_trial, scenario, step_trial
 from sim.features import resolve_reward, trial_reward
+from tests.fakes import situation
 
 N, E, W = 0, 2, 6  # compass action indices
 MASK = 1000.0
 SPEED = 7.5
-
-
-def situation(
-    cfg: ScenarioConfig,
-    robots: list[tuple[float, float]],
-    targets: list[tuple[float, float]],
-    learner: list[bool],
-    target_vel: list[tuple[float, float]] | None = None,
-    heading: list[tuple[float, float]] | None = None,
-    featurizer: str = "collab6d",
-    reward: str = "paper",
-    actions: str = "compass",
-) -> TrialState:
-    """One arena at the start of a trial, robots and targets where given (targets still unless ``target_vel``)."""
-    vel = np.zeros((1, len(targets), 2)) if target_vel is None else np.array([target_vel], dtype=np.float64)
-    world = WorldState(
-        robot_pos=np.array([robots], dtype=np.float64),
-        target_pos=np.array([targets], dtype=np.float64),
-        target_vel=vel,
-        target_speed=np.linalg.norm(vel, axis=-1),
-    )
-    obs = sense(cfg, world)
-    features = featurize(cfg, obs, featurizer)
-    mask = np.array([learner])
-    m = len(robots)
-    return TrialState(
-        world=world,
-        obs=obs,
-        featurizer=featurizer,
-        reward=resolve_reward(featurizer, reward),
-        actions=actions,
-        features=features,
-        action=np.zeros((1, m), np.int64),
-        held=np.zeros((1, m), np.int64),
-        frame=np.array(action_set(actions).frame(obs), dtype=np.float64),
-        start_features=features,
-        learner=mask,
-        active=mask.copy(),
-        heading=np.array([heading or [(1.0, 0.0)] * m], dtype=np.float64),
-        earned=np.zeros((1, m), np.float32),
-    )
 
 
 def small(m: int, n: int) -> ScenarioConfig:
