@@ -159,7 +159,7 @@ class RobotActor:
         while not self._stopping():
             self._adopt_policy()
             watch = self._watch_trial(start) if self.monitor.enabled else None
-            batch = self.slice.run_trial(self.agent, learn=self.agent is not None, on_step=watch)
+            batch = self.slice.run_trial(self.agent, update=self.agent is not None, on_step=watch)
             self._trials += 1
             if watch is not None:
                 watch.report(batch.reward[batch.done], self._tuples + len(batch), self.policy.version)

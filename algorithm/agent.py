@@ -6,7 +6,7 @@ Usage::
     cells = agent.cells(states)                                        # (N, L) cell of each (s, a)
     actions = agent.act(robots, cells, rng, explore=True)              # ε-greedy on each robot's own table
     actions = agent.explore(greedy_actions, rng)                       # the same ε flips on greedy actions
-    agent.learn(robots, cell_sa, next_cells, rewards, dones)           # Eq. 1
+    agent.update(robots, cell_sa, next_cells, rewards, dones)          # Eq. 1
     snapshot = agent.policy()
 """
 
@@ -80,7 +80,7 @@ class TabularAgent:
         flip = rng.random(greedy.size) < self.config.epsilon
         return np.where(flip, rng.integers(0, N_ACTIONS, greedy.size), greedy)
 
-    def learn(
+    def update(
         self,
         robots: np.ndarray,
         cell_sa: np.ndarray,

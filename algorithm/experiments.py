@@ -259,7 +259,7 @@ def train(
     )
     recent: list[Transitions] = []
     for trial in range(budget.phase2_trials):
-        batch = learner_slice.run_trial(agent, learn=True)
+        batch = learner_slice.run_trial(agent, update=True)
         tuples += len(batch)
         recent = [*recent, batch][-max(1, budget.refit_tuples // max(len(batch), 1)) :]
         if (trial + 1) % max(1, budget.phase2_trials // 4) == 0:

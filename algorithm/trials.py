@@ -11,7 +11,7 @@ Usage::
 
     sl = ExperienceSlice(cfg, SliceConfig(n_arenas=256), seed=0)
     batch = sl.run_trial()                      # random exploration: Transitions of every learning robot
-    batch = sl.run_trial(agent, learn=True)     # ε-greedy phase 2, updating the agent's tables on-line
+    batch = sl.run_trial(agent, update=True)    # ε-greedy phase 2, updating the agent's tables on-line
 """
 
 from __future__ import annotations
@@ -67,17 +67,17 @@ class ExperienceSlice:
         self.learner_mask[list(learners)] = True
 
     def run_trial(
-        self, agent: TabularAgent | None = None, learn: bool = False, on_step: StepHook | None = None
+        self, agent: TabularAgent | None = None, update: bool = False, on_step: StepHook | None = None
     ) -> Transitions:
         """One learning trial in every arena; ``agent`` None means random actions for every robot.
 
         ``on_step`` (optional) sees the world and observation after every step, e.g. to draw an arena.
         """
-        cfg, sc, rng = self.cfg, self.config, self.rng
-        state = reset_trial(cfg, sc.n_arenas, self.learner_mask, sc.featurizer, rng, sc.reward, sc.actions)
+        cfg, setup, rng = self.cfg, self.config, self.rng
+        state = reset_trial(cfg, setup.n_arenas, self.learner_mask, setup.featurizer, rng, setup.reward, setup.actions)
         # VQQL actions last until the held action's cell changes, so they need the agent's discretization.
-        until_change = sc.action_mode == "until_change" and agent is not None
-        hold = sc.max_action_steps if until_change else cfg.action_steps
+        until_change = setup.action_mode == "until_change" and agent is not None
+        hold = setup.max_action_steps if until_change else cfg.action_steps
         decide = np.ones(state.shape, dtype=bool)
         cell_sa = np.zeros(state.shape, np.int64)  # cell of (s, a) for the held action, for Eq. 1 and VQQL
         # (E·m, L) every robot's cells at the latest state searched for it. A state is searched once: the decision
@@ -85,7 +85,7 @@ class ExperienceSlice:
         cells = None if agent is None else agent.cells(_flat(state.features))
         parts: list[Transitions] = []
         while True:
-            action, cell_sa = self._decide(agent, state, decide, cell_sa, learn, cells)
+            action, cell_sa = self._decide(agent, state, decide, cell_sa, update, cells)
             state, out = step_trial(cfg, state, action, decide, rng, hold=hold)
             if on_step is not None:
                 on_step(state.world, state.obs)
@@ -98,20 +98,20 @@ class ExperienceSlice:
                 if until_change:
                     now = np.take_along_axis(cells.reshape(*state.shape, -1), out.action[..., None], axis=2)[..., 0]
                     out = out.with_boundary(now != cell_sa)
-            self._emit(out, agent if learn else None, cell_sa, cells, parts)
+            self._emit(out, agent if update else None, cell_sa, cells, parts)
             if out.trial_over:
-                return Transitions.concat(parts) if parts else Transitions.empty(FEATURIZERS[sc.featurizer])
+                return Transitions.concat(parts) if parts else Transitions.empty(FEATURIZERS[setup.featurizer])
             decide = out.decide
 
     def _emit(
         self,
         out: TrialStep,
-        learner: TabularAgent | None,
+        updated: TabularAgent | None,
         cell_sa: np.ndarray,
         cells: np.ndarray | None,
         parts: list[Transitions],
     ) -> None:
-        """Append the tuples that end on this step to ``parts``; with ``learner``, apply Eq. 1 to them."""
+        """Append the tuples that end on this step to ``parts``; with ``updated``, apply Eq. 1 to them."""
         emit = out.transition
         if not emit.any():
             return
@@ -125,8 +125,8 @@ class ExperienceSlice:
             done=out.done[emit],
         )
         parts.append(batch)
-        if learner is not None and cells is not None:
-            learner.learn(robots, cell_sa[emit], cells[np.flatnonzero(emit)], batch.reward, batch.done)
+        if updated is not None and cells is not None:
+            updated.update(robots, cell_sa[emit], cells[np.flatnonzero(emit)], batch.reward, batch.done)
 
     def _decide(
         self,

@@ -68,7 +68,7 @@ class TrialWatch:
     Usage (an actor's loop)::
 
         watch = TrialWatch(monitor, cfg, "actor-0", first_step=trial * cfg.learning_steps, draw=trial % 10 == 0)
-        batch = experience_slice.run_trial(agent, learn=True, on_step=watch)
+        batch = experience_slice.run_trial(agent, update=True, on_step=watch)
         watch.report(batch.reward[batch.done], tuples_sent=..., policy_version=...)
     """
 

@@ -62,7 +62,7 @@ def _actor_trials(
     slice_s = message_s = 0.0
     while steps == 0 or slice_s + message_s < seconds:
         start = time.perf_counter()
-        batch = experience.run_trial(agent, learn=True)
+        batch = experience.run_trial(agent, update=True)
         built = time.perf_counter()
         for seq, build in enumerate(experience_batches(batch, batch_size, formulation)):
             build(Header(actor_id="bench", incarnation=1, seq=seq, policy_version=1))

@@ -31,7 +31,7 @@ from algorithm.experiments import METHODS, Budget, Outcome
 from algorithm.policy import LostBehaviour
 from ennc_ql.command import check_folder, emit, fail
 from ennc_ql.config import ConfigError, add_config_flags, load_config, parse_setting, positive, replace_setting
-from ennc_ql.experiments.jobs import Job, JobsBar, learn
+from ennc_ql.experiments.jobs import Job, JobsBar, run_jobs
 from ennc_ql.experiments.reproduce import PAPER
 from ennc_ql.experiments.results import write_results
 from ennc_ql.parser import CommandHelp, add_command
@@ -156,7 +156,7 @@ def ablate(
     ]
     with ProgressBar("ablate", total=len(todo) + len(setups), unit="jobs") as bar:
         progress = JobsBar(bar)
-        results = learn_on_slurm(todo, out_dir / "slurm", slurm, progress) if slurm else learn(todo, jobs, progress)
+        results = learn_on_slurm(todo, out_dir / "slurm", slurm, progress) if slurm else run_jobs(todo, jobs, progress)
         references = _references([setup for _, setup in setups], progress)
     runs = {
         i: sorted((o for job, o in results if job.variant == i), key=lambda o: o.seed)

@@ -2,7 +2,7 @@
 worker processes, with a progress bar over them::
 
     with ProgressBar("reproduce", total=len(todo), unit="jobs") as bar:
-        outcomes = learn(todo, jobs=2, progress=JobsBar(bar))      # [(job, outcome), ...]
+        outcomes = run_jobs(todo, jobs=2, progress=JobsBar(bar))      # [(job, outcome), ...]
 """
 
 from __future__ import annotations
@@ -86,7 +86,7 @@ class JobsBar:
         self.bar.mark(message, n=self.done)
 
 
-def learn(todo: Sequence[Job], jobs: int, progress: JobsBar) -> list[tuple[Job, Outcome]]:
+def run_jobs(todo: Sequence[Job], jobs: int, progress: JobsBar) -> list[tuple[Job, Outcome]]:
     """Every learning process of ``todo``, ``jobs`` at a time (in worker processes when more than one)."""
     outcomes: list[tuple[Job, Outcome]] = []
     if jobs > 1 and todo:

@@ -21,7 +21,7 @@ import numpy as np
 from algorithm.experiments import METHODS, Budget, Outcome
 from ennc_ql.command import check_folder, emit, fail
 from ennc_ql.config import ConfigError, add_config_flags, load_config, positive
-from ennc_ql.experiments.jobs import Job, JobsBar, learn
+from ennc_ql.experiments.jobs import Job, JobsBar, run_jobs
 from ennc_ql.experiments.results import write_results
 from ennc_ql.parser import CommandHelp, add_command
 from ennc_ql.progress import ProgressBar
@@ -81,7 +81,7 @@ def reproduce(
     with ProgressBar("reproduce", total=len(todo) + len(hand_made), unit="jobs") as bar:
         progress = JobsBar(bar)
         outcomes: dict[str, list[Outcome]] = {job.method: [] for job in todo}
-        learned = learn_on_slurm(todo, out_dir / "slurm", slurm, progress) if slurm else learn(todo, jobs, progress)
+        learned = learn_on_slurm(todo, out_dir / "slurm", slurm, progress) if slurm else run_jobs(todo, jobs, progress)
         for _, outcome in learned:
             outcomes[outcome.method].append(outcome)
         measured = {name: _hand_made(name, cfg, budget, progress) for name in hand_made}

@@ -85,7 +85,7 @@ def test_cells_reject_states_of_the_wrong_shape() -> None:
         disc.cells(np.zeros((3, 2)))
 
 
-def reference_trial(sl: ExperienceSlice, agent: TabularAgent, learn: bool) -> Transitions:
+def reference_trial(sl: ExperienceSlice, agent: TabularAgent, update: bool) -> Transitions:
     """The slice's trial as it was written before its cells were shared: every use of a state's cells searches it
     again, by brute force. It calls the slice's own decision so that the random stream is the same."""
     cfg, sc = sl.cfg, sl.config
@@ -97,7 +97,7 @@ def reference_trial(sl: ExperienceSlice, agent: TabularAgent, learn: bool) -> Tr
     disc, parts = agent.discretization, []
     while True:
         flat = state.features.reshape(-1, state.features.shape[-1])
-        action, cell_sa = sl._decide(agent, state, decide, cell_sa, learn, brute_cells(disc, flat))
+        action, cell_sa = sl._decide(agent, state, decide, cell_sa, update, brute_cells(disc, flat))
         state, out = step_trial(cfg, state, action, decide, sl.rng, hold=sc.max_action_steps if until_change else None)
         cells = brute_cells(disc, state.features.reshape(-1, state.features.shape[-1])).reshape(*state.shape, -1)
         if until_change:
@@ -113,8 +113,8 @@ def reference_trial(sl: ExperienceSlice, agent: TabularAgent, learn: bool) -> Tr
                 done=out.done[emit],
             )
             parts.append(batch)
-            if learn:
-                agent.learn(robot_ids[emit], cell_sa[emit], cells[emit], batch.reward, batch.done)
+            if update:
+                agent.update(robot_ids[emit], cell_sa[emit], cells[emit], batch.reward, batch.done)
         if out.trial_over:
             return Transitions.concat(parts) if parts else Transitions.empty(FEATURIZERS[sc.featurizer])
         decide = out.decide
@@ -147,7 +147,7 @@ def test_run_trial_gives_the_tuples_and_tables_of_the_reference_loop(
     fast, slow = TabularAgent(policy, Phase2Config()), TabularAgent(policy, Phase2Config())
     fast_slice, slow_slice = ExperienceSlice(scenario(), config, seed=9), ExperienceSlice(scenario(), config, seed=9)
     for _ in range(2):
-        got, want = fast_slice.run_trial(fast, learn=True), reference_trial(slow_slice, slow, learn=True)
+        got, want = fast_slice.run_trial(fast, update=True), reference_trial(slow_slice, slow, update=True)
         for name in ("robot", "state", "action", "reward", "next_state", "done"):
             np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
     np.testing.assert_array_equal(fast.tables, slow.tables)

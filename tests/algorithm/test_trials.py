@@ -57,7 +57,7 @@ def test_phase2_learns_that_moving_away_from_a_lone_target_loses_it() -> None:
     agent = TabularAgent(policy, Phase2Config(alpha=0.1, gamma=0.9, epsilon=1.0))
     sl = ExperienceSlice(cfg, SliceConfig(n_arenas=400, featurizer="local2d"), seed=2)
     for _ in range(6):
-        sl.run_trial(agent, learn=True)
+        sl.run_trial(agent, update=True)
     east, west = 2, 6
     q = agent.tables[0]
     target_east = disc.offsets[:-1] + 1
