@@ -60,7 +60,7 @@ HELP = CommandHelp(
         ("ennc-ql up --duration 120 --rerun spawn", "a 2-minute run, watched live in the Rerun viewer"),
         ("ennc-ql up --config runs/<id>/up.toml", "repeat a run exactly"),
     ),
-    "--duration (480 s) plus start-up, the final evaluation and the report: 8.5 min in all with the defaults",
+    "--duration (480 s) plus start-up, the final evaluation and the report: about 8 min in all with the defaults",
 )
 
 

@@ -33,9 +33,10 @@ class UpConfig:
     seed: int = 0
     """Run seed, given to the learner and to every actor (each derives its own stream from it and its id)."""
     formulation: str = DEFAULT_FORMULATION
-    """State, reward and action set of every process, by name: shared-difference (the shared8d state, the difference
-    reward, deciding every step in tests: the best formulation of the README's ablations) or paper (the paper's
-    collab6d state and Eq. 2 reward, deciding once per action)."""
+    """State, reward and action set of every process, by name: frame-difference (the frame9d state, the relative
+    moves, the difference reward per decision, deciding every step in tests: the best formulation of
+    docs/learning-quality.md), shared-difference (the shared8d state, compass moves, the difference reward) or paper
+    (the paper's collab6d state, Eq. 2 reward and compass moves, deciding once per action)."""
     max_restarts: int = 3
     """Times in a row a child that dies (the learner, an actor, the router) is started again, after 1, 2, 4 ... s,
     before the run gives up on it (the learner resumes from its checkpoint; one that ran a minute starts a new
