@@ -127,7 +127,7 @@ class LearnerService:
     def run(self, stop: threading.Event) -> LearnerReport:
         c = self.config
         self._started = time.monotonic()
-        self.watch.started(c.resolved.featurizer, self.state.reward, self.evaluator.references)
+        self.watch.started(c.resolved.featurizer, self.state.reward, self.evaluator.references, c.resolved.actions)
         next_broadcast = next_checkpoint = next_status = self._started
         next_eval = self._started + c.eval_interval
         while not stop.is_set():

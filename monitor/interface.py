@@ -72,8 +72,9 @@ class Monitor:
     def q_stats(self, q_tables: Sequence[np.ndarray], *, policy_version: int, learner_step: int | None = None) -> None:
         """Mean, min and max over every finite entry of ``q_tables`` at ``learner/q/{mean,min,max}``."""
 
-    def formulation(self, featurizer: str, reward: str) -> None:
-        """The state and reward the policy is learned with: they name the learning curve (call before it starts)."""
+    def formulation(self, featurizer: str, reward: str, actions: str = "compass") -> None:
+        """The state, reward and action set the policy is learned with: the first two name the learning curve, the
+        state and the moves lay out the prototype views (call before the curve starts and before the layout)."""
 
     def eval_coverage(self, coverage: float, *, policy_version: int, learner_step: int | None = None) -> None:
         """Metric A (%) of the current policy on the test trials, at ``learner/coverage/eval`` (the learning curve);

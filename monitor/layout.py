@@ -21,10 +21,18 @@ from rerun.encodings import EntityPathLike
 
 from monitor import paths, style
 from monitor.geometry import PROTOTYPE_REACH
-from sim.controllers import COMPASS_NAMES
+from sim.actions import action_set
 
-ROSE: tuple[int | None, ...] = (7, 0, 1, 6, None, 2, 5, 4, 3)
-"""Action of each cell of the 3x3 compass rose, row by row from the north-west (NW N NE / W key E / SW S SE)."""
+
+def rose(actions: str) -> tuple[int | None, ...]:
+    """Action of each cell of the 3x3 rose, row by row from the top left, the key in the middle: each action in the
+    cell its direction points to (compass: NW N NE / W key E / SW S SE; relative: the move ``toward`` the nearest
+    target on the right, as the target frame's prototypes are drawn)."""
+    cells: list[int | None] = [None] * 9
+    for k, (dx, dy) in enumerate(action_set(actions).directions):
+        cells[3 * (1 - round(float(dy))) + round(float(dx)) + 1] = k
+    return tuple(cells)
+
 
 ARENA_MARGIN = 1.05
 """Half-width of an arena view in arena radii."""
@@ -149,14 +157,17 @@ def _key_view() -> rrb.Spatial2DView:
     return rrb.Spatial2DView(name="key", origin=paths.KEY, contents=f"{paths.KEY}/**", visual_bounds=KEY_BOUNDS)
 
 
-def _rose(sensing_range: float | None) -> rrb.Container:
-    """The prototype views as a compass rose around the key, one shared fixed range (None: fitted to the data)."""
+def _rose(sensing_range: float | None, actions: str) -> rrb.Container:
+    """The prototype views as a rose around the key, one shared fixed range (None: fitted to the data)."""
     bounds = _square(sensing_range, PROTOTYPE_REACH)
-    cells = [_key_view() if k is None else _drawing(COMPASS_NAMES[k], paths.prototypes_of(k), bounds) for k in ROSE]
+    moves = action_set(actions).moves
+    cells = [_key_view() if k is None else _drawing(moves[k], paths.prototypes_of(k), bounds) for k in rose(actions)]
     return rrb.Grid(*cells, grid_columns=3, name="prototypes by Q")
 
 
-def _below(actor_ids: Sequence[str], arena_radius: float | None, sensing_range: float | None) -> rrb.Container:
+def _below(
+    actor_ids: Sequence[str], arena_radius: float | None, sensing_range: float | None, actions: str
+) -> rrb.Container:
     """Arenas, compass rose and system side by side: each gets the row's height, which keeps the 2-D views about
     square in a landscape window."""
     columns = max(1, math.ceil(len(actor_ids) / 2))  # two arenas stacked per column of a ~300-pixel width
@@ -164,7 +175,7 @@ def _below(actor_ids: Sequence[str], arena_radius: float | None, sensing_range: 
     arenas = rrb.Grid(
         *[_drawing(f"{a} arena", paths.actor_arena(a), bounds) for a in actor_ids], grid_columns=columns, name="arenas"
     )
-    return rrb.Horizontal(arenas, _rose(sensing_range), _system(actor_ids), column_shares=[columns, 2, 3])
+    return rrb.Horizontal(arenas, _rose(sensing_range, actions), _system(actor_ids), column_shares=[columns, 2, 3])
 
 
 def default_blueprint(
@@ -173,6 +184,7 @@ def default_blueprint(
     eval_trial: bool = False,
     arena_radius: float | None = None,
     sensing_range: float | None = None,
+    actions: str = "compass",
 ) -> rrb.Blueprint:
     """The training layout (learning curves, arenas and prototypes, system), or for ``eval_trial`` (``ennc-ql eval``
     recording a trial) the trial, its coverage and the key.
@@ -188,7 +200,9 @@ def default_blueprint(
         # A replayed trial plays from its first step.
         time_panel = rrb.TimePanel(timeline=paths.SIM_STEP, state="collapsed")
     else:
-        root = rrb.Vertical(_learning(actor_ids), _below(actor_ids, arena_radius, sensing_range), row_shares=[1, 1])
+        root = rrb.Vertical(
+            _learning(actor_ids), _below(actor_ids, arena_radius, sensing_range, actions), row_shares=[1, 1]
+        )
         # Opening at the end (and following a live run) shows the whole curve and the latest arena and policy.
         time_panel = rrb.TimePanel(timeline=paths.TRAIN_TIME, play_state="following", state="collapsed")
     return rrb.Blueprint(

@@ -50,11 +50,14 @@ class LearnerWatch:
         self._laid_out: list[str] | None = None  # actors in the viewer layout last sent
         monitor.use_clock(clock)
 
-    def started(self, featurizer: str, reward: str, references: Callable[[], Mapping[str, float]]) -> None:
-        """Name the learning curve by its formulation and draw the reference levels ``references()`` measures."""
+    def started(
+        self, featurizer: str, reward: str, references: Callable[[], Mapping[str, float]], actions: str = "compass"
+    ) -> None:
+        """Name the learning curve by its formulation, lay the prototype views out by its moves, and draw the
+        reference levels ``references()`` measures."""
         if not self.monitor.enabled:
             return
-        self.monitor.formulation(featurizer, reward)
+        self.monitor.formulation(featurizer, reward, actions)
         began = time.monotonic()
         levels = references()
         self.monitor.reference_levels(levels)

@@ -51,6 +51,7 @@ class RerunMonitor(Monitor):
         self._references: dict[str, float] = {}
         self._learned = "learned policy"
         self._featurizer: str | None = None  # which state columns the prototypes are drawn at (formulation)
+        self._actions = "compass"  # the moves the prototype views are named and laid out by (formulation)
         opened = time.monotonic()
         self._clock: Callable[[], float] = lambda: time.monotonic() - opened
         self._closed = False
@@ -185,9 +186,10 @@ class RerunMonitor(Monitor):
         stats = dict(zip(paths.Q_STATS, (entries.mean(), entries.min(), entries.max()), strict=True))
         self.scalars(paths.LEARNER_Q, stats, policy_version=policy_version, learner_step=learner_step)
 
-    def formulation(self, featurizer: str, reward: str) -> None:
+    def formulation(self, featurizer: str, reward: str, actions: str = "compass") -> None:
         self._learned = f"learned policy ({featurizer}, {reward} reward)"
         self._featurizer = featurizer
+        self._actions = actions
 
     def eval_coverage(self, coverage: float, *, policy_version: int, learner_step: int | None = None) -> None:
         if self._closed:
@@ -282,7 +284,11 @@ class RerunMonitor(Monitor):
         if self._closed:
             return
         blueprint = default_blueprint(
-            actor_ids, eval_trial=eval_trial, arena_radius=arena_radius, sensing_range=sensing_range
+            actor_ids,
+            eval_trial=eval_trial,
+            arena_radius=arena_radius,
+            sensing_range=sensing_range,
+            actions=self._actions,
         )
         self.rec.send_blueprint(blueprint)
         # The drawings the views are read against; static, so sending them again with a new layout costs nothing.
@@ -290,7 +296,7 @@ class RerunMonitor(Monitor):
             self.rec.log(path, entry, static=True)
         if not eval_trial and sensing_range is not None:
             for k in range(N_ACTIONS):
-                for path, part in drawings.prototype_frame(k, sensing_range):
+                for path, part in drawings.prototype_frame(k, sensing_range, self._actions):
                     self.rec.log(path, part, static=True)
 
     def close(self) -> None:

@@ -13,9 +13,10 @@ from learner.config import LearnerConfig
 from learner.evaluator import TEST_SEED
 from learner.service import LearnerService
 from monitor import Sink, open_monitor, paths, style
-from monitor.layout import TITLE_MAX
+from monitor.layout import TITLE_MAX, rose
 from protocol import InMemoryBus, InMemoryTransport
 from sim import COMPASS, HAND_MADE, evaluate, scenario
+from sim.actions import ACTION_SETS
 from sim.controllers import COMPASS_NAMES
 from tests.monitor.rrd import Layout, View, layout, rows
 
@@ -136,6 +137,14 @@ def test_prototype_views_form_a_north_up_compass_rose(sent: Layout) -> None:
     # The rose reads like a map: N is the move up (+y), E the move right (+x).
     assert COMPASS[COMPASS_NAMES.index("N")].tolist() == pytest.approx([0.0, 1.0])
     assert COMPASS[COMPASS_NAMES.index("E")].tolist() == pytest.approx([1.0, 0.0])
+
+
+def test_the_rose_places_every_move_where_it_points() -> None:
+    # Compass: NW N NE / W key E / SW S SE. Relative: "toward" the nearest target points along the target frame's
+    # +x, drawn to the right, and "left" (towards the furthest target's side, +y) at the top.
+    assert rose("compass") == (7, 0, 1, 6, None, 2, 5, 4, 3)
+    assert rose("relative") == (3, 2, 1, 4, None, 0, 5, 6, 7)
+    assert [ACTION_SETS["relative"].moves[k] for k in (2, 0, 4)] == ["left", "toward", "away"]
 
 
 def test_every_actor_has_an_arena_seen_from_above_its_root(sent: Layout) -> None:

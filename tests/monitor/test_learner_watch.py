@@ -80,9 +80,9 @@ def test_started_names_the_curve_and_measures_the_references_once() -> None:
         measured.append(1)
         return {"random": 16.5}
 
-    LearnerWatch(recorder, scenario(), clock=lambda: 0.0).started("shared8d", "difference", references)
+    LearnerWatch(recorder, scenario(), clock=lambda: 0.0).started("frame9d", "difference", references, "relative")
     assert recorder.calls[1:] == [
-        ("formulation", {"args": ("shared8d", "difference")}),
+        ("formulation", {"args": ("frame9d", "difference", "relative")}),
         ("reference_levels", {"args": ({"random": 16.5},)}),
     ]
     assert measured == [1]
