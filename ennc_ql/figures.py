@@ -101,7 +101,7 @@ def policy_figure(policy: Policy, cfg: ScenarioConfig, out: Path, seed: int = 0,
     bar.set_label("Q value of the move (mean over robots)", fontsize=8)
     bar.ax.tick_params(labelsize=7)
     subject = VIEW_SUBJECT.get(policy.featurizer, "where the nearest target in view lies, seen from the robot")
-    right.suptitle(f"prototypes per move (their count in its title): {subject}", fontsize=9)
+    right.suptitle(f"prototypes per move (count in the title): {subject}", fontsize=9)
     fig.supxlabel(caption(policy.featurizer), fontsize=8, ha="left", x=0.01)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=100)

@@ -36,8 +36,8 @@ the target frame, the furthest target's (x, y) in that frame (x towards the near
 axis of its own)."""
 
 VIEW_SUBJECT: dict[str, str] = {
-    "frame7d": "where the second target in view lies, in the frame of the nearest (x towards it)",
-    "frame9d": "where the second target in view lies, in the frame of the nearest (x towards it)",
+    "frame7d": "where the second target in view lies, in the nearest target's frame",
+    "frame9d": "where the second target in view lies, in the nearest target's frame",
 }
 """What a featurizer's drawn prototypes show, for a caption; by default where the nearest target in view lies."""
 
