@@ -21,6 +21,8 @@ Usage, one cycle by hand (what :class:`algorithm.ennc.ENNC` does 250 times)::
     owner = fight(prototypes, labels, q, k_fight, u_fight, u_win, C)
     prototypes = move(prototypes, labels, V, sums, owner)
     keep = die(q, u_die)
+
+Over 400 lines: every numba kernel of ENNC in one module, next to each other because they share the cell layout.
 """
 
 from __future__ import annotations
@@ -138,6 +140,7 @@ def nearest_among_new(
     return _keep_nearer(X, x_sq, prototypes, index, score, new_index + first_new, new_score, chunk_rows)
 
 
+# Over 60 lines: a numba kernel whose pruned search is one loop; split, numba would not share the bounds.
 def refresh_nearest(
     X: Tensor,
     prototypes: Tensor,
@@ -389,6 +392,7 @@ def reproduce(X: Tensor, region: Tensor, y: Tensor, V: Tensor, labels: Tensor, u
     return sums / counts[:, None], child_labels
 
 
+# Over 60 lines: the fight operator's per-cell loop, one numba pass.
 def fight(
     prototypes: Tensor,
     labels: Tensor,

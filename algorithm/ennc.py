@@ -49,6 +49,8 @@ In a scikit-learn pipeline, tuned by cross-validation::
     >>> search = GridSearchCV(pipe, {"ennc__k_fight": [1, 3]}, cv=3).fit(X, y)
     >>> search.best_params_["ennc__k_fight"] in (1, 3)
     True
+
+Over 400 lines: the estimator and its operators' orchestration, one class as scikit-learn wants it.
 """
 
 from __future__ import annotations
@@ -164,6 +166,7 @@ class ENNC(ClassifierMixin, BaseEstimator):
         tags.non_deterministic = str(self.device).startswith("cuda")
         return tags
 
+    # Over 60 lines: ENNC's cycle (information, operators, stopping) written as the algorithm reads.
     def fit(
         self,
         X: ArrayLike,

@@ -194,6 +194,8 @@ def _refit(agent: TabularAgent, data: Transitions, budget: Budget, seed: int) ->
     return TabularAgent(dataclasses.replace(template, visits=None), budget.phase2), disc
 
 
+# Over 60 lines: one learning process from exploration to test, in the order of the paper's protocol; its steps
+# share the slices and the budget.
 def train(
     spec: MethodSpec,
     budget: Budget,

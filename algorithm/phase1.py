@@ -158,6 +158,8 @@ def estimator() -> type[ENNC]:
     return ENNC
 
 
+# Over 60 lines: the fitted iterations of ENNC-QL phase 1 as one loop (targets, classes, one ENNC per action, the
+# stopping rule) that reads as the paper's algorithm.
 def phase1(
     data: Transitions,
     n_actions: int,

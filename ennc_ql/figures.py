@@ -46,16 +46,24 @@ def _rgb(color: tuple[int, int, int]) -> tuple[float, float, float]:
 def policy_figure(policy: Policy, cfg: ScenarioConfig, out: Path, seed: int = 0, step: int = SNAPSHOT_STEP) -> Path:
     """Write ``out`` (PNG): the arena of test trial 0 at ``step`` and each action's prototypes coloured by Q, with a
     Q colour bar and a caption; the arena's colours are the viewer's (Okabe and Ito's, colour-blind safe)."""
-    from matplotlib.cm import ScalarMappable
-    from matplotlib.colors import Normalize
     from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(13.0, 6.4), layout="constrained")
+    panels: Any = fig.subfigures(1, 2, width_ratios=[1.0, 1.45])
+    _arena_panel(panels[0], policy, cfg, seed, step)
+    _prototype_panels(panels[1], policy, cfg)
+    fig.supxlabel(caption(policy.featurizer), fontsize=8, ha="left", x=0.01)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=100)
+    return out
+
+
+def _arena_panel(left: Any, policy: Policy, cfg: ScenarioConfig, seed: int, step: int) -> None:
+    """Test trial ``seed`` at ``step`` under the policy: robots with their sensing disks, targets observed or not."""
     from matplotlib.patches import Circle
 
     robots, targets, coverage = _snapshot(policy, cfg, seed, step)
     observed = observed_targets(robots, targets, cfg.sensing_range)
-    fig = Figure(figsize=(13.0, 6.4), layout="constrained")
-    panels: Any = fig.subfigures(1, 2, width_ratios=[1.0, 1.45])
-    left, right = panels[0], panels[1]
     ax: Any = left.subplots()
     ax.add_patch(Circle((0.0, 0.0), cfg.arena_radius, fill=False, color=_rgb(style.BOUNDARY)))
     for x, y in robots:
@@ -72,6 +80,13 @@ def policy_figure(policy: Policy, cfg: ScenarioConfig, out: Path, seed: int = 0,
         f"over steps 0-{step}: {coverage:.1f} % of the targets observed on average",
         fontsize=9,
     )
+
+
+def _prototype_panels(right: Any, policy: Policy, cfg: ScenarioConfig) -> None:
+    """One panel per move: its prototypes where :func:`monitor.geometry.project_2d` draws them, coloured by Q."""
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+    from matplotlib.patches import Circle
 
     prototypes, q_values = policy.prototypes_by_action()
     points = [project_2d(p, policy.featurizer) for p in prototypes]
@@ -102,10 +117,6 @@ def policy_figure(policy: Policy, cfg: ScenarioConfig, out: Path, seed: int = 0,
     bar.ax.tick_params(labelsize=7)
     subject = VIEW_SUBJECT.get(policy.featurizer, "where the nearest target in view lies, seen from the robot")
     right.suptitle(f"prototypes per move (count in the title): {subject}", fontsize=9)
-    fig.supxlabel(caption(policy.featurizer), fontsize=8, ha="left", x=0.01)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=100)
-    return out
 
 
 def caption(featurizer: str) -> str:

@@ -8,6 +8,9 @@ They run on one thread: numba's OpenMP workers spin between the many short kerne
 by up to 50x on 2 cores, and a single thread measured as fast. Parallelism comes from actor processes instead.
 
 Shapes: E arenas, m robots, n targets; positions are float64 (E, m|n, 2).
+
+Over 400 lines: every numba kernel of the simulator in one module, so that numba's cache and the kernels' shared
+conventions (shapes, masks) live in one place.
 """
 
 from __future__ import annotations
@@ -20,6 +23,8 @@ from numba import njit
 _EPS = 1e-9
 
 
+# Over 60 lines: one numba pass per arena that senses every pair once without temporaries; split, each part would
+# repeat the pair loop.
 @njit(cache=True)
 def sense(
     robot_pos: np.ndarray,  # (E, m, 2) float64
@@ -291,6 +296,8 @@ NEVER_SEEN = 1 << 40
 """Track age of a target a robot has never observed."""
 
 
+# Over 60 lines: A-CMOMMT's whole force law per robot in one numba pass (targets in view, tracked ones in the band,
+# teammates' reports, robot repulsion); its parts share the per-robot accumulators.
 @njit(cache=True)
 def tracked_force_heading(
     robot_pos: np.ndarray,  # (E, m, 2) float64

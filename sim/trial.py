@@ -184,6 +184,8 @@ def random_actions(state: TrialState, rng: np.random.Generator) -> np.ndarray:
     return rng.integers(0, N_ACTIONS, state.shape)
 
 
+# Over 60 lines: the trial rules of one step in the order the paper applies them, kept in one place so that the
+# order reads top to bottom (each rule is a few numpy lines).
 def step_trial(
     cfg: ScenarioConfig,
     state: TrialState,

@@ -3,6 +3,8 @@ and its figures; what the checks need later (restarts, kills, spoofed batches) i
 
     faults = Faults(run)                       # run: the Chaos run, for its processes, sessions and waits
     ok, figures = faults.apply["learner-kill"]()
+
+Over 400 lines: one class holds every fault, so that the checks after the run share what the faults kept.
 """
 
 from __future__ import annotations

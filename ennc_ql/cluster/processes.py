@@ -144,16 +144,7 @@ def run_processes(
     started = time.time()
     policies = _Policies()
     try:
-        if secure:
-            supervisor.start(ROUTER, where.command(ROUTER, ennc_ql_argv("router", *ends.router_flags())))
-        argv = ["learner", "--config", str(run_dir / "learner.toml"), "--run-dir", str(run_dir)]
-        fresh = ennc_ql_argv(*argv, *ends.flags(learner.learner_id), *monitoring.child_args(LEARNER))
-        resumed = where.command(LEARNER, [*fresh, "--resume", "auto"])
-        supervisor.start(LEARNER, resumed if resume else where.command(LEARNER, fresh), restart_argv=resumed)
-        for actor in ids:
-            argv = ["actor", "--config", str(run_dir / f"{actor}.toml"), *ends.flags(actor), "--json"]
-            command = where.command(actor, ennc_ql_argv(*argv, *monitoring.child_args(actor)))
-            supervisor.start(actor, command, nice=ACTOR_NICENESS)
+        _start(supervisor, where, ends, learner.learner_id, ids, run_dir, monitoring, secure=secure, resume=resume)
         monitoring.start()
         _watch(ends, learner, supervisor, ids, policies, actor_stop_s, stop or threading.Event())
     finally:
@@ -177,6 +168,32 @@ def run_processes(
         first_policy_s=None if first is None else round(first - started, 2),
         versions=policies.versions(),
     )
+
+
+def _start(
+    supervisor: Supervisor,
+    where: Placement,
+    ends: Endpoints,
+    learner_id: str,
+    ids: list[str],
+    run_dir: Path,
+    monitoring: Monitoring,
+    *,
+    secure: bool,
+    resume: bool,
+) -> None:
+    """Start the router (``secure``), the learner (resuming at once with ``resume``; always when restarted) and the
+    actors, each from its configuration file in ``run_dir``."""
+    if secure:
+        supervisor.start(ROUTER, where.command(ROUTER, ennc_ql_argv("router", *ends.router_flags())))
+    argv = ["learner", "--config", str(run_dir / "learner.toml"), "--run-dir", str(run_dir)]
+    fresh = ennc_ql_argv(*argv, *ends.flags(learner_id), *monitoring.child_args(LEARNER))
+    resumed = where.command(LEARNER, [*fresh, "--resume", "auto"])
+    supervisor.start(LEARNER, resumed if resume else where.command(LEARNER, fresh), restart_argv=resumed)
+    for actor in ids:
+        argv = ["actor", "--config", str(run_dir / f"{actor}.toml"), *ends.flags(actor), "--json"]
+        command = where.command(actor, ennc_ql_argv(*argv, *monitoring.child_args(actor)))
+        supervisor.start(actor, command, nice=ACTOR_NICENESS)
 
 
 def _sent(children: Children, actor: str) -> dict[str, int]:

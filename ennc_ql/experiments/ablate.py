@@ -276,10 +276,10 @@ HELP = CommandHelp(
     "Runs one learned method under overrides of any field of its setup, named by dotted path: the budget "
     "(budget.phase2.alpha, budget.phase1.max_classes, ...), the scenario (scenario.action_steps, ...), the "
     "test-time rule of a robot that sees no target (lost_behaviour) and the formulation (featurizer, reward, "
-    "act_every). Several values sweep a key and several --set sweep their product; every variant runs --processes "
-    "learning processes, each tested on the same seeded trials, and each row carries A-CMOMMT and the "
-    "state-limited force laws on those trials. Writes results.md, results.json, ablation.png and every policy file "
-    "into --out.",
+    "actions, act_every). Several values sweep a key and several --set sweep their product; every variant runs "
+    "--processes learning processes, each tested on the same seeded trials, and each row carries A-CMOMMT, its "
+    "oracle and the state-limited force laws on those trials. Writes results.md, results.json, ablation.png and "
+    "every policy file into --out.",
     (
         ("ennc-ql ablate ennc-ql-collab-option2 --set budget.phase2.alpha=0.05,0.1 --quick", "two step sizes"),
         ("ennc-ql ablate ennc-ql-collab-option2 --set featurizer=collab6d,shared8d --jobs 2", "two states"),
