@@ -27,6 +27,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from monitor.style import ORANGE
 from monitor.style import REFERENCES as STYLE
 
 ENNC_QL = Path(sys.executable).with_name("ennc-ql")
@@ -65,14 +66,18 @@ def row(formulation: str, minutes: float, seed: int, report: dict[str, Any]) -> 
 
 def plot(rows: list[dict[str, Any]], figure: Path) -> None:
     fig, ax = plt.subplots(figsize=(7.5, 4.5))
+    # Colours the reference levels do not use (monitor.style gives them theirs).
+    colours = iter(["black", tuple(c / 255 for c in ORANGE), "grey"])
     for formulation in dict.fromkeys(r["formulation"] for r in rows):
         mine = [r for r in rows if r["formulation"] == formulation]
         minutes = sorted({r["minutes"] for r in mine})
         finals = [[r["final_coverage"] for r in mine if r["minutes"] == m] for m in minutes]
         means = [float(np.mean(f)) for f in finals]
-        ax.plot(minutes, means, "o-", label=f"ENNC-QL, {formulation} (mean of seeds)")
+        seeds = sorted({r["seed"] for r in mine})
+        colour = next(colours)
+        ax.plot(minutes, means, "o-", color=colour, label=f"ENNC-QL, {formulation} (mean of seeds {seeds})")
         for m, f in zip(minutes, finals, strict=True):
-            ax.scatter([m] * len(f), f, s=12, color=ax.lines[-1].get_color(), alpha=0.5)
+            ax.scatter([m] * len(f), f, s=14, color=colour, alpha=0.45, marker="x")
     for name in REFERENCES:
         levels = [r["references"][name] for r in rows if name in r["references"]]
         if levels:
@@ -83,8 +88,9 @@ def plot(rows: list[dict[str, Any]], figure: Path) -> None:
     ax.set_xticks(sorted({r["minutes"] for r in rows}), [f"{m:g}" for m in sorted({r["minutes"] for r in rows})])
     ax.set_xlabel("training time, minutes (ennc-ql up, 2 actors, 2 cores)")
     ax.set_ylabel("final coverage, % of targets observed (50 trials)")
+    ax.set_title("ENNC-QL: final coverage against training time (x: one seed)", fontsize=10)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="lower right")
+    ax.legend(fontsize=8, loc="center right")
     fig.tight_layout()
     fig.savefig(figure, dpi=120)
 
