@@ -165,12 +165,15 @@ def ablate(
     rows = [
         _row(i, overrides, runs[i], references[_trials(setup)]) for i, (overrides, setup) in enumerate(setups, start=1)
     ]
+    # The test trials as the variants ran them (a --set of budget.test_* changes them), the base's where they differ.
+    tested = {_trials(setup)[1:] for _, setup in setups}
+    n_trials, n_steps, seed = tested.pop() if len(tested) == 1 else _trials(base)[1:]
     report = {
         "method": method,
         "processes": processes,
-        "test_trials": base.budget.test_trials,
-        "test_steps": base.budget.test_steps,
-        "test_seed": base.budget.test_seed,
+        "test_trials": n_trials,
+        "test_steps": n_steps,
+        "test_seed": seed,
         "paper_coverage": PAPER.get(method, {}).get("coverage"),
         "paper_states": PAPER.get(method, {}).get("states"),
         "sweep": [[k, vs] for k, vs in sweep],
