@@ -17,7 +17,7 @@ import numpy as np
 
 from algorithm.policy import Policy, PolicyController
 from monitor import style
-from monitor.geometry import COLORMAP, VIEW_COLUMNS, VIEW_SUBJECT, observed_targets, project_2d, q_colors, q_range
+from monitor.geometry import COLORMAP, VIEW_COLUMNS, observed_targets, project_2d, q_colors, q_range, view_subject
 from sim import ScenarioConfig, evaluate
 from sim.actions import action_set
 from sim.world import Observation, WorldState
@@ -115,8 +115,7 @@ def _prototype_panels(right: Any, policy: Policy, cfg: ScenarioConfig) -> None:
     )
     bar.set_label("Q value of the move (mean over robots)", fontsize=8)
     bar.ax.tick_params(labelsize=7)
-    subject = VIEW_SUBJECT.get(policy.featurizer, "where the nearest target in view lies, seen from the robot")
-    right.suptitle(f"prototypes per move (count in the title): {subject}", fontsize=9)
+    right.suptitle(f"prototypes per move (count in the title): {view_subject(policy.featurizer)}", fontsize=9)
 
 
 def caption(featurizer: str) -> str:

@@ -35,11 +35,12 @@ VIEW_COLUMNS: dict[str, tuple[int, int]] = {"frame7d": (1, 2), "frame9d": (1, 2)
 the target frame, the furthest target's (x, y) in that frame (x towards the nearest target, which adds no second
 axis of its own)."""
 
-VIEW_SUBJECT: dict[str, str] = {
-    "frame7d": "where the second target in view lies, in the nearest target's frame",
-    "frame9d": "where the second target in view lies, in the nearest target's frame",
-}
-"""What a featurizer's drawn prototypes show, for a caption; by default where the nearest target in view lies."""
+
+def view_subject(featurizer: str | None) -> str:
+    """What :func:`project_2d` shows of ``featurizer``'s prototypes, for a caption."""
+    if featurizer in VIEW_COLUMNS:
+        return "where the second target in view lies, in the nearest target's frame"
+    return "where the nearest target in view lies, seen from the robot"
 
 
 def project_2d(prototypes: np.ndarray, featurizer: str | None = None) -> np.ndarray:
