@@ -11,6 +11,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from algorithm.policy import PolicyController
 from algorithm.policy_file import PolicyFileError, load_policy, scenario_from_header
 from ennc_ql.command import emit, fail
@@ -19,6 +21,7 @@ from ennc_ql.parser import CommandHelp, add_command
 from monitor import add_rerun_args, open_monitor, sink_from_args
 from monitor.trial import trial_hook
 from sim import HAND_MADE, SCENARIOS, Controller, ScenarioConfig, evaluate, scenario
+from sim.rollout import EvalResult
 
 HELP = CommandHelp(
     "eval",
@@ -50,6 +53,12 @@ def add_eval_parser(sub: Any) -> None:
     p.add_argument("--trials", type=positive(int), default=10, help="independent test trials")
     p.add_argument("--steps", type=positive(int), default=1000, help="steps per trial")
     p.add_argument("--seed", type=non_negative(int), default=0, help="seed of the test trials (0 or more)")
+    p.add_argument(
+        "--against",
+        metavar="POLICY",
+        help="a second policy (a name or a policy file) scored on the same trials: both, and their paired "
+        "difference per trial with its standard error (default: none)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument(
         "--record-trial", type=non_negative(int), default=0, metavar="K", help="with --rerun: the trial to draw"
@@ -62,6 +71,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if args.record_trial >= args.trials:
         fail("eval", f"--record-trial {args.record_trial}: only trials 0 to {args.trials - 1} run (--trials)")
     controller, cfg, info = _controller(args.policy, args.scenario)
+    other = None if args.against is None else _controller(args.against, args.scenario, "--against")
     start = time.perf_counter()
     with open_monitor(sink_from_args(args), process="eval", recording_id=args.recording_id) as monitor:
         hook = None
@@ -76,21 +86,59 @@ def cmd_eval(args: argparse.Namespace) -> int:
         "trials": args.trials,
         "steps": args.steps,
         "seed": args.seed,
-        "coverage_mean": round(result.coverage_mean, 4),
-        "coverage_std": round(result.coverage_std, 4),
-        "coverage_per_trial": [round(float(c), 4) for c in result.coverage_per_trial],
-        "seconds": round(time.perf_counter() - start, 3),
+        **_scores(result),
     }
     rows = "\n".join(f"  trial {i:>3}  {c:6.2f} %" for i, c in enumerate(out["coverage_per_trial"]))
     table = (
-        f"policy {out['policy']} on {cfg.name}: {args.trials} trials x {args.steps} steps, seed {args.seed}\n"
-        f"{rows}\n  mean       {out['coverage_mean']:6.2f} %  (std {out['coverage_std']:.2f})"
+        f"policy {_title(args.policy, info)} on {cfg.name}: {args.trials} trials x {args.steps} steps, seed {args.seed}"
+        f"\n{rows}\n  mean       {out['coverage_mean']:6.2f} %  (std {out['coverage_std']:.2f})\n"
+        f"  {_spread_line(out)}"
     )
+    if other is not None:
+        # The second policy runs on the scenario of the first: a paired comparison needs the same trials.
+        against = evaluate(cfg, other[0], trials=args.trials, steps=args.steps, seed=args.seed)
+        diff = result.coverage_per_trial - against.coverage_per_trial
+        se = float(diff.std(ddof=1) / np.sqrt(diff.size)) if diff.size > 1 else float("nan")
+        out["against"] = {"policy": args.against, **other[2], **_scores(against)}
+        out["paired_difference"] = {"mean": round(float(diff.mean()), 4), "se": round(se, 4), "trials": diff.size}
+        table += (
+            f"\nagainst {_title(args.against, other[2])} on the same trials: "
+            f"{out['against']['coverage_mean']:.2f} %  (std {out['against']['coverage_std']:.2f})\n"
+            f"  {_spread_line(out['against'])}\n"
+            f"paired difference (policy - against): {diff.mean():+.2f} ± {se:.2f} points (s.e., {diff.size} trials)"
+        )
+    out["seconds"] = round(time.perf_counter() - start, 3)
     emit(out, args.json, table)
     return 0
 
 
-def _controller(policy: str, scenario_name: str) -> tuple[Controller, ScenarioConfig, dict[str, Any]]:
+def _scores(result: EvalResult) -> dict[str, Any]:
+    """Coverage and the team's spread over the targets, rounded for printing."""
+    spread = {} if result.cooperation is None else result.cooperation.summary()
+    return {
+        "coverage_mean": round(result.coverage_mean, 4),
+        "coverage_std": round(result.coverage_std, 4),
+        "coverage_per_trial": [round(float(c), 4) for c in result.coverage_per_trial],
+        **{k: round(v, 4) for k, v in spread.items()},
+    }
+
+
+def _spread_line(scores: dict[str, Any]) -> str:
+    return (
+        f"per robot-step: {scores['only_shared_pct']:.1f} % only teammate-watched targets in view, "
+        f"{scores['none_in_view_pct']:.1f} % no target in view; "
+        f"{scores['robots_per_covered_target']:.2f} robots per covered target"
+    )
+
+
+def _title(policy: str, info: dict[str, Any]) -> str:
+    """The policy's name, with a learned policy's formulation."""
+    return f"{policy} ({info['formulation']})" if "formulation" in info else policy
+
+
+def _controller(
+    policy: str, scenario_name: str, flag: str = "--policy"
+) -> tuple[Controller, ScenarioConfig, dict[str, Any]]:
     """A hand-made controller by name, or a learned policy from a policy file; a one-line error otherwise."""
     if policy in HAND_MADE:
         return HAND_MADE[policy], scenario(scenario_name), {}
@@ -98,14 +146,18 @@ def _controller(policy: str, scenario_name: str) -> tuple[Controller, ScenarioCo
     if path.is_dir():
         inside = path / "policy.npz"
         hint = f"; its policy is {inside}" if inside.is_file() else ""
-        fail("eval", f"--policy {policy}: a folder, not a policy file{hint}")
+        fail("eval", f"{flag} {policy}: a folder, not a policy file{hint}")
     if not path.exists():
         names = ", ".join(HAND_MADE)
-        fail("eval", f"--policy {policy}: neither a hand-made controller ({names}) nor an existing policy file")
+        fail("eval", f"{flag} {policy}: neither a hand-made controller ({names}) nor an existing policy file")
     try:
         learned, header = load_policy(path)
         cfg = scenario_from_header(header)
     except (PolicyFileError, TypeError, ValueError) as exc:
-        fail("eval", f"--policy {policy}: {str(exc).removeprefix(f'{path}: ')}")
-    info = {"method": learned.method, "prototypes_per_action": header["prototypes_per_action"]}
+        fail("eval", f"{flag} {policy}: {str(exc).removeprefix(f'{path}: ')}")
+    info = {
+        "method": learned.method,
+        "formulation": f"{learned.featurizer} state, {learned.actions} moves, {learned.reward} reward",
+        "prototypes_per_action": header["prototypes_per_action"],
+    }
     return PolicyController(learned), cfg, info

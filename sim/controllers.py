@@ -18,7 +18,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from sim import _kernels
-from sim.config import ScenarioConfig
+from sim.config import ForceLawConfig, ScenarioConfig
 from sim.world import Observation, WorldState
 
 COMPASS_NAMES = ("N", "NE", "E", "SE", "S", "SW", "W", "NW")
@@ -27,6 +27,11 @@ _ANGLES = np.pi / 2 - np.arange(8) * np.pi / 4
 COMPASS = np.stack([np.cos(_ANGLES), np.sin(_ANGLES)], axis=-1)
 """(8, 2) unit vectors, north = +y, clockwise."""
 N_ACTIONS = len(COMPASS_NAMES)
+
+PUBLIC_FORCE_LAW = ForceLawConfig(
+    do1=20.0, do2=40.0, do3=150.0, do4=180.0, dr1=62.5, dr2=100.0, shared_target_weight=0.25, predict_steps=60
+)
+"""A-CMOMMT's parameters as the public code gives them, scaled to this arena, untuned here [public]."""
 
 
 def compass_velocity(cfg: ScenarioConfig, actions: np.ndarray) -> np.ndarray:

@@ -24,10 +24,54 @@ StepHook = Callable[[WorldState, Observation], None]
 
 
 @dataclass(frozen=True, slots=True)
+class Cooperation:
+    """How a team spreads over the targets, per robot-step, summed over trials: why one policy covers more.
+
+    A robot that sees only targets a teammate also sees adds nothing to metric A where it stands; one that sees no
+    target is searching. A team that doubles up has many robots per covered target.
+    """
+
+    robot_steps: np.ndarray
+    """(E,) robot-steps of each trial."""
+    only_shared: np.ndarray
+    """(E,) robot-steps in which every target the robot sees is seen by another robot too (and it sees one)."""
+    none_in_view: np.ndarray
+    """(E,) robot-steps in which the robot sees no target."""
+    sightings: np.ndarray
+    """(E,) Σ_t Σ_ij b_ij(t): robot-target pairs in view."""
+    covered: np.ndarray
+    """(E,) Σ_t Σ_j g(B(t), j): targets observed by at least one robot."""
+
+    @classmethod
+    def zeros(cls, trials: int) -> Cooperation:
+        return cls(*(np.zeros(trials) for _ in range(5)))
+
+    def add(self, obs: Observation) -> Cooperation:
+        seen = obs.n_seen
+        return Cooperation(
+            robot_steps=self.robot_steps + seen.shape[1],
+            only_shared=self.only_shared + ((seen > 0) & (obs.n_only == 0)).sum(axis=1),
+            none_in_view=self.none_in_view + (seen == 0).sum(axis=1),
+            sightings=self.sightings + seen.sum(axis=1),
+            covered=self.covered + obs.covered,
+        )
+
+    def summary(self) -> dict[str, float]:
+        """The three figures over every trial: shares of robot-steps (%) and robots per covered target."""
+        steps = max(float(self.robot_steps.sum()), 1.0)
+        return {
+            "only_shared_pct": 100.0 * float(self.only_shared.sum()) / steps,
+            "none_in_view_pct": 100.0 * float(self.none_in_view.sum()) / steps,
+            "robots_per_covered_target": float(self.sightings.sum()) / max(float(self.covered.sum()), 1.0),
+        }
+
+
+@dataclass(frozen=True, slots=True)
 class EvalResult:
-    """Metric A of each trial, in percent of targets observed."""
+    """Metric A of each trial, in percent of targets observed, and how the team spread over the targets."""
 
     coverage_per_trial: np.ndarray
+    cooperation: Cooperation | None = None
 
     @property
     def coverage_mean(self) -> float:
@@ -60,11 +104,13 @@ def evaluate(
     memory = controller.init(cfg, world, rng)
     obs = sense(cfg, world, rng)
     total = np.zeros(trials)
+    spread = Cooperation.zeros(trials)
     for _ in range(steps):
         velocity, memory = controller.act(cfg, world, obs, memory, rng)
         world = step(cfg, world, velocity, rng)
         obs = sense(cfg, world, rng)
         total += coverage(cfg, obs)
+        spread = spread.add(obs)
         if on_step is not None:
             on_step(world, obs)
-    return EvalResult(coverage_per_trial=total / steps)
+    return EvalResult(coverage_per_trial=total / steps, cooperation=spread)

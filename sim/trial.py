@@ -98,7 +98,11 @@ class TrialStep:
     """(E, m) float32: r of the tuples that end here (``lost_reward`` for a robot that lost every target), 0 elsewhere:
     a trial-end reward's value where ``done``, a per-decision reward's mean over the action where it ends."""
     done: np.ndarray
-    """(E, m) bool: learners whose trial ended on this step (they lost every target, or it was the last step)."""
+    """(E, m) bool: learners whose tuple ending on this step is terminal: they lost every target (with
+    ``lost_ends_trial``), or it was the last step (with ``timeout_terminal``)."""
+    truncated: np.ndarray
+    """(E, m) bool: learners whose trial the time-out cut on this step without a terminal tuple (their tuple ends
+    here and bootstraps from s′; ``timeout_terminal`` False)."""
     boundary: np.ndarray
     """(E, m) bool: the held action ended on this step (its length reached, or the caller's own boundary)."""
     active: np.ndarray
@@ -113,7 +117,7 @@ class TrialStep:
     @property
     def transition(self) -> np.ndarray:
         """(E, m) bool: learners whose tuple ⟨s, a, r, s′, done⟩ ends on this step."""
-        return self.done | (self.active & self.boundary)
+        return self.done | self.truncated | (self.active & self.boundary)
 
     @property
     def decide(self) -> np.ndarray:
@@ -218,14 +222,16 @@ def step_trial(
         held = np.where(decide, 0, held)
         if moves.relative:
             frame = np.where(decide[..., None, None], moves.frame(state.obs), frame)
-    # Only robots that do not learn search; with none in the batch the headings are never read.
-    heading = state.heading if state.learner.all() else wander(cfg, state.world, state.heading)
+    # Only robots that do not learn search (and learners, where losing every target does not end their trial); with
+    # none in the batch the headings are never read.
+    seeker = ~state.learner | (not cfg.lost_ends_trial)
+    heading = wander(cfg, state.world, state.heading) if seeker.any() else state.heading
     move = moves.velocity(cfg, held_action, frame)
-    if velocity is None:
-        searching = ~state.learner & lost(state.obs)
-        move = np.where(searching[..., None], cfg.robot_speed * heading, move)
-    else:
+    if velocity is not None:
         move = np.where(state.learner[..., None], move, velocity)
+        seeker = seeker & state.learner
+    searching = seeker & lost(state.obs)
+    move = np.where(searching[..., None], cfg.robot_speed * heading, move)
     # A learner whose trial ended stays where it lost its targets [paper].
     move = np.where((state.learner & ~state.active)[..., None], 0.0, move)
     world = step(cfg, state.world, move, rng)
@@ -234,15 +240,20 @@ def step_trial(
     held = held + 1
     trial_over = world.t >= cfg.learning_steps
     gone = lost(obs)
-    done = state.active & (gone | trial_over)
-    active = state.active & ~done
+    per_decision = REWARDS[state.reward].per_decision
+    # A trial-end reward is paid only at the end, so its time-out is always terminal.
+    timeout_ends = trial_over and (cfg.timeout_terminal or not per_decision)
+    lost_ends = gone & cfg.lost_ends_trial
+    done = state.active & (lost_ends | timeout_ends)
+    truncated = state.active & ~done & trial_over
+    active = state.active & ~done & ~truncated
     boundary = held >= (cfg.action_steps if hold is None else hold)
     earned, action_mean = state.earned, None
-    if REWARDS[state.reward].per_decision:
+    if per_decision:
         earned = np.where(decide, np.float32(0.0), earned) + reward_value(cfg, obs, state.reward)
         action_mean = (earned / held).astype(np.float32)
-        pay = np.where(done & gone, np.float32(cfg.lost_reward), action_mean)
-        reward = np.where(done | (active & boundary), pay, np.float32(0.0)).astype(np.float32)
+        pay = np.where(done & lost_ends, np.float32(cfg.lost_reward), action_mean)
+        reward = np.where(done | truncated | (active & boundary), pay, np.float32(0.0)).astype(np.float32)
     elif done.any():
         reward = np.where(done, trial_reward(cfg, obs, state.reward), 0.0).astype(np.float32)
     else:
@@ -253,6 +264,7 @@ def step_trial(
         next_features=features,
         reward=reward,
         done=done,
+        truncated=truncated,
         boundary=boundary,
         active=active,
         learner=state.learner,

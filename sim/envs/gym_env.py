@@ -98,4 +98,4 @@ class CmommtSingleRobotEnv(gym.Env[np.ndarray, np.int64]):
                 break
         self._state, self._decide = state, decide
         obs = out.next_features[0, 0].copy()
-        return obs, float(out.reward[0, 0]), bool(out.done[0, 0]), False, self._info(state)
+        return obs, float(out.reward[0, 0]), bool(out.done[0, 0]), bool(out.truncated[0, 0]), self._info(state)

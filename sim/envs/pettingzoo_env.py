@@ -105,12 +105,14 @@ class CmommtParallelEnv(ParallelEnv[str, np.ndarray, np.int64]):
         decide = self._decide
         next_obs, reward = state.features[0].copy(), np.zeros(self.cfg.n_robots, np.float32)
         done, n_seen = np.zeros(self.cfg.n_robots, dtype=bool), state.obs.n_seen[0].copy()
+        cut = np.zeros(self.cfg.n_robots, dtype=bool)
         while pending.any():
             state, out = step_trial(self.cfg, state, chosen, decide, self._rng)
             ends = (out.transition & pending)[0]
             next_obs = np.where(ends[:, None], out.next_features[0], next_obs)
             reward = np.where(ends, out.reward[0], reward)
             done = np.where(ends, out.done[0], done)
+            cut = np.where(ends, out.truncated[0], cut)
             n_seen = np.where(ends, state.obs.n_seen[0], n_seen)
             pending &= ~out.transition
             decide = out.decide
@@ -120,11 +122,11 @@ class CmommtParallelEnv(ParallelEnv[str, np.ndarray, np.int64]):
         observations = {a: next_obs[i].copy() for a, i in zip(self.agents, ids, strict=True)}
         rewards = {a: float(reward[i]) for a, i in zip(self.agents, ids, strict=True)}
         terminations = {a: bool(done[i]) for a, i in zip(self.agents, ids, strict=True)}
-        truncations = {a: False for a in self.agents}
+        truncations = {a: bool(cut[i]) for a, i in zip(self.agents, ids, strict=True)}
         infos: dict[str, dict[str, Any]] = {
             a: {"n_seen": int(n_seen[i]), "coverage": share} for a, i in zip(self.agents, ids, strict=True)
         }
-        self.agents = [a for a in self.agents if not terminations[a]]
+        self.agents = [a for a in self.agents if not (terminations[a] or truncations[a])]
         return observations, rewards, terminations, truncations, infos
 
 
