@@ -169,7 +169,10 @@ class LearnerService:
         if policy is None:
             return
         coverage = self.evaluator.periodic(policy, at=self.elapsed())
-        self.watch.evaluated(policy, coverage)
+        spread = {"learned": {"coverage": coverage, **self.evaluator.spread}}
+        for name, figures in self.evaluator.reference_spread().items():
+            spread[name] = {"coverage": self.evaluator.references()[name], **figures}
+        self.watch.evaluated(policy, coverage, spread, trials=self.config.eval_trials)
         log.info("evaluation of policy version %d: %.2f%% of targets observed", policy.version, coverage)
 
     # -- status, checkpoints, report --------------------------------------------------------------------------------
@@ -232,7 +235,7 @@ class LearnerService:
             policy = self.state.policy()
             assert policy is not None
             final = self.evaluator.final(policy)
-            self.watch.final(policy, final, trials=self.config.final_eval_trials)
+            self.watch.final(policy, final, self.config.final_eval_trials, self.evaluator.comparison())
             log.info("final policy version %d: %.2f%% of targets observed", policy.version, final)
         checkpoint = self.checkpoint()
         policy = self.state.policy()

@@ -91,6 +91,18 @@ class Monitor:
         """The final figure (%) on ``trials`` test trials, a marker of its own at ``learner/coverage/final``: it is
         measured on more trials than the curve's points, so it is not joined to them."""
 
+    def cooperation(
+        self,
+        rows: Mapping[str, Mapping[str, float]],
+        *,
+        trials: int,
+        policy_version: int,
+        learner_step: int | None = None,
+    ) -> None:
+        """How each team spreads over the targets on ``trials`` test trials, per robot-step (``learned`` and every
+        reference by ``sim.CONTROLLERS`` name; ``sim.rollout.Cooperation.summary``'s figures, with ``coverage`` and
+        the paired ``learned_minus`` where known): a table at ``learner/cooperation``."""
+
     def learner_metrics(
         self,
         *,

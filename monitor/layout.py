@@ -98,6 +98,7 @@ def _learning(actor_ids: Sequence[str]) -> rrb.Container:
             y_range=(0.0, 100.0),
         ),
         _series("mean trial reward", _per_actor(actor_ids, paths.ACTOR_REWARD), legend=Corner2D.RightBottom),
+        rrb.TextDocumentView(name="spread over targets", origin=paths.LEARNER_COOPERATION),
         name="training trials",
     )
     return rrb.Horizontal(test, training, column_shares=[3, 2], name="learning")

@@ -94,16 +94,24 @@ class LearnerWatch:
         self.monitor.prototypes(prototypes, q_values, policy_version=policy.version)
         self.monitor.q_stats([policy.tables], policy_version=policy.version, learner_step=self.step)
 
-    def evaluated(self, policy: Policy, coverage: float) -> None:
-        """A point of the learning curve, with the policy it measured."""
+    def evaluated(
+        self, policy: Policy, coverage: float, spread: Mapping[str, Mapping[str, float]], trials: int
+    ) -> None:
+        """A point of the learning curve, with the policy it measured and how its team and the references' spread
+        over the targets on those ``trials``."""
         if not self.monitor.enabled:
             return
         self.monitor.eval_coverage(coverage, policy_version=policy.version, learner_step=self.step)
+        self.monitor.cooperation(spread, trials=trials, policy_version=policy.version, learner_step=self.step)
         self.policy(policy)
 
-    def final(self, policy: Policy, coverage: float, trials: int) -> None:
-        """The final figure on ``trials`` test trials, with the policy it measured."""
+    def final(
+        self, policy: Policy, coverage: float, trials: int, comparison: Mapping[str, Mapping[str, float]]
+    ) -> None:
+        """The final figure on ``trials`` test trials, with the policy it measured and its comparison with the
+        references on those trials (:meth:`learner.evaluator.Evaluator.comparison`)."""
         if not self.monitor.enabled:
             return
         self.monitor.final_coverage(coverage, trials=trials, policy_version=policy.version, learner_step=self.step)
+        self.monitor.cooperation(comparison, trials=trials, policy_version=policy.version, learner_step=self.step)
         self.policy(policy)

@@ -224,6 +224,22 @@ class RerunMonitor(Monitor):
         self._scalar(paths.LEARNER_COVERAGE_FINAL, name, coverage, rr.components.MarkerShape.Diamond)
         self._log_references()
 
+    def cooperation(
+        self,
+        rows: Mapping[str, Mapping[str, float]],
+        *,
+        trials: int,
+        policy_version: int,
+        learner_step: int | None = None,
+    ) -> None:
+        if self._closed:
+            return
+        self._at(None, policy_version, learner_step)
+        self.rec.log(
+            paths.LEARNER_COOPERATION,
+            rr.TextDocument(style.cooperation_table(rows, trials), media_type="text/markdown"),
+        )
+
     def learner_metrics(
         self,
         *,

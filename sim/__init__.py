@@ -4,7 +4,16 @@ Gymnasium / PettingZoo adapters live in :mod:`sim.envs` so that this package sta
 """
 
 from sim.config import SCENARIOS, ForceLawConfig, ScenarioConfig, scenario
-from sim.controllers import COMPASS, HAND_MADE, N_ACTIONS, Controller, ForceController, RandomController
+from sim.controllers import (
+    COMPASS,
+    CONTROLLERS,
+    HAND_MADE,
+    N_ACTIONS,
+    ORACLES,
+    Controller,
+    ForceController,
+    RandomController,
+)
 from sim.features import FEATURIZERS, coverage, featurize, lost, trial_reward
 from sim.rollout import EvalResult, evaluate
 from sim.trial import TrialState, TrialStep, random_actions, reset_trial, step_trial
@@ -12,9 +21,11 @@ from sim.world import Observation, WorldState, reset, sense, step
 
 __all__ = [
     "COMPASS",
+    "CONTROLLERS",
     "FEATURIZERS",
     "HAND_MADE",
     "N_ACTIONS",
+    "ORACLES",
     "SCENARIOS",
     "Controller",
     "EvalResult",

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Literal
 
 LocalTarget = Literal["furthest", "nearest"]
@@ -28,7 +28,7 @@ class ForceLawConfig:
     ``f_target(d)`` is -1 + d/do1 up to do1, rises to 1 at do2, stays 1 up to do3 (= sensing range), and falls to
     0 at do4 (the predictive tracking range: beyond sensing, a robot knows only its own predicted sightings and its
     teammates' reports). ``g_robot(d)`` is -1 up to dr1 and rises to 0 at dr2. Defaults are the public
-    code's values scaled to this arena [public].
+    code's values scaled to this arena [public]; each hand-made controller holds its own (``sim.controllers``).
     """
 
     do1: float = 20.0
@@ -106,7 +106,6 @@ class ScenarioConfig:
     """k(T) in the collaborative reward r_i(T) = Σ_j b_ij(T) − k(T) [paper Eq. 2]."""
     local_target: LocalTarget = "furthest"
     """Target the 2-D local state points at [paper: furthest; once 'nearest']."""
-    force: ForceLawConfig = field(default_factory=ForceLawConfig)
 
     def __post_init__(self) -> None:
         positive = ("arena_radius", "sensing_range", "robot_speed", "mask_value", "robot_in_view_penalty")

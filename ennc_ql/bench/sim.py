@@ -14,7 +14,7 @@ import numpy as np
 
 from ennc_ql.progress import ProgressBar
 from monitor import Monitor, paths
-from sim import HAND_MADE, ScenarioConfig, reset, scenario, sense, step, trial_reward
+from sim import CONTROLLERS, ScenarioConfig, reset, scenario, sense, step, trial_reward
 
 SIM_TARGETS = {"random": 10e6, "a_cmommt": 3e6}
 """Robot-steps per second the simulator must reach on the 2-core reference machine (issue 2)."""
@@ -32,7 +32,7 @@ def sim_rate(
     """
     monitor = monitor or Monitor()
     origin = paths.actor_arena("bench")
-    controller = HAND_MADE[controller_name]
+    controller = CONTROLLERS[controller_name]
     rng = np.random.default_rng(0)
     world = reset(cfg, arenas, rng)
     memory = controller.init(cfg, world, rng)

@@ -39,7 +39,7 @@ from ennc_ql.progress import ProgressBar
 from ennc_ql.slurm.array import ArrayConfig, learn_on_slurm
 from ennc_ql.slurm.sbatch import SlurmError
 from monitor.style import REFERENCES as STYLES
-from sim import FEATURIZERS, HAND_MADE, ScenarioConfig, evaluate
+from sim import CONTROLLERS, FEATURIZERS, ScenarioConfig, evaluate
 from sim.actions import ACTION_SETS
 from sim.features import REWARD_NAMES
 
@@ -47,11 +47,11 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 Sweep = list[tuple[str, list[Any]]]
-REFERENCES = ("a-cmommt", "a-cmommt-oracle", "force-6d", "force-6d-shared")
-"""Hand-made controllers scored beside every variant: A-CMOMMT (on what its robots sense or are told), the same law
-on true target positions no robot senses (the oracle, a labelled reference only), and its force law limited to the
-6-D state (without and with the shared-observation flags), i.e. what the learned policy's own state allows a
-hand-made law."""
+REFERENCES = ("a-cmommt", "a-cmommt-public", "a-cmommt-oracle", "force-6d", "force-6d-shared")
+"""Hand-made controllers scored beside every variant: A-CMOMMT tuned on training trials (on what its robots sense or
+are told), the public code's untuned A-CMOMMT, the tuned law on true target positions no robot senses (the oracle, a
+labelled reference only), and its force law limited to the 6-D state (without, and tuned with, the
+shared-observation flags), i.e. what the learned policy's own state allows a hand-made law."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -196,7 +196,7 @@ def _references(setups: list[Setup], progress: JobsBar) -> dict[TestTrials, dict
             progress.running("the references on the variant's test trials")
             cfg, n, steps, seed = trials
             references[trials] = {
-                name: round(evaluate(cfg, HAND_MADE[name], n, steps, seed).coverage_mean, 3) for name in REFERENCES
+                name: round(evaluate(cfg, CONTROLLERS[name], n, steps, seed).coverage_mean, 3) for name in REFERENCES
             }
         progress.finished(", ".join(f"{name} {value:.2f}%" for name, value in references[trials].items()))
     return references
@@ -253,7 +253,7 @@ def chart(report: dict[str, Any]) -> Figure:
     ax.bar(x, means, 0.6, yerr=[r["coverage_std"] for r in rows], color="#3b7dd8", capsize=4)
     for i, row in enumerate(rows):
         ax.text(i, row["coverage_mean"] + row["coverage_std"] + 1.5, f"{row['coverage_mean']:.1f}", ha="center")
-    for name, style in zip(REFERENCES, ("--", (0, (5, 1, 1, 1)), "-.", ":"), strict=True):
+    for name, style in zip(REFERENCES, ("--", (0, (3, 1)), (0, (5, 1, 1, 1)), "-.", ":"), strict=True):
         color = tuple(c / 255 for c in STYLES[name][1])
         for value in sorted({r["references"][name] for r in rows}):
             ax.axhline(value, color=color, linestyle=style, linewidth=1)

@@ -15,7 +15,7 @@ from algorithm.policy_file import load_policy
 from ennc_ql.cli import main
 from ennc_ql.config import ConfigError
 from ennc_ql.experiments.ablate import REFERENCES, Setup, ablate, parse_sets, variants
-from sim import HAND_MADE, evaluate, scenario
+from sim import CONTROLLERS, evaluate, scenario
 
 
 @pytest.mark.parametrize(
@@ -88,7 +88,7 @@ def test_a_tiny_sweep_scores_every_variant_on_the_same_trials_and_saves_the_over
         "lost_behaviour=stay, scenario.action_steps=3, featurizer=shared8d, reward=difference",
     ]
     cfg = scenario(action_steps=3)
-    references = {name: evaluate(cfg, HAND_MADE[name], 2, 60, seed=0).coverage_mean for name in REFERENCES}
+    references = {name: evaluate(cfg, CONTROLLERS[name], 2, 60, seed=0).coverage_mean for name in REFERENCES}
     for row in rows:
         assert len(row["coverage_per_run"]) == 2
         assert row["coverage_mean"] == pytest.approx(np.mean(row["coverage_per_run"]), abs=1e-3)
@@ -124,7 +124,7 @@ def test_the_neural_reference_is_scored_beside_without_a_policy_file(tmp_path: P
     report = ablate("fqi-mlp", sweep, Setup(budget=budget), processes=1, out_dir=tmp_path)
     (row,) = report["variants"]
     assert len(row["coverage_per_run"]) == 1 and 0.0 <= row["coverage_mean"] <= 100.0
-    honest = evaluate(scenario(), HAND_MADE["a-cmommt"], 2, 60).coverage_mean
+    honest = evaluate(scenario(), CONTROLLERS["a-cmommt"], 2, 60).coverage_mean
     assert row["references"]["a-cmommt"] == pytest.approx(honest, abs=1e-3)
     assert report["paper_coverage"] is None
     assert not (tmp_path / "policies").exists()  # the network is a reference, not a policy file

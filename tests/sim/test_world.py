@@ -171,7 +171,7 @@ def test_targets_reflect_specularly_off_the_wall() -> None:
 
 def test_force_law_attracts_repels_and_cooperates() -> None:
     cfg = small_cfg(2, 1)
-    a_cmommt = HAND_MADE["a-cmommt"]
+    a_cmommt = HAND_MADE["a-cmommt-public"]  # the public parameters the distances below are laid out for
     rng = np.random.default_rng(0)
 
     def heading(robots, targets, controller=a_cmommt):
