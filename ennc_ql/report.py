@@ -74,7 +74,7 @@ def headline(report: Mapping[str, Any]) -> list[str]:
     if final is None:
         return ["result: no policy was learned (the first fit waits for --learner-min-tuples tuples)"]
     formulation = _formulation(report)
-    trials = report.get("final_eval_trials", 50)
+    trials = report.get("final_eval_trials", 200)
     what = f", formulation {formulation}" if formulation else ""
     lines = [f"result: the learned policy observes {final:.2f} % of the targets ({trials} seeded test trials{what})"]
     references = _references(report.get("final_reference_coverage") or {})
@@ -95,7 +95,7 @@ def next_commands(report: Mapping[str, Any]) -> list[tuple[str, str]]:
     run_dir = _run_dir(report)
     commands: list[tuple[str, str]] = []
     if report.get("policy_file"):
-        trials = report.get("final_eval_trials", 50)
+        trials = report.get("final_eval_trials", 200)
         commands.append(
             (
                 f"ennc-ql eval --policy {report['policy_file']} --trials {trials}",
@@ -167,7 +167,7 @@ def _result(report: Mapping[str, Any], curve_png: str) -> list[str]:
     lines = ["## Result", ""]
     if final is None:
         return [*lines, headline(report)[0].removeprefix("result: ").capitalize() + ".", ""]
-    trials = report.get("final_eval_trials", 50)
+    trials = report.get("final_eval_trials", 200)
     formulation = _formulation(report)
     learned = f"version {report['policy_version']}" + (f", formulation {formulation}" if formulation else "")
     rows = [("**learned policy**", learned, f"**{final:.2f}**")]
@@ -324,7 +324,7 @@ def learning_curve_figure(report: Mapping[str, Any]) -> Figure:
     curve = report.get("coverage_curve") or []
     duration = (report.get("config") or {}).get("duration") or report["seconds"]
     end = float(report["seconds"])
-    trials, final_trials = report.get("eval_trials", 10), report.get("final_eval_trials", 50)
+    trials, final_trials = report.get("eval_trials", 10), report.get("final_eval_trials", 200)
     final = report.get("final_coverage_mean")
     finals = dict(report.get("final_reference_coverage") or {})
     fig = Figure(figsize=(10, 4.8))

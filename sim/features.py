@@ -25,6 +25,9 @@ target always gets ``lost_reward`` instead and its trial ends:
   targets robot i observes and no other robot does [beyond the paper: Agogino & Tumer's difference reward].
 * ``difference-decision``: the same D_i, earned at every step and paid at the end of each action as its mean over
   the action's steps (a reward per decision, so that credit need not travel back a whole trial) [beyond the paper].
+* ``difference-redundancy``: the same, less ``REDUNDANCY_PENALTY`` for a step in which the robot sees only targets a
+  teammate sees too: a redundant robot is told so at once, as A-CMOMMT with the teammate-observed weight at 0 lets
+  it feel no pull [beyond the paper; the analogue of Eq. 2's k(T)].
 
 ``paper`` names the featurizer's own reward of the paper (:func:`resolve_reward`): ``observed`` for ``local2d``,
 ``eq2`` for the collaborative states.
@@ -217,6 +220,16 @@ def _difference(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
     return obs.n_only.astype(np.float32)
 
 
+REDUNDANCY_PENALTY = 0.5
+"""What ``difference-redundancy`` takes from a robot for a step in which it sees targets but only ones a teammate
+sees too [choice]."""
+
+
+def _difference_redundancy(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
+    redundant = (obs.n_seen > 0) & (obs.n_only == 0)
+    return obs.n_only.astype(np.float32) - np.float32(REDUNDANCY_PENALTY) * redundant.astype(np.float32)
+
+
 REWARDS: dict[str, Reward] = {
     r.name: r
     for r in (
@@ -224,6 +237,7 @@ REWARDS: dict[str, Reward] = {
         Reward("eq2", _eq2, per_decision=False),
         Reward("difference", _difference, per_decision=False),
         Reward("difference-decision", _difference, per_decision=True),
+        Reward("difference-redundancy", _difference_redundancy, per_decision=True),
     )
 }
 """Every reward function by name; ``paper`` is accepted wherever a reward is named (:func:`resolve_reward`)."""

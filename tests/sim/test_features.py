@@ -71,7 +71,7 @@ def test_paper_names_each_featurizers_own_reward_and_unknown_names_are_refused()
         resolve_reward("collab6d", "nope")
     with pytest.raises(ValueError, match="unknown featurizer 'pixels'"):
         featurize(scenario(), sense(scenario(), arena()), "pixels")
-    assert {name for name, r in REWARDS.items() if r.per_decision} == {"difference-decision"}
+    assert {name for name, r in REWARDS.items() if r.per_decision} == {"difference-decision", "difference-redundancy"}
 
 
 def test_a_formulation_is_resolved_by_name_with_explicit_parts_over_it() -> None:
