@@ -91,10 +91,8 @@ class RobotActor:
         self.slice = ExperienceSlice(
             self.scenario,
             SliceConfig(
+                config.resolved,
                 n_arenas=config.arenas,
-                featurizer=config.resolved.featurizer,
-                reward=config.resolved.reward,
-                actions=config.resolved.actions,
                 learning_robots=self.learning_robots,
             ),
             seed,

@@ -67,14 +67,11 @@ class LearnerService:
         self.version_mark = VersionMark(run_dir)
         self.state = PolicyState(
             self.scenario.n_robots,
-            formulation.featurizer,
+            formulation,
             self.scenario.name,
             self.scenario.action_steps,
             config.method,
             on_version=self.version_mark.record,
-            reward=formulation.reward,
-            act_every=formulation.act_every,
-            actions=formulation.actions,
         )
         self.fitter = Fitter(config, on_fitted=self._adopt)
         self.evaluator = Evaluator(self.scenario, config.eval_trials, config.eval_steps, config.final_eval_trials)
@@ -127,7 +124,7 @@ class LearnerService:
     def run(self, stop: threading.Event) -> LearnerReport:
         c = self.config
         self._started = time.monotonic()
-        self.watch.started(c.resolved.featurizer, self.state.reward, self.evaluator.references, c.resolved.actions)
+        self.watch.started(c.resolved, self.evaluator.references)
         next_broadcast = next_checkpoint = next_status = self._started
         next_eval = self._started + c.eval_interval
         while not stop.is_set():

@@ -15,7 +15,7 @@ import pytest
 
 from ennc_ql.cli import build_parser
 from sim import FEATURIZERS
-from sim.features import FORMULATIONS, REWARD_NAMES
+from sim.formulation import FORMULATIONS, REWARD_NAMES, TRIAL_RULES
 
 ENNC_QL = Path(sys.executable).with_name("ennc-ql")
 
@@ -84,6 +84,8 @@ def test_every_flag_has_help_text_and_its_default(prog: str) -> None:
         ("ennc-ql actor", "--featurizer", FEATURIZERS),
         ("ennc-ql actor", "--reward", REWARD_NAMES),
         ("ennc-ql chaos", "--formulation", FORMULATIONS),
+        ("ennc-ql actor", "--trial-rules", TRIAL_RULES),
+        ("ennc-ql up", "--actor-trial-rules", TRIAL_RULES),
     ],
 )
 def test_registry_values_are_offered_as_choices(prog: str, flag: str, names: object) -> None:

@@ -19,7 +19,7 @@ from learner.policy_state import PolicyState
 from learner.service import LearnerService
 from learner.wiring import connect as connect_learner
 from protocol import ExperienceBatch, InMemoryBus, InMemoryTransport, PolicyUpdate, QTableIncrement, Reject
-from sim.features import DEFAULT_FORMULATION, FEATURIZERS, FORMULATIONS
+from sim.formulation import DEFAULT_FORMULATION, FORMULATIONS
 from tests.fakes import run_until
 
 FAST = LearnerConfig(
@@ -68,8 +68,9 @@ def test_serial_learner_and_actor_exchange_experience_and_policies(tmp_path: Pat
     assert (moved[[0, 1, 2]] > 0).all() and (moved[3:] == 0).all()
 
 
-DIM = FEATURIZERS[FORMULATIONS[DEFAULT_FORMULATION].featurizer]
+DIM = FORMULATIONS[DEFAULT_FORMULATION].dim
 """State dimension of the default formulation, FAST's."""
+PAPER = FORMULATIONS["paper"]
 
 
 def one_cell_per_action(dim: int = 6) -> Discretization:
@@ -108,7 +109,7 @@ def test_merge_adds_the_visit_weighted_mean_of_the_actors_changes(tmp_path: Path
 
 
 def test_increments_over_an_old_discretization_are_dropped() -> None:
-    state = PolicyState(n_robots=10, featurizer="collab6d", scenario="cmommt-v1", action_steps=5, method="m")
+    state = PolicyState(n_robots=10, formulation=PAPER, scenario="cmommt-v1", action_steps=5, method="m")
     state.adopt(one_cell_per_action())
     state.publish()  # version 1 over the first discretization
     state.adopt(one_cell_per_action())  # a refit: version 1's cells mean something else now
@@ -121,13 +122,14 @@ def test_increments_over_an_old_discretization_are_dropped() -> None:
 
 
 def test_the_evaluated_policy_decides_every_act_every_steps_while_the_broadcast_keeps_the_actors_hold() -> None:
-    kw: dict[str, Any] = {"n_robots": 10, "featurizer": "collab6d", "scenario": "cmommt-v1", "method": "m"}
-    state = PolicyState(action_steps=5, reward="difference", act_every=1, **kw)
+    kw: dict[str, Any] = {"n_robots": 10, "scenario": "cmommt-v1", "method": "m"}
+    every_step = PAPER.replace(reward="difference", act_every=1)
+    state = PolicyState(formulation=every_step, action_steps=5, **kw)
     state.adopt(one_cell_per_action())
     assert state.publish().action_steps == 5
     policy = state.policy()
-    assert policy is not None and (policy.action_steps, policy.reward) == (1, "difference")
-    plain = PolicyState(action_steps=5, **kw)
+    assert policy is not None and (policy.action_steps, policy.formulation) == (1, every_step)
+    plain = PolicyState(formulation=PAPER, action_steps=5, **kw)
     plain.adopt(one_cell_per_action())
     assert plain.policy() is not None and plain.policy().action_steps == 5  # type: ignore[union-attr]
 
@@ -135,15 +137,15 @@ def test_the_evaluated_policy_decides_every_act_every_steps_while_the_broadcast_
 DEFAULT = FORMULATIONS[DEFAULT_FORMULATION]
 
 
-def experience(seq: int, dim: int = DIM, reward_function: str = DEFAULT.reward, n: int = 3) -> ExperienceBatch:
+def experience(seq: int, dim: int = DIM, reward_function: str = DEFAULT.reward.name, n: int = 3) -> ExperienceBatch:
     return ExperienceBatch(
         actor_id="a",
         incarnation=1,
         seq=seq,
         policy_version=0,
-        featurizer=DEFAULT.featurizer,
+        featurizer=DEFAULT.featurizer.name,
         reward_function=reward_function,
-        action_set=DEFAULT.actions,
+        action_set=DEFAULT.actions.name,
         robot=np.zeros(n, np.int16),
         state=np.zeros((n, dim), np.float32),
         action=np.zeros(n, np.uint8),
@@ -175,7 +177,7 @@ def test_experience_of_another_formulation_or_dimension_is_rejected_and_counted(
     assert figures.duplicates == 1
     assert rejects == [
         (1, f"state dimension 2, expected {DIM}"),
-        (2, f"reward_function eq2, expected {DEFAULT.reward}"),
+        (2, f"reward_function eq2, expected {DEFAULT.reward.name}"),
     ]
 
 
@@ -224,7 +226,7 @@ def test_refits_warm_start_and_carry_q_values_over(tmp_path: Path) -> None:
 
 def test_a_checkpoint_holds_the_pending_increments_and_the_resume_goes_above_every_version(tmp_path: Path) -> None:
     recorded: list[int] = []
-    state = PolicyState(10, "collab6d", "cmommt-v1", 5, "m", on_version=recorded.append)
+    state = PolicyState(10, PAPER, "cmommt-v1", 5, "m", on_version=recorded.append)
     state.adopt(one_cell_per_action())
     state.publish()
     assert state.add_increment(increment("a", 0, [2.0] + [0.0] * 7, [4] + [0] * 7))  # acked, not merged yet
@@ -232,7 +234,7 @@ def test_a_checkpoint_holds_the_pending_increments_and_the_resume_goes_above_eve
     state.publish()
     state.publish()  # versions 2 and 3 go out after the checkpoint; the mark knows them
     assert recorded == [1, 2, 3]
-    resumed = PolicyState(10, "collab6d", "cmommt-v1", 5, "m", on_version=recorded.append)
+    resumed = PolicyState(10, PAPER, "cmommt-v1", 5, "m", on_version=recorded.append)
     resumed.restore(arrays, meta, published=max(recorded))
     current = resumed.current
     assert current is not None and current.version == 4 and recorded[-1] == 4
@@ -244,11 +246,11 @@ def test_a_checkpoint_holds_the_pending_increments_and_the_resume_goes_above_eve
 
 
 def test_an_empty_state_checkpoints_and_restores(tmp_path: Path) -> None:
-    state = PolicyState(10, "collab6d", "cmommt-v1", 5, "m")
+    state = PolicyState(10, PAPER, "cmommt-v1", 5, "m")
     state.adopt(one_cell_per_action())
     arrays, meta = state.to_arrays()
     assert arrays["pending_change"].shape == (0, 8)
-    resumed = PolicyState(10, "collab6d", "cmommt-v1", 5, "m")
+    resumed = PolicyState(10, PAPER, "cmommt-v1", 5, "m")
     resumed.restore(arrays, meta)
     assert resumed.version == 1 and resumed.policy() is not None
 
