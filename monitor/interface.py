@@ -135,8 +135,8 @@ class Monitor:
         sensing_range: float | None = None,
     ) -> None:
         """Lay the viewer out (see :func:`monitor.layout.default_blueprint`) and log the colour key: for training,
-        the curves, an arena view per actor and the compass rose of prototype views; for ``eval_trial`` (replaying a
-        test trial) the trial and its coverage.
+        the curves, an arena view per actor and the rose of prototype views, one per move; for ``eval_trial``
+        (replaying a test trial) the trial and its coverage.
 
         ``arena_radius`` and ``sensing_range`` fix the 2-D views' ranges (None: fitted to the data); with
         ``sensing_range`` the prototype views get their static axes and sensing circle.

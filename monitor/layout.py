@@ -4,8 +4,8 @@ A researcher opening a run should see the learning curve at once, as TensorBoard
 large, over the whole history: so the viewer opens at the end of the data (following a live run), every time series
 spans the whole run on the ``train_time`` timeline, and the test coverage has a panel of its own, first and largest,
 with the hand-made controllers' levels and the final figure. Training-trial figures come next, then the arenas and
-the prototypes (north up, a compass rose), then the system figures. Colours come from :mod:`monitor.style`, one per
-actor and per statistic in every panel; the logged data only name their series.
+the prototypes (a rose of the action set's moves: for the compass, north up), then the system figures. Colours come
+from :mod:`monitor.style`, one per actor and per statistic in every panel; the logged data only name their series.
 """
 
 from __future__ import annotations
@@ -169,8 +169,8 @@ def _rose(sensing_range: float | None, actions: ActionSet) -> rrb.Container:
 def _below(
     actor_ids: Sequence[str], arena_radius: float | None, sensing_range: float | None, actions: ActionSet
 ) -> rrb.Container:
-    """Arenas, compass rose and system side by side: each gets the row's height, which keeps the 2-D views about
-    square in a landscape window."""
+    """Arenas, the rose of the moves and system side by side: each gets the row's height, which keeps the 2-D views
+    about square in a landscape window."""
     columns = max(1, math.ceil(len(actor_ids) / 2))  # two arenas stacked per column of a ~300-pixel width
     bounds = _square(arena_radius, ARENA_MARGIN)
     arenas = rrb.Grid(

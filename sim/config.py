@@ -84,7 +84,7 @@ class ScenarioConfig:
     mask_value: float = 1000.0
     """Both components of a feature pair when nothing is in view [paper]."""
     action_steps: int = 5
-    """Simulation steps one discrete compass action lasts [choice; the paper fixes but does not give it]."""
+    """Simulation steps one discrete action lasts [choice; the paper fixes but does not give it]."""
     test_steps: int = 1000
     """Length of a test trial [paper]."""
     test_trials: int = 10
