@@ -144,14 +144,15 @@ Progress = Callable[[str], None]
 
 
 def _discretize(
-    spec: MethodSpec, data: Transitions, budget: Budget, seed: int, lost_reward: float
+    spec: MethodSpec, data: Transitions, budget: Budget, seed: int, cfg: ScenarioConfig, formulation: Formulation
 ) -> tuple[Discretization, ActionMode]:
     rng = np.random.default_rng(seed)
     if spec.algorithm == "vqql":
         n = min(budget.codebook_patterns, len(data))
         sample = data.state[rng.choice(len(data), n, replace=False)]
         return Discretization.shared(lbg(sample, spec.codebook, seed=seed, max_iter=30), N_ACTIONS), "until_change"
-    result = phase1(data, N_ACTIONS, budget.phase1, seed=seed, lost_reward=lost_reward)
+    lost = formulation.featurizer.sees_none(cfg, data.next_state)
+    result = phase1(data, N_ACTIONS, budget.phase1, seed=seed, lost=lost, lost_reward=cfg.lost_reward)
     return result.discretization, "fixed"
 
 
@@ -180,14 +181,20 @@ def _train_fqi(
     return NetworkController(q, formulation, act_every=every), tuples
 
 
-def _refit(agent: TabularAgent, data: Transitions, budget: Budget, seed: int) -> tuple[TabularAgent, Discretization]:
+def _refit(
+    agent: TabularAgent, data: Transitions, budget: Budget, seed: int, cfg: ScenarioConfig
+) -> tuple[TabularAgent, Discretization]:
     """Phase 1 again on on-policy ``data``, bootstrapped from the agent's tables (their mean over robots); a new
     agent over the new discretization with the tables carried over (each new cell from the nearest old one)."""
     old = agent.discretization
     config = budget.phase1
     if budget.refit_seed_prototypes is not None:
         config = dataclasses.replace(config, seed_prototypes=budget.refit_seed_prototypes)
-    fit = phase1(data, N_ACTIONS, config, seed=seed, warm_start=old, values=agent.tables.mean(axis=0))
+    lost = agent.template.formulation.featurizer.sees_none(cfg, data.next_state)
+    values = agent.tables.mean(axis=0)
+    fit = phase1(
+        data, N_ACTIONS, config, seed=seed, warm_start=old, values=values, lost=lost, lost_reward=cfg.lost_reward
+    )
     disc = fit.discretization
     template = dataclasses.replace(agent.template, discretization=disc, tables=disc.carry_over(old, agent.tables))
     return TabularAgent(dataclasses.replace(template, visits=None), budget.phase2), disc
@@ -226,7 +233,7 @@ def train(
     )
     data = Transitions.concat([explorer.run_trial() for _ in range(budget.explore_trials)])
     say(f"explored {len(data)} tuples")
-    disc, action_mode = _discretize(spec, data, budget, seed, base.lost_reward)
+    disc, action_mode = _discretize(spec, data, budget, seed, learn_cfg, formulation)
     say(f"discretization: {disc.size} cells, {disc.sizes().mean():.1f} per action")
     rows = spec.learning_robots if spec.per_robot_tables and not spec.shared_table else 1
     phase2 = formulation.replace(reward=spec.phase2_reward)
@@ -265,7 +272,7 @@ def train(
         if (trial + 1) % max(1, budget.phase2_trials // 4) == 0:
             say(f"phase 2: {trial + 1}/{budget.phase2_trials} trial batches, {tuples} tuples")
         if trial + 1 in refit_at:
-            agent, disc = _refit(agent, Transitions.concat(recent), budget, seed + trial)
+            agent, disc = _refit(agent, Transitions.concat(recent), budget, seed + trial, learn_cfg)
             say(f"refit: {disc.sizes().mean():.1f} prototypes per action")
     test_robots = base.n_robots
     robot_table = np.arange(test_robots) % rows

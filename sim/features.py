@@ -65,6 +65,8 @@ class Featurizer:
     """(E, m, d) float32 states of every robot."""
     paper_reward: str
     """The reward ``paper`` stands for with this state."""
+    sees_none: Callable[[ScenarioConfig, np.ndarray], np.ndarray]
+    """(…,) bool of states (…, d): the robot sees no target (phase 1's ``targets="lost"`` reads lost tuples by it)."""
     frame: str = "world"
     """The frame its offsets are given in: ``world`` (x east, y north) or ``target``
     (:func:`sim.actions.target_frame`)."""
@@ -72,6 +74,25 @@ class Featurizer:
     @property
     def dim(self) -> int:
         return len(self.state)
+
+
+def _nearest_masked(cfg: ScenarioConfig, states: np.ndarray) -> np.ndarray:
+    # The first pair is the mask when no target is in view; a real offset never reaches it (mask > sensing range).
+    return (states[..., 0] == np.float32(cfg.mask_value)) & (states[..., 1] == np.float32(cfg.mask_value))
+
+
+def _distance_masked(cfg: ScenarioConfig, states: np.ndarray) -> np.ndarray:
+    return states[..., 0] == np.float32(cfg.mask_value)
+
+
+def _nearest_absent(nearest: slice, present: int) -> Callable[[ScenarioConfig, np.ndarray], np.ndarray]:
+    """No target in view for the presence-coded states: the nearest target's columns are 0 and so is the furthest
+    target's presence bit (a target exactly at the robot's position reads the same: a set of measure zero)."""
+
+    def sees_none(cfg: ScenarioConfig, states: np.ndarray) -> np.ndarray:
+        return (states[..., nearest] == 0).all(axis=-1) & (states[..., present] == 0)
+
+    return sees_none
 
 
 def _local2d(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
@@ -127,9 +148,15 @@ def _frame9d(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
 FEATURIZER_REGISTRY: dict[str, Featurizer] = {
     f.name: f
     for f in (
-        Featurizer("local2d", ("target_dx", "target_dy"), _local2d, "observed"),
-        Featurizer("collab6d", _COLLAB_STATE, _collab6d, "eq2"),
-        Featurizer("shared8d", (*_COLLAB_STATE, "nearest_target_shared", "furthest_target_shared"), _shared8d, "eq2"),
+        Featurizer("local2d", ("target_dx", "target_dy"), _local2d, "observed", _nearest_masked),
+        Featurizer("collab6d", _COLLAB_STATE, _collab6d, "eq2", _nearest_masked),
+        Featurizer(
+            "shared8d",
+            (*_COLLAB_STATE, "nearest_target_shared", "furthest_target_shared"),
+            _shared8d,
+            "eq2",
+            _nearest_masked,
+        ),
         Featurizer(
             "present10d",
             (
@@ -146,6 +173,7 @@ FEATURIZER_REGISTRY: dict[str, Featurizer] = {
             ),
             _present10d,
             "eq2",
+            _nearest_absent(slice(0, 2), 4),
         ),
         Featurizer(
             "frame7d",
@@ -160,6 +188,7 @@ FEATURIZER_REGISTRY: dict[str, Featurizer] = {
             ),
             _frame7d,
             "eq2",
+            _distance_masked,
             frame="target",
         ),
         Featurizer(
@@ -177,6 +206,7 @@ FEATURIZER_REGISTRY: dict[str, Featurizer] = {
             ),
             _frame9d,
             "eq2",
+            _nearest_absent(slice(0, 1), 3),
             frame="target",
         ),
     )

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim import TrialStep, WorldState, featurize, scenario, sense, step_trial
+from sim import TrialStep, WorldState, featurize, reset, scenario, sense, step_trial
 from sim.actions import ACTION_SETS
 from sim.features import FEATURIZER_REGISTRY, FEATURIZERS, REWARDS, trial_reward
 from sim.formulation import DEFAULT_FORMULATION, TRIAL_RULES, Formulation, resolve_formulation
@@ -41,6 +41,16 @@ def test_the_shared_state_flags_the_targets_another_robot_observes() -> None:
     np.testing.assert_allclose(state[2], [MASK] * 6 + [0, 0])
     np.testing.assert_array_equal(state[:, :6], featurize(cfg, obs, STATE["collab6d"])[0])
     assert FEATURIZERS["shared8d"] == len(FEATURIZER_REGISTRY["shared8d"].state) == 8
+
+
+@pytest.mark.parametrize("name", list(FEATURIZER_REGISTRY))
+def test_every_featurizer_tells_from_its_state_alone_that_no_target_is_in_view(name: str) -> None:
+    cfg = scenario()
+    obs = sense(cfg, reset(cfg, 300, np.random.default_rng(2)))
+    featurizer = FEATURIZER_REGISTRY[name]
+    none = featurizer.sees_none(cfg, featurizer.compute(cfg, obs))
+    np.testing.assert_array_equal(none, obs.n_seen == 0)
+    assert none.any() and not none.all()
 
 
 def test_the_difference_reward_counts_the_targets_only_this_robot_observes() -> None:

@@ -32,7 +32,11 @@ def _twice_seen(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
     return 2.0 * obs.n_seen.astype(np.float32)
 
 
-TOY_STATE = Featurizer("toy-count", ("targets_in_view",), _seen, paper_reward="toy-twice")
+def _counts_none(cfg: ScenarioConfig, states: np.ndarray) -> np.ndarray:
+    return states[..., 0] == 0
+
+
+TOY_STATE = Featurizer("toy-count", ("targets_in_view",), _seen, "toy-twice", _counts_none)
 TOY_REWARD = Reward("toy-twice", _twice_seen, per_decision=True)
 TOY_MOVES = ActionSet(
     "toy-rose",
