@@ -4,9 +4,8 @@ Call sequence (``learner.wiring.connect`` holds every subscription; tests and se
 transport)::
 
     service = LearnerService(transport, LearnerConfig(), run_dir=Path("runs/x"), resume=False)
-    handles = connect(service, transport)   # subscriptions, late-joiner queryable, liveliness
-    report = service.run(stop)              # until stop / duration: fits, merges, broadcasts, evaluations, checkpoints
-    for h in reversed(handles): h.close()
+    with connect(service, transport):       # subscriptions, late-joiner queryable, liveliness (one ExitStack)
+        report = service.run(stop)          # until stop / duration: fits, merges, broadcasts, evaluations, checkpoints
 
 Experience is de-duplicated by (actor, incarnation, seq) into a bounded store (``learner.intake``, which also
 rejects what it refuses for good); it is acknowledged only once a checkpoint holding it is on disk, so an actor's

@@ -44,7 +44,7 @@ def test_serial_learner_and_actor_exchange_experience_and_policies(tmp_path: Pat
         actor = RobotActor(
             at, ActorConfig(actor_id="a0", arenas=16, learn=(0, 1, 2), batch_size=256, flush_timeout=0.5)
         )
-        handles += connect_actor(actor, at)
+        handles.enter_context(connect_actor(actor, at))
         stop = threading.Event()
         result: list[ActorStatus] = []
         thread = threading.Thread(target=lambda: result.append(actor.run(stop)))
@@ -52,8 +52,7 @@ def test_serial_learner_and_actor_exchange_experience_and_policies(tmp_path: Pat
         report = run_until(service, lambda: service.state.increments >= 3 and len(versions) >= 2)
         stop.set()
         thread.join()
-        for handle in reversed(handles):
-            handle.close()
+        handles.close()  # the ExitStack connect returned: every handle, in reverse order
     status = result[0]
     assert versions == sorted(set(versions)) and len(versions) >= 2  # strictly increasing broadcasts
     assert report.policy_version == versions[-1]
@@ -167,8 +166,7 @@ def test_experience_of_another_formulation_or_dimension_is_rejected_and_counted(
         t.publish(t.keys.experience("a"), experience(seq=2, reward_function="eq2"))  # the paper's reward
         t.inject_raw(t.keys.experience("a"), b"\x93\x01garbage")
         t.publish(t.keys.experience("a"), good)  # a re-sent duplicate
-        for handle in reversed(handles):
-            handle.close()
+        handles.close()  # the ExitStack connect returned: every handle, in reverse order
     figures = service.intake.figures()
     assert figures.tuples_received == 3 and figures.store_size == 3
     assert figures.rejected_by_type == {"StateDimension": 1, "Formulation": 1, "MalformedMessage": 1}
@@ -207,15 +205,14 @@ def test_refits_warm_start_and_carry_q_values_over(tmp_path: Path) -> None:
         service = LearnerService(lt, config, tmp_path)
         handles = connect_learner(service, lt)
         actor = RobotActor(at, ActorConfig(actor_id="a0", arenas=16, batch_size=256, flush_timeout=0.5))
-        handles += connect_actor(actor, at)
+        handles.enter_context(connect_actor(actor, at))
         stop = threading.Event()
         thread = threading.Thread(target=actor.run, args=(stop,))
         thread.start()
         report = run_until(service, lambda: service.fitter.fits >= 2 and len(set(prototypes_seen)) >= 2)
         stop.set()
         thread.join()
-        for handle in reversed(handles):
-            handle.close()
+        handles.close()  # the ExitStack connect returned: every handle, in reverse order
     assert report.phase1_fits >= 2  # refitted as the data grew
     assert len(set(prototypes_seen)) >= 2  # broadcasts carried the new discretization
     policy = service.state.policy()
@@ -282,8 +279,7 @@ def test_a_poisoned_message_is_rejected_by_its_seq_and_the_stream_flows_on(tmp_p
         t.publish(t.keys.experience("a"), experience(seq=3, dim=2))  # wrong state dimension: rejected by seq too
         t.publish(t.keys.experience("a"), experience(seq=3, dim=2))  # and its re-send a duplicate
         service.checkpoint()
-        for handle in reversed(handles):
-            handle.close()
+        handles.close()  # the ExitStack connect returned: every handle, in reverse order
     assert [(r.actor_id, r.seq) for r in rejects] == [("a", 1), ("a", 3)]
     assert rejects[0].reason.startswith("InvalidValues: reward")
     assert rejects[1].reason == f"state dimension 2, expected {DIM}"
