@@ -200,7 +200,8 @@ def resolve_formulation(
 
 def choices_help(part: str) -> str:
     """The names a configuration may give ``part`` (``formulation``, ``featurizer``, ``reward``, ``actions`` or
-    ``trial_rules``), for a ``--help`` text, read from its registry."""
+    ``trial_rules``), comma-separated, for a ``--help`` text: read from its registry, so a new entry is offered
+    without another edit."""
     names = {
         "formulation": tuple(FORMULATIONS),
         "featurizer": tuple(FEATURIZER_REGISTRY),

@@ -40,7 +40,7 @@ from ennc_ql.slurm.array import ArrayConfig, learn_on_slurm
 from ennc_ql.slurm.sbatch import SlurmError
 from monitor.style import REFERENCES as STYLES
 from sim import HAND_MADE, ScenarioConfig, evaluate
-from sim.formulation import Formulation
+from sim.formulation import Formulation, choices_help
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -307,8 +307,9 @@ def add_ablate_parser(sub: Any) -> None:
         metavar="KEY=V1[,V2...]",
         help="override a field of the setup by dotted path (budget.phase2.alpha, budget.phase1.max_classes, "
         "scenario.action_steps, lost_behaviour, trial_rules, ...); several values sweep it, several --set sweep "
-        "their product "
-        "(default: none, the method as configured)",
+        "their product. The formulation's parts take: "
+        + "; ".join(f"{part} {{{choices_help(part)}}}" for part in ("featurizer", "reward", "actions", "trial_rules"))
+        + " (default: none, the method as configured)",
     )
     p.add_argument("--processes", type=positive(int), default=3, help="learning processes per variant")
     p.add_argument("--jobs", type=positive(int), default=1, help="learning processes run at once")

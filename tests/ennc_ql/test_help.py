@@ -15,6 +15,7 @@ import pytest
 
 from ennc_ql.cli import build_parser
 from sim import FEATURIZERS
+from sim.actions import ACTION_SETS
 from sim.formulation import FORMULATIONS, REWARD_NAMES, TRIAL_RULES
 
 ENNC_QL = Path(sys.executable).with_name("ennc-ql")
@@ -93,6 +94,17 @@ def test_registry_values_are_offered_as_choices(prog: str, flag: str, names: obj
     assert isinstance(action.metavar, str)
     offered = action.metavar.removesuffix("|none").strip("{}").split(",")
     assert offered == list(names)  # type: ignore[call-overload]
+
+
+def test_ablate_names_every_registered_formulation_part() -> None:
+    text = PARSERS["ennc-ql ablate"]._option_string_actions["--set"].help or ""
+    for part, names in (
+        ("featurizer", FEATURIZERS),
+        ("reward", REWARD_NAMES),
+        ("actions", ACTION_SETS),
+        ("trial_rules", TRIAL_RULES),
+    ):
+        assert f"{part} {{{', '.join(names)}}}" in text
 
 
 def test_a_flag_says_its_table_once() -> None:
