@@ -157,7 +157,7 @@ def _controller(
         fail("eval", f"{flag} {policy}: {str(exc).removeprefix(f'{path}: ')}")
     info = {
         "method": learned.method,
-        "formulation": f"{learned.featurizer} state, {learned.actions} moves, {learned.reward} reward",
+        "formulation": "{0} state, {2} moves, {1} reward".format(*learned.formulation.names),
         "prototypes_per_action": header["prototypes_per_action"],
     }
     return PolicyController(learned), cfg, info

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 from monitor.style import REFERENCES as STYLES
 from sim.controllers import COMPASS_NAMES
-from sim.features import FORMULATIONS
+from sim.formulation import FORMULATIONS
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

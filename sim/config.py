@@ -84,7 +84,7 @@ class ScenarioConfig:
     mask_value: float = 1000.0
     """Both components of a feature pair when nothing is in view [paper]."""
     action_steps: int = 5
-    """Simulation steps one discrete compass action lasts [choice; the paper fixes but does not give it]."""
+    """Simulation steps one discrete action lasts [choice; the paper fixes but does not give it]."""
     test_steps: int = 1000
     """Length of a test trial [paper]."""
     test_trials: int = 10
@@ -92,16 +92,8 @@ class ScenarioConfig:
     learning_steps: int = 100
     """Length of a learning trial [paper]."""
     lost_reward: float = -1.0
-    """Reward when a robot loses all targets [paper: negative; value: choice]."""
-    lost_ends_trial: bool = True
-    """A learning robot that loses every target gets ``lost_reward``, its trial ends and it stays motionless [paper].
-    False: it searches as a test-time robot does (keeps its heading, reflected off the wall) and goes on deciding and
-    learning; its tuples carry the reward's own value [beyond the paper: leaving a target that a teammate already
-    observes, to search for an unobserved one, is then no terminal failure]."""
-    timeout_terminal: bool = True
-    """The tuple a learner holds when the trial's ``learning_steps`` run out is terminal (q = r) [paper: the trial
-    ends]. False: it bootstraps from its s′, as a time limit that is not part of the task should [beyond the paper;
-    only with a per-decision reward, whose value is not paid at the end of the trial]."""
+    """Reward when a robot loses all targets [paper: negative; value: choice]. Whether that ends its learning trial is
+    one of the formulation's trial rules (:class:`sim.formulation.TrialRules`)."""
     robot_in_view_penalty: float = 2.0
     """k(T) in the collaborative reward r_i(T) = Σ_j b_ij(T) − k(T) [paper Eq. 2]."""
     local_target: LocalTarget = "furthest"

@@ -27,8 +27,9 @@ from sim import CONTROLLERS, evaluate, scenario
         (["--set", "budget.phase2.alpha=2"], "budget.phase2.alpha: alpha must lie in (0, 1], got 2.0"),
         (["--set", "lost_behaviour=fly"], "invalid choice: 'fly'"),
         (["--set", "scenario.action_steps=3", "--set", "scenario.action_steps=5"], "given twice"),
-        (["--set", "featurizer=pixels"], "featurizer: unknown 'pixels'; known: local2d, collab6d, shared8d"),
-        (["--set", "reward=money"], "reward: unknown 'money'; known: paper, observed, eq2, difference"),
+        (["--set", "featurizer=pixels"], "unknown featurizer 'pixels'; known: local2d, collab6d, shared8d"),
+        (["--set", "reward=money"], "unknown reward 'money'; known: paper, observed, eq2, difference"),
+        (["--set", "trial_rules=lenient"], "unknown trial rules 'lenient'; known: paper, search-on"),
     ],
 )
 def test_bad_settings_are_one_line_errors(
@@ -97,7 +98,7 @@ def test_a_tiny_sweep_scores_every_variant_on_the_same_trials_and_saves_the_over
         for seed in (0, 1):
             policy = load_policy(tmp_path / "policies" / f"v{variant}-{seed}.npz")[0]
             assert (policy.action_steps, policy.lost_behaviour) == (3, behaviour)
-            assert (policy.featurizer, policy.reward, policy.discretization.dim) == ("shared8d", "difference", 8)
+            assert (*policy.formulation.names[:2], policy.discretization.dim) == ("shared8d", "difference", 8)
     # The test-time rule changes no learning: the same seed learns the same tables in both variants.
     for seed in (0, 1):
         a = load_policy(tmp_path / "policies" / f"v1-{seed}.npz")[0]

@@ -18,7 +18,7 @@ from ennc_ql.cluster import UP_PRESETS, UpConfig, child_configs, write_configs
 from ennc_ql.config import ConfigError, load_config
 from ennc_ql.report import learning_curve_figure, terminal_summary, write_run_report
 from learner.config import LearnerConfig
-from sim.features import DEFAULT_FORMULATION, FORMULATIONS
+from sim.formulation import DEFAULT_FORMULATION, FORMULATIONS
 
 # Levels no constant holds: the charts and tables must take them from the report.
 CURVE_REFERENCES = {
@@ -261,15 +261,14 @@ def test_up_writes_every_process_configuration_and_they_load_back(tmp_path: Path
     # the paper's; up.toml says it once, and every table of it says the same.
     chosen = FORMULATIONS[DEFAULT_FORMULATION]
     assert UpConfig().formulation == LearnerConfig().formulation == ActorConfig().formulation == DEFAULT_FORMULATION
-    assert learner.resolved == chosen and {a.resolved.featurizer for a in actors} == {chosen.featurizer}
-    assert {(a.resolved.reward, a.resolved.actions) for a in actors} == {(chosen.reward, chosen.actions)}
+    assert learner.resolved == chosen and {a.resolved.names for a in actors} == {chosen.names}
     toml = tomllib.loads((tmp_path / "up.toml").read_text())
     assert toml["formulation"] == toml["learner"]["formulation"] == toml["actor"]["formulation"] == DEFAULT_FORMULATION
     assert not {"featurizer", "reward", "act_every"} & (set(toml["learner"]) | set(toml["actor"]))
     paper = load_config(UpConfig, args=build_parser().parse_args(["up", "--formulation", "paper"]), defaults=UP_PRESETS)
     learner, actors = child_configs(paper)
     assert {p.formulation for p in (paper.learner, paper.actor, learner, *actors)} == {"paper"}
-    assert {(p.resolved.featurizer, p.resolved.reward) for p in (learner, *actors)} == {("collab6d", "eq2")}
+    assert {p.resolved.names[:2] for p in (learner, *actors)} == {("collab6d", "eq2")}
     assert learner.resolved.act_every is None
     (tmp_path / "mixed.toml").write_text('formulation = "paper"\n[learner]\nreward = "difference"\n')
     with pytest.raises(ConfigError, match=r"learner.reward: up gives every process the formulation it names"):

@@ -21,7 +21,8 @@ from sim.controllers import COMPASS_NAMES
 from tests.monitor.rrd import Layout, View, layout, rows
 
 ACTORS = ("actor-0", "actor-1", "actor-2")
-CONFIG = LearnerConfig(eval_trials=2, eval_steps=40)
+CONFIG = LearnerConfig(formulation="paper", eval_trials=2, eval_steps=40)
+"""The paper's formulation: its compass moves lay the prototype views out as a north-up rose."""
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +35,7 @@ def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
         InMemoryTransport(InMemoryBus()) as transport,
     ):
         service = LearnerService(transport, CONFIG, run_dir, monitor=monitor)
-        service.watch.started(CONFIG.featurizer, service.state.reward, service.evaluator.references)
+        service.watch.started(CONFIG.resolved, service.evaluator.references)
         for actor in ACTORS:
             service.members.on_join(transport.keys.alive("actor", actor))
         service._publish_status()
@@ -142,8 +143,8 @@ def test_prototype_views_form_a_north_up_compass_rose(sent: Layout) -> None:
 def test_the_rose_places_every_move_where_it_points() -> None:
     # Compass: NW N NE / W key E / SW S SE. Relative: "toward" the nearest target points along the target frame's
     # +x, drawn to the right, and "left" (towards the furthest target's side, +y) at the top.
-    assert rose("compass") == (7, 0, 1, 6, None, 2, 5, 4, 3)
-    assert rose("relative") == (3, 2, 1, 4, None, 0, 5, 6, 7)
+    assert rose(ACTION_SETS["compass"]) == (7, 0, 1, 6, None, 2, 5, 4, 3)
+    assert rose(ACTION_SETS["relative"]) == (3, 2, 1, 4, None, 0, 5, 6, 7)
     assert [ACTION_SETS["relative"].moves[k] for k in (2, 0, 4)] == ["left", "toward", "away"]
 
 

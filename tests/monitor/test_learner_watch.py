@@ -14,7 +14,7 @@ from algorithm.policy import Policy
 from learner.report import LearnerStatus
 from monitor import Monitor
 from monitor.learner import LearnerWatch
-from sim import scenario
+from sim import FORMULATIONS, scenario
 
 
 class Recorder(Monitor):
@@ -40,7 +40,7 @@ class Recorder(Monitor):
 def policy(version: int) -> Policy:
     disc = Discretization.from_per_action([np.zeros((1, 6), np.float32)] * 8)
     tables = np.arange(20, dtype=np.float32).reshape(10, 2).repeat(4, axis=1)
-    return Policy("collab6d", disc, tables, np.arange(10), 5, version=version)
+    return Policy(FORMULATIONS["paper"], disc, tables, np.arange(10), 5, version=version)
 
 
 def test_status_publishes_are_learner_steps_and_a_new_actor_gets_a_layout() -> None:
@@ -86,9 +86,10 @@ def test_started_names_the_curve_and_measures_the_references_once() -> None:
         measured.append(1)
         return {"random": 16.5}
 
-    LearnerWatch(recorder, scenario(), clock=lambda: 0.0).started("frame9d", "difference", references, "relative")
+    frame = FORMULATIONS["frame-difference"]
+    LearnerWatch(recorder, scenario(), clock=lambda: 0.0).started(frame, references)
     assert recorder.calls[1:] == [
-        ("formulation", {"args": ("frame9d", "difference", "relative")}),
+        ("formulation", {"args": (frame,)}),
         ("reference_levels", {"args": ({"random": 16.5},)}),
     ]
     assert measured == [1]
@@ -99,7 +100,7 @@ def test_off_it_does_nothing_not_even_the_measurements() -> None:
         raise AssertionError("measured with monitoring off")
 
     watch = LearnerWatch(Monitor(), scenario(), clock=lambda: 0.0)
-    watch.started("collab6d", "eq2", references)
+    watch.started(FORMULATIONS["paper"], references)
     watch.status(LearnerStatus(), actors=["a0"], lag={})
     broken = policy(1)
     object.__setattr__(broken, "discretization", None)  # any use of it would raise
