@@ -96,6 +96,9 @@ class ScenarioConfig:
     one of the formulation's trial rules (:class:`sim.formulation.TrialRules`)."""
     robot_in_view_penalty: float = 2.0
     """k(T) in the collaborative reward r_i(T) = Σ_j b_ij(T) − k(T) [paper Eq. 2]."""
+    redundancy_penalty: float = 0.5
+    """What the ``difference-redundancy`` reward takes from a robot for a step in which it sees targets, but only
+    ones a teammate sees too [choice]."""
     local_target: LocalTarget = "furthest"
     """Target the 2-D local state points at [paper: furthest; once 'nearest']."""
 
@@ -114,6 +117,10 @@ class ScenarioConfig:
             raise ValueError("target_turn_prob must lie in [0, 1]")
         if self.sensor_noise_std < 0:
             raise ValueError("sensor_noise_std must be non-negative")
+        if not (math.isfinite(self.redundancy_penalty) and self.redundancy_penalty >= 0):
+            raise ValueError(
+                f"redundancy_penalty must be a non-negative finite number, got {self.redundancy_penalty!r}"
+            )
         if self.mask_value <= self.sensing_range:
             raise ValueError("mask_value must exceed sensing_range so a masked feature cannot look like a real one")
         if self.local_target not in ("furthest", "nearest"):

@@ -26,7 +26,7 @@ ends:
   targets robot i observes and no other robot does [beyond the paper: Agogino & Tumer's difference reward].
 * ``difference-decision``: the same D_i, earned at every step and paid at the end of each action as its mean over
   the action's steps (a reward per decision, so that credit need not travel back a whole trial) [beyond the paper].
-* ``difference-redundancy``: the same, less ``REDUNDANCY_PENALTY`` for a step in which the robot sees only targets a
+* ``difference-redundancy``: the same, less ``redundancy_penalty`` for a step in which the robot sees only targets a
   teammate sees too: a redundant robot is told so at once, as A-CMOMMT with the teammate-observed weight at 0 lets
   it feel no pull [beyond the paper; the analogue of Eq. 2's k(T)].
 
@@ -88,14 +88,17 @@ def _distance_masked(cfg: ScenarioConfig, states: np.ndarray) -> np.ndarray:
     return states[..., 0] == np.float32(cfg.mask_value)
 
 
-def _nearest_absent(nearest: slice, present: int) -> Callable[[ScenarioConfig, np.ndarray], np.ndarray]:
+@dataclass(frozen=True, slots=True)
+class _NearestAbsent:
     """No target in view for the presence-coded states: the nearest target's columns are 0 and so is the furthest
-    target's presence bit (a target exactly at the robot's position reads the same: a set of measure zero)."""
+    target's presence bit (a target exactly at the robot's position reads the same: a set of measure zero). A
+    module-level class, not a closure, so that a featurizer pickles into a worker process."""
 
-    def sees_none(cfg: ScenarioConfig, states: np.ndarray) -> np.ndarray:
-        return (states[..., nearest] == 0).all(axis=-1) & (states[..., present] == 0)
+    nearest: slice
+    present: int
 
-    return sees_none
+    def __call__(self, cfg: ScenarioConfig, states: np.ndarray) -> np.ndarray:
+        return (states[..., self.nearest] == 0).all(axis=-1) & (states[..., self.present] == 0)
 
 
 def _local2d(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
@@ -176,7 +179,7 @@ FEATURIZER_REGISTRY: dict[str, Featurizer] = {
             ),
             _present10d,
             "eq2",
-            _nearest_absent(slice(0, 2), 4),
+            _NearestAbsent(slice(0, 2), 4),
         ),
         Featurizer(
             "frame7d",
@@ -209,7 +212,7 @@ FEATURIZER_REGISTRY: dict[str, Featurizer] = {
             ),
             _frame9d,
             "eq2",
-            _nearest_absent(slice(0, 1), 3),
+            _NearestAbsent(slice(0, 1), 3),
             frame="target",
         ),
     )
@@ -244,14 +247,9 @@ def _difference(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
     return obs.n_only.astype(np.float32)
 
 
-REDUNDANCY_PENALTY = 0.5
-"""What ``difference-redundancy`` takes from a robot for a step in which it sees targets but only ones a teammate
-sees too [choice]."""
-
-
 def _difference_redundancy(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
     redundant = (obs.n_seen > 0) & (obs.n_only == 0)
-    return obs.n_only.astype(np.float32) - np.float32(REDUNDANCY_PENALTY) * redundant.astype(np.float32)
+    return obs.n_only.astype(np.float32) - np.float32(cfg.redundancy_penalty) * redundant.astype(np.float32)
 
 
 REWARDS: dict[str, Reward] = {

@@ -51,10 +51,12 @@ TRIAL_RULES: dict[str, TrialRules] = {
     for r in (
         TrialRules("paper"),
         TrialRules("search-on", lost_ends_trial=False, timeout_terminal=False),
+        TrialRules("lost-searches", lost_ends_trial=False),
     )
 }
 """Every set of learning-trial rules by name: ``paper`` [paper §4]; ``search-on``, a lost learner searches and goes
-on learning and the time-out bootstraps [beyond the paper]."""
+on learning and the time-out bootstraps; ``lost-searches``, the same with the paper's terminal time-out [beyond the
+paper]."""
 PAPER_RULES = TRIAL_RULES["paper"]
 
 

@@ -9,7 +9,7 @@ import pytest
 from sim import TrialStep, WorldState, featurize, reset, scenario, sense, step_trial
 from sim.actions import ACTION_SETS
 from sim.features import FEATURIZER_REGISTRY, FEATURIZERS, REWARDS, trial_reward
-from sim.formulation import DEFAULT_FORMULATION, TRIAL_RULES, Formulation, resolve_formulation
+from sim.formulation import DEFAULT_FORMULATION, FORMULATIONS, TRIAL_RULES, Formulation, resolve_formulation
 from tests.fakes import situation
 
 STATE = FEATURIZER_REGISTRY
@@ -155,3 +155,16 @@ def test_a_trial_end_difference_reward_is_paid_once_at_the_end() -> None:
     outs = _two_robots("difference", 10)
     np.testing.assert_allclose(outs[-1].reward[0], [1.0, 0.0])
     np.testing.assert_allclose(np.sum([out.reward[0] for out in outs], axis=0), [1.0, 0.0])
+
+
+def test_every_part_of_every_formulation_pickles_into_a_worker_process() -> None:
+    # ablate --jobs and the SLURM array send their setups to worker processes by pickle.
+    import pickle
+
+    for formulation in FORMULATIONS.values():
+        again = pickle.loads(pickle.dumps(formulation))
+        assert again.names == formulation.names
+    states = np.zeros((2, FEATURIZER_REGISTRY["frame9d"].dim), np.float32)
+    states[1, 0] = 40.0
+    sees_none = pickle.loads(pickle.dumps(FEATURIZER_REGISTRY["frame9d"])).sees_none
+    assert sees_none(scenario(), states).tolist() == [True, False]
