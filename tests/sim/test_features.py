@@ -64,6 +64,18 @@ def test_the_difference_reward_counts_the_targets_only_this_robot_observes() -> 
     np.testing.assert_allclose(difference.value(cfg, obs)[0], obs.covered[0] - np.array(covered_without))
 
 
+def test_the_redundancy_reward_charges_a_robot_that_sees_only_teammate_watched_targets() -> None:
+    # Robot 0 observes target 1 alone (+1); robot 1 sees only target 0, which robot 0 sees too (redundant: −penalty);
+    # robot 2 sees nothing (0: searching is not charged).
+    for penalty in (0.5, 1.25):
+        cfg = scenario(n_robots=3, n_targets=3, redundancy_penalty=penalty)
+        value = REWARDS["difference-redundancy"].value(cfg, sense(cfg, arena()))
+        np.testing.assert_allclose(value[0], [1.0, -penalty, 0.0])
+    assert REWARDS["difference-redundancy"].per_decision
+    with pytest.raises(ValueError, match="redundancy_penalty"):
+        scenario(redundancy_penalty=float("nan"))
+
+
 def _without(world: WorldState, robot: int) -> WorldState:
     keep = np.arange(world.robot_pos.shape[1]) != robot
     return WorldState(world.robot_pos[:, keep], world.target_pos, world.target_vel, world.target_speed)
