@@ -171,12 +171,17 @@ FORMULATIONS: dict[str, Formulation] = {
     "paper": Formulation.of("collab6d", "eq2", "compass"),
     "shared-difference": Formulation.of("shared8d", "difference", "compass", act_every=1),
     "frame-difference": Formulation.of("frame9d", "difference-decision", "relative", act_every=1),
+    "frame-cooperative": Formulation.of(
+        "frame9d", "difference-redundancy", "relative", act_every=1, rules="lost-searches"
+    ),
 }
 """Every formulation by name: ``paper`` is the paper's collaborative formulation [paper §4, Eq. 2];
 ``shared-difference`` the best with the world-frame state and compass moves that the README's ablations found;
 ``frame-difference`` the state and the moves in the frame of the nearest target, the difference reward paid per
-decision [beyond the paper, README "Learning quality"]."""
-DEFAULT_FORMULATION = "frame-difference"
+decision; ``frame-cooperative`` the same with a redundant step charged (``difference-redundancy``) and learning
+trials in which a learner that loses every target searches and goes on learning (``lost-searches``) [beyond the
+paper, docs/learning-quality.md "Learning cooperation"]."""
+DEFAULT_FORMULATION = "frame-cooperative"
 """The formulation of every process (``up``, ``learner``, ``actor``, compose's) unless another is named."""
 
 

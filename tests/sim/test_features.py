@@ -99,16 +99,16 @@ def test_paper_names_each_featurizers_own_reward_and_unknown_names_are_refused()
 
 
 def test_a_formulation_is_resolved_by_name_with_explicit_parts_over_it() -> None:
-    assert DEFAULT_FORMULATION == "frame-difference"
+    assert DEFAULT_FORMULATION == "frame-cooperative"
     default = resolve_formulation(DEFAULT_FORMULATION)
-    assert default == Formulation.of("frame9d", "difference-decision", "relative", act_every=1)
+    assert default == Formulation.of("frame9d", "difference-redundancy", "relative", act_every=1, rules="lost-searches")
     assert (default.featurizer, default.reward, default.actions, default.rules) == (
         FEATURIZER_REGISTRY["frame9d"],
-        REWARDS["difference-decision"],
+        REWARDS["difference-redundancy"],
         ACTION_SETS["relative"],
-        TRIAL_RULES["paper"],
+        TRIAL_RULES["lost-searches"],
     )
-    assert default.names == ("frame9d", "difference-decision", "relative") and default.dim == 9
+    assert default.names == ("frame9d", "difference-redundancy", "relative") and default.dim == 9
     assert resolve_formulation("shared-difference") == Formulation.of("shared8d", "difference", "compass", act_every=1)
     assert resolve_formulation("paper", featurizer="local2d") == Formulation.of("local2d", "eq2", "compass")
     assert resolve_formulation("paper", featurizer="local2d", reward="paper").reward is REWARDS["observed"]
