@@ -17,6 +17,7 @@ from ennc_ql.allocator import keep_freed_memory
 from ennc_ql.command import check_recording
 from ennc_ql.parser import PROG, CommandParser, add_commands, wrap
 from ennc_ql.router import add_router_parser
+from ennc_ql.system import die_with_parent
 
 DESCRIPTION = """\
 ENNC-QL reinforcement learning for cooperative multi-robot target observation (CMOMMT), as a distributed
@@ -78,6 +79,7 @@ def build_parser(router_only: bool = False) -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    die_with_parent()  # a child of ``up``: gone with it, whatever kills it
     words = list(sys.argv[1:] if argv is None else argv)
     # The command is the first word that is not a flag: the only options before it (-v, -h) take no value.
     command = next((w for w in words if not w.startswith("-")), None)

@@ -67,9 +67,28 @@ def _run_dir(report: Mapping[str, Any]) -> Path:
     return Path(str(report.get("run_dir") or Path(str(report["checkpoint"])).parent))
 
 
+def interruption(report: Mapping[str, Any]) -> str | None:
+    """How a run that was stopped by a signal ended, in one line; None for a run that ran its course."""
+    stop = report.get("interrupted")
+    if not stop:
+        return None
+    how = (
+        "the learner checkpointed and wrote its report"
+        if stop.get("learner") == "finished"
+        else "the learner was killed: the figures are those of its last checkpoint"
+    )
+    return f"interrupted by {stop['signal']} at {stop['at_s']:.0f}/{stop['duration_s']:g} s of training; {how}"
+
+
 def headline(report: Mapping[str, Any]) -> list[str]:
     """The result in two lines: the final figure, and its references on the same trials."""
     final = report.get("final_coverage_mean")
+    if final is None and report.get("interrupted") and report.get("policy_version"):
+        curve = report.get("coverage_curve") or []
+        last = f"; its last evaluation: {curve[-1][1]:.2f} % at {curve[-1][0]:.0f} s" if curve else ""
+        return [f"result so far: policy version {report['policy_version']}, not scored at the end (stopped){last}"]
+    if final is None and report.get("interrupted"):
+        return ["result so far: no policy yet (stopped before the first fit, which waits for --learner-min-tuples)"]
     if final is None:
         return ["result: no policy was learned (the first fit waits for --learner-min-tuples tuples)"]
     formulation = _formulation(report)
@@ -86,6 +105,10 @@ def next_commands(report: Mapping[str, Any]) -> list[tuple[str, str]]:
     """What a user runs next, as (command line, why): score the policy, open the recording, repeat or go on."""
     run_dir = _run_dir(report)
     commands: list[tuple[str, str]] = []
+    stop = report.get("interrupted")
+    if stop:
+        left = float(stop["duration_s"]) - float(stop["at_s"])
+        commands.append((str(stop["resume"]), f"continue the run from its checkpoint ({left:.0f} s of training left)"))
     if report.get("policy_file"):
         trials = report.get("final_eval_trials", 50)
         commands.append(
@@ -139,7 +162,8 @@ def results_table(report: Mapping[str, Any]) -> str:
 
 def terminal_summary(report: Mapping[str, Any]) -> str:
     """What ``ennc-ql up`` prints at the end of a run: the result, the figures, where the report is, and next."""
-    lines = [*headline(report), "", results_table(report), ""]
+    stop = interruption(report)
+    lines = [*([stop, ""] if stop else []), *headline(report), "", results_table(report), ""]
     if report.get("report_md"):
         lines += [f"report: {report['report_md']} (learning curve {report.get('learning_curve', '–')})", ""]
     commands = next_commands(report)
@@ -251,7 +275,9 @@ def markdown_report(report: Mapping[str, Any], curve_png: str = LEARNING_CURVE_P
     throughput, integrity and policy, and the commands that come next."""
     config: dict[str, Any] = report.get("config") or {}
     title = report.get("run_id") or _run_dir(report).name
-    lines = [f"# ennc-ql run {title}", "", *_result(report, curve_png)]
+    stop = interruption(report)
+    lines = [f"# ennc-ql run {title}", "", *([f"**{stop[0].upper() + stop[1:]}.**", ""] if stop else [])]
+    lines += _result(report, curve_png)
     if "command" in report:
         lines += ["```", str(report["command"]), "```", ""]
     took = f"{report['seconds']:.0f} s of training"

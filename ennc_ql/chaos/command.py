@@ -58,6 +58,9 @@ def cmd_chaos(args: argparse.Namespace) -> int:
         # A report or checkpoint left there by another run would be taken for this one's.
         fail("chaos", f"--run-id {run_id}: {args.runs / run_id} is not empty; choose another run id")
     run_dir = writable_dir(args.runs / run_id, "chaos", "--runs")
+    # Only now that every argument is checked: a notice never comes before an error.
+    if skipped:
+        print(f"ennc-ql chaos: skipping {', '.join(skipped)}: {next(iter(skipped.values()))}", file=sys.stderr)
     signal.signal(signal.SIGTERM, _interrupted)
     try:
         out = Chaos(options, config, run_dir, run_id, namespace, skipped).run()
@@ -73,8 +76,8 @@ def cmd_chaos(args: argparse.Namespace) -> int:
 
 
 def without_unavailable_network(options: ChaosOptions) -> tuple[ChaosOptions, dict[str, str]]:
-    """The options without the network faults if namespaces cannot be made here, and each one skipped with why; a
-    one-line error if nothing else was asked for."""
+    """The options without the network faults if namespaces cannot be made here, and each one skipped with why (the
+    caller says so once every argument is checked); a one-line error if nothing else was asked for."""
     wanted = [f for f in options.faults if f in NETWORK_FAULTS]
     reason = unavailable() if wanted else None
     if reason is None:
@@ -82,7 +85,6 @@ def without_unavailable_network(options: ChaosOptions) -> tuple[ChaosOptions, di
     rest = tuple(f for f in options.faults if f not in NETWORK_FAULTS)
     if not rest:
         fail("chaos", f"--faults: network namespaces are needed for {', '.join(wanted)}: {reason}")
-    print(f"ennc-ql chaos: skipping {', '.join(wanted)}: {reason}", file=sys.stderr)
     return dataclasses.replace(options, faults=rest), dict.fromkeys(wanted, reason)
 
 
