@@ -120,8 +120,14 @@ def next_commands(report: Mapping[str, Any]) -> list[tuple[str, str]]:
     recording = (report.get("recording") or {}).get("path")
     if recording:
         commands.append((f"rerun {recording}", "open the recording in the Rerun viewer"))
-    if report.get("command"):
-        duration = (report.get("config") or {}).get("duration")
+    duration = (report.get("config") or {}).get("duration")
+    if str(report.get("command", "")).startswith("sbatch "):
+        # Submitting a job script again continues its run; another run is another folder, from the same settings.
+        again = f"ennc-ql slurm train --config {run_dir / 'up.toml'} --run-id NEW-ID --submit"
+        commands.append((again, "repeat the run as a new job"))
+        if duration:
+            commands.append((f"{again} --duration {2 * float(duration):g}", "train twice as long, as a new job"))
+    elif report.get("command"):
         commands.append((str(report["command"]), "repeat the run exactly"))
         if duration:
             commands.append((f"{report['command']} --duration {2 * float(duration):g}", "train twice as long"))

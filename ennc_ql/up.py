@@ -41,7 +41,8 @@ from ennc_ql.cluster import (
     write_configs,
 )
 from ennc_ql.command import check_device, check_folder, configure, emit, fail, make_folder, registry_choices
-from ennc_ql.config import ConfigError, add_config_flags, load_config
+from ennc_ql.config import ConfigError, add_config_flags, folder, load_config
+from ennc_ql.config_fields import config_leaves, flag_name
 from ennc_ql.figures import policy_figure
 from ennc_ql.parser import CommandHelp, add_command
 from ennc_ql.report import terminal_summary, write_run_report
@@ -93,12 +94,12 @@ def add_up_parser(sub: Any) -> None:
     )
     p.add_argument(
         "--resume",
-        type=Path,
+        type=folder,
         metavar="RUN",
         help="continue the stopped run in folder RUN (runs/<id>) from its checkpoint, with its own configuration "
         "(default: a new run)",
     )
-    p.add_argument("--runs", type=Path, metavar="DIR", help="parent folder of the run folder (default: runs)")
+    p.add_argument("--runs", type=folder, metavar="DIR", help="parent folder of the run folder (default: runs)")
     p.add_argument("--run-id", metavar="ID", help="run folder name (default: the start time, YYYYMMDD-HHMMSS)")
     p.add_argument("--json", action="store_true", help="print the learner's report as one JSON object")
     add_config_flags(
@@ -120,7 +121,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     config: UpConfig = configure(UpConfig, args, "up", defaults=UP_PRESETS)
     if args.serial and args.secure:
         fail("up", "--serial runs on the in-memory bus, which has no network to secure; drop one of them")
-    run_id = args.run_id or time.strftime("%Y%m%d-%H%M%S")
+    run_id = args.run_id if args.run_id is not None else time.strftime("%Y%m%d-%H%M%S")
     try:
         check_id(run_id, "--run-id")
     except ValueError as exc:
@@ -290,13 +291,13 @@ def check_resume(args: argparse.Namespace) -> tuple[Path, UpConfig]:
     configuration, and there must be a checkpoint with training time left."""
     run_dir: Path = args.resume
     toml = run_dir / "up.toml"
-    changes = [f"--{name.replace('.', '-').replace('_', '-')}" for name in vars(args) if "." in name]
+    changes = [flag_name(leaf.path) for leaf in config_leaves(UpConfig) if hasattr(args, leaf.path)]
     changes += [flag for flag, given in _RUN_FLAGS.items() if getattr(args, given)]
     if changes:
         fail(
             "up",
             f"--resume continues {run_dir} with its own configuration ({toml}); {', '.join(changes)} would change it "
-            f"(to train differently, start a new run: ennc-ql up --config {toml} {' '.join(changes)} ...)",
+            f"(to train differently, start a new run with them: ennc-ql up --config {toml} ...)",
         )
     if not run_dir.is_dir():
         fail("up", f"--resume {run_dir}: no such run folder (give the folder up printed, runs/<id>)")

@@ -206,6 +206,16 @@ class LearnerService:
 
     def _restore(self) -> None:
         arrays, meta = self.checkpointer.load()
+        saved: dict[str, Any] = meta["config"] if isinstance(meta.get("config"), dict) else {}
+        for name in ("formulation", "featurizer", "reward", "act_every"):
+            theirs, mine = saved.get(name), getattr(self.config, name)
+            if theirs is not None and theirs != mine:
+                # Its tables and prototypes are of another state and action set: name both, not their dimensions.
+                raise CheckpointError(
+                    f"--resume: {self.checkpointer.path} holds a run of {name} {theirs}, and this learner's {name} "
+                    f"is {mine}; resume it with --{name.replace('_', '-')} {theirs}, or start a new run in another "
+                    "--run-dir"
+                )
         try:
             self.intake.restore(arrays)
             self.state.restore(arrays, meta, published=self.version_mark.load())

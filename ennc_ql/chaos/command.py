@@ -29,7 +29,7 @@ from ennc_ql.chaos.options import (
 from ennc_ql.chaos.run import Chaos
 from ennc_ql.cluster import SET_BY_UP, UP_PRESETS, UpConfig
 from ennc_ql.command import configure, fail, registry_choices, writable_dir
-from ennc_ql.config import add_config_flags, positive
+from ennc_ql.config import add_config_flags, folder, positive
 from ennc_ql.parser import CommandHelp, add_command
 from protocol import check_id
 
@@ -48,7 +48,7 @@ def cmd_chaos(args: argparse.Namespace) -> int:
     options, skipped = without_unavailable_network(options)
     config: UpConfig = configure(UpConfig, args, "chaos", defaults=UP_PRESETS)
     config = dataclasses.replace(config, duration=options.duration + LEARNER_EXTRA_S)
-    run_id = args.run_id or time.strftime("chaos-%Y%m%d-%H%M%S")
+    run_id = args.run_id if args.run_id is not None else time.strftime("chaos-%Y%m%d-%H%M%S")
     try:
         check_id(run_id, "--run-id")
         namespace = check_id(f"chaos-{run_id}", "--run-id (in the namespace chaos-<id>)")
@@ -145,7 +145,7 @@ def add_chaos_parser(sub: Any) -> None:
         help="seconds between RSS samples "
         f"(default: {DEFAULT_RSS_INTERVAL_S:.0f}, {SOAK_RSS_INTERVAL_S:.0f} with --soak)",
     )
-    p.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR", help="parent folder of the run folder")
+    p.add_argument("--runs", type=folder, default=Path("runs"), metavar="DIR", help="parent folder of the run folder")
     p.add_argument("--run-id", metavar="ID", help="run folder name (default: chaos-<start time>)")
     p.add_argument(
         "--config",

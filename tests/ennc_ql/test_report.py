@@ -235,8 +235,15 @@ def test_up_writes_every_process_configuration_and_they_load_back(tmp_path: Path
     assert learner.resolved == chosen and {a.resolved.featurizer for a in actors} == {chosen.featurizer}
     assert {(a.resolved.reward, a.resolved.actions) for a in actors} == {(chosen.reward, chosen.actions)}
     toml = tomllib.loads((tmp_path / "up.toml").read_text())
-    assert toml["formulation"] == toml["learner"]["formulation"] == toml["actor"]["formulation"] == DEFAULT_FORMULATION
-    assert not {"featurizer", "reward", "act_every"} & (set(toml["learner"]) | set(toml["actor"]))
+    assert toml["formulation"] == DEFAULT_FORMULATION
+    # What up sets in every process itself is said once, at the top, never again in a table that up would override.
+    assert not {"formulation", "featurizer", "reward", "act_every", "seed", "duration"} & set(toml["learner"])
+    assert not {"formulation", "featurizer", "reward", "actor_id", "seed", "duration"} & set(toml["actor"])
+    (tmp_path / "seeded.toml").write_text("seed = 1\n[actor]\nseed = 4\n")
+    with pytest.raises(ConfigError, match=r"actor.seed = 4: up sets every actor's seed itself, from seed"):
+        load_config(UpConfig, file=tmp_path / "seeded.toml")
+    (tmp_path / "same.toml").write_text("seed = 4\n[actor]\nseed = 4\n[learner]\nseed = 0\n")  # as up sets it
+    assert load_config(UpConfig, file=tmp_path / "same.toml").seed == 4
     paper = load_config(UpConfig, args=build_parser().parse_args(["up", "--formulation", "paper"]), defaults=UP_PRESETS)
     learner, actors = child_configs(paper)
     assert {p.formulation for p in (paper.learner, paper.actor, learner, *actors)} == {"paper"}
