@@ -20,6 +20,7 @@ import zenoh
 from ennc_ql.config import ConfigError, add_config_flags, load_config
 from ennc_ql.config_fields import UnknownKey, nested_fields
 from monitor import Sink, add_rerun_args
+from monitor.sinks import spawn_problem
 from protocol import ZenohTransport, add_connection_args, config_from_args, keys_from_args
 
 _RUST_SOURCE = re.compile(r"\s+at /\S+\.rs:\d+\.?")
@@ -128,7 +129,12 @@ def writable_dir(path: Path, command: str, flag: str) -> Path:
 
 
 def check_recording(sink: Sink | None, command: str) -> None:
-    """A ``--rerun save PATH`` whose file cannot be written fails now, not when the first process opens it."""
+    """A ``--rerun save PATH`` whose file cannot be written, or a ``--rerun spawn`` without a viewer or a display,
+    fails now, not once the processes started."""
+    if sink is not None and sink.kind == "spawn":
+        problem = spawn_problem()
+        if problem:
+            fail(command, f"--rerun spawn: {problem}")
     if sink is None or sink.kind != "save":
         return
     target = Path(str(sink.target))

@@ -338,6 +338,9 @@ def test_a_port_in_use_is_one_line_and_leaves_no_run_folder(tmp_path: Path) -> N
 ENV_ROWS: list[tuple[dict[str, str], list[str], str]] = [
     ({"SLURM_ARRAY_TASK_ID": "abc"}, ["slurm", "task", "empty"], "SLURM_ARRAY_TASK_ID='abc': expected a task number"),
     ({"SLURM_ARRAY_TASK_ID": ""}, ["slurm", "task", "empty"], "SLURM_ARRAY_TASK_ID='': expected a task number"),
+    # A headless machine (no viewer runs on port 9876 during the tests): before a process starts, with the way out.
+    ({"DISPLAY": "", "WAYLAND_DISPLAY": ""}, ["up", "--rerun", "spawn"], "--rerun spawn: no display for the viewer"),
+    ({"DISPLAY": "", "WAYLAND_DISPLAY": ""}, ["eval", "--rerun", "spawn"], "rerun --serve-web FILE.rrd"),
 ]
 
 
