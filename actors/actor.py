@@ -4,9 +4,8 @@ Call sequence (``actors.wiring.connect`` holds every subscription; tests and ser
 transport)::
 
     actor = RobotActor(transport, ActorConfig(actor_id="actor-0", learn=(0, 1, 2, 3, 4)))
-    handles = connect(actor, transport)   # liveliness token, subscriptions, the learner's current policy
-    status = actor.run(stop)              # learning trials until stop / duration; flushes the outbox
-    for h in reversed(handles): h.close()
+    with connect(actor, transport):       # liveliness token, subscriptions, the learner's current policy
+        status = actor.run(stop)          # learning trials until stop / duration; flushes the outbox
 
 Before the first policy arrives every robot explores randomly; afterwards the robots it learns act ε-greedily on
 their own tables (phase 2, option 2) and the others follow the broadcast policy greedily. Experience goes out in
@@ -91,10 +90,8 @@ class RobotActor:
         self.slice = ExperienceSlice(
             self.scenario,
             SliceConfig(
+                config.resolved,
                 n_arenas=config.arenas,
-                featurizer=config.resolved.featurizer,
-                reward=config.resolved.reward,
-                actions=config.resolved.actions,
                 learning_robots=self.learning_robots,
             ),
             seed,

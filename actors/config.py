@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from algorithm.agent import Phase2Config
 from algorithm.checks import require_at_least, require_id, require_known, require_positive
 from sim import SCENARIOS
-from sim.features import DEFAULT_FORMULATION, Formulation, resolve_formulation
+from sim.formulation import DEFAULT_FORMULATION, Formulation, resolve_formulation
 
 
 def parse_robots(text: str) -> tuple[int, ...]:
@@ -57,15 +57,17 @@ class ActorConfig:
     scenario: str = "cmommt-v1"
     """Scenario the actor simulates."""
     formulation: str = DEFAULT_FORMULATION
-    """State, reward and action set of the learning robots, by name: shared-difference (the shared8d state: collab6d
-    and whether another robot observes its nearest / furthest target; the difference reward: targets only this robot
-    observes, at the trial's end) or paper (the paper's collab6d state and Eq. 2 reward). The learner's must be the
-    same: its experience is the actors'."""
+    """State, reward and action set of the learning robots, by name (see README "Formulation"; paper is the
+    paper's). The learner's must be the same: its experience is the actors'."""
     featurizer: str | None = None
-    """State definition instead of the formulation's: local2d, collab6d or shared8d (none: the formulation's)."""
+    """State definition instead of the formulation's (none: the formulation's)."""
     reward: str | None = None
-    """Reward instead of the formulation's (none: the formulation's): paper (the state's own: observed for local2d,
-    Eq. 2 otherwise), observed, eq2, difference or difference-decision (the difference reward, per action)."""
+    """Reward instead of the formulation's (none: the formulation's; paper: the state's own, observed for local2d and
+    Eq. 2 otherwise)."""
+    trial_rules: str | None = None
+    """Learning-trial rules instead of the formulation's (none: the formulation's; paper: a learner that loses every
+    target ends its trial and the time-out is terminal; the others go beyond the paper, see docs/simulator.md). The
+    learner never reads them."""
     learn: tuple[int, ...] | None = field(default=None, metadata={"parse": parse_robots})
     """Robot ids whose tables this actor learns (and whose tuples it streams), e.g. 0-4,7; None = every robot."""
     arenas: int = 256
@@ -95,7 +97,9 @@ class ActorConfig:
     def __post_init__(self) -> None:
         require_id("actor_id", self.actor_id)
         require_known("scenario", self.scenario, SCENARIOS)
-        resolved = resolve_formulation(self.formulation, featurizer=self.featurizer, reward=self.reward)
+        resolved = resolve_formulation(
+            self.formulation, featurizer=self.featurizer, reward=self.reward, rules=self.trial_rules
+        )
         object.__setattr__(self, "resolved", resolved)
         require_at_least(
             1,

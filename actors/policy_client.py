@@ -18,9 +18,9 @@ import numpy as np
 from actors.increments import IncrementTracker
 from algorithm.agent import Phase2Config, TabularAgent
 from algorithm.discretization import Discretization
-from algorithm.wire import policy_from_update
+from algorithm.wire import formulation_mismatch, policy_from_update
 from protocol import PolicyUpdate
-from sim.features import FEATURIZERS, Formulation
+from sim.formulation import Formulation
 
 log = logging.getLogger(__name__)
 
@@ -64,14 +64,11 @@ class PolicyClient:
         """What makes ``update`` unusable here ("" if nothing): another formulation, or a state dimension that is
         not its featurizer's (the wire checks only that the names are well formed)."""
         own = self.formulation
-        theirs = (update.featurizer, update.reward_function, update.action_set)
-        mine = (own.featurizer, own.reward, own.actions)
-        if theirs != mine:
-            return f"it is over the {'/'.join(theirs)} formulation, this actor's is {'/'.join(mine)}"
+        mismatch = formulation_mismatch(own, update)
         dim = int(update.prototypes.shape[1])
-        if dim != FEATURIZERS[own.featurizer]:
-            return f"its prototypes have {dim} dimensions, {own.featurizer} has {FEATURIZERS[own.featurizer]}"
-        return ""
+        if not mismatch and dim != own.dim:
+            return f"its prototypes have {dim} dimensions, {own.featurizer.name} has {own.dim}"
+        return mismatch
 
     def take(self) -> PolicyUpdate | None:
         """The newest broadcast if it is newer than the adopted one (once)."""
@@ -85,7 +82,7 @@ class PolicyClient:
         Over the same cells, the learning of ``agent`` not yet handed in is kept on top of the broadcast tables;
         over new cells, the tracker starts afresh (the learner carries values over itself).
         """
-        new = TabularAgent(policy_from_update(update, self.n_robots), self.phase2)
+        new = TabularAgent(policy_from_update(update, self.n_robots, self.formulation), self.phase2)
         if agent is not None and _same_cells(agent.discretization, new.discretization):
             self.tracker.rebase(new, agent)
         else:

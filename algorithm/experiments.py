@@ -5,7 +5,8 @@ VQQL), learns Q tables on-line with ε-greedy tabular Q-learning (phase 2), and 
 trials with 10 robots. Usage::
 
     spec = METHODS["ennc-ql-collab-option2"]
-    outcome = train(spec, Budget.quick(), seed=0)
+    outcome = train(spec, Budget.quick(), seed=0)              # the method's formulation, or another one:
+    outcome = train(spec, Budget.quick(), seed=0, formulation=spec.formulation.replace(reward="difference"))
     outcome.policy, outcome.coverage_mean, outcome.states
 """
 
@@ -28,7 +29,7 @@ from algorithm.transitions import Transitions
 from algorithm.trials import ExperienceSlice, SliceConfig
 from algorithm.vqql import lbg
 from sim import N_ACTIONS, ScenarioConfig, evaluate, scenario
-from sim.features import resolve_reward
+from sim.formulation import Formulation
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +42,7 @@ class MethodSpec:
     algorithm: str
     """``enncql``, ``vqql``, or ``fqi`` (the neural fitted-Q reference of :mod:`algorithm.fqi`, not the paper's)."""
     featurizer: str
-    """``local2d`` or ``collab6d``."""
+    """Its state [paper: ``local2d`` or ``collab6d``]."""
     learning_robots: int
     """Robots present in learning trials: 1 for the local experiments, 10 for the collaborative ones [paper]."""
     per_robot_tables: bool
@@ -49,15 +50,19 @@ class MethodSpec:
     codebook: int = 0
     """VQQL codebook size."""
     reward: str = "paper"
-    """Reward function of the learners (:data:`sim.features.REWARDS`); ``paper``: the featurizer's own."""
+    """Reward function of the learners; ``paper``: the featurizer's own."""
     actions: str = "compass"
-    """Action set (:data:`sim.actions.ACTION_SETS`): the paper's compass moves, or moves relative to the nearest
-    target."""
+    """Action set [paper: the compass moves]."""
     shared_table: bool = False
     """Every robot learns (as in option 2) into ONE table that every robot uses [beyond the paper]."""
     phase2_reward: str | None = None
-    """Reward of phase 2's learners when it differs from the one phase 1's discretization is fitted on
-    (:data:`sim.features.REWARDS`); None: ``reward`` [beyond the paper]."""
+    """Reward of phase 2's learners when it differs from the one phase 1's discretization is fitted on; None:
+    ``reward`` [beyond the paper]."""
+
+    @property
+    def formulation(self) -> Formulation:
+        """The method's own formulation, resolved from its part names (ValueError names an unknown one)."""
+        return Formulation.of(self.featurizer, self.reward, self.actions)
 
 
 METHODS: dict[str, MethodSpec] = {
@@ -147,56 +152,57 @@ Progress = Callable[[str], None]
 
 
 def _discretize(
-    spec: MethodSpec, data: Transitions, budget: Budget, seed: int, lost_reward: float
+    spec: MethodSpec, data: Transitions, budget: Budget, seed: int, cfg: ScenarioConfig, formulation: Formulation
 ) -> tuple[Discretization, ActionMode]:
     rng = np.random.default_rng(seed)
     if spec.algorithm == "vqql":
         n = min(budget.codebook_patterns, len(data))
         sample = data.state[rng.choice(len(data), n, replace=False)]
         return Discretization.shared(lbg(sample, spec.codebook, seed=seed, max_iter=30), N_ACTIONS), "until_change"
-    result = phase1(data, N_ACTIONS, budget.phase1, seed=seed, lost_reward=lost_reward)
+    lost = formulation.featurizer.sees_none(cfg, data.next_state)
+    result = phase1(data, N_ACTIONS, budget.phase1, seed=seed, lost=lost, lost_reward=cfg.lost_reward)
     return result.discretization, "fixed"
 
 
 def _train_fqi(
-    spec: MethodSpec, budget: Budget, seed: int, base: ScenarioConfig, say: Progress, act_every: int | None
+    spec: MethodSpec, budget: Budget, seed: int, base: ScenarioConfig, say: Progress, formulation: Formulation
 ) -> tuple[NetworkController, int]:
     """The neural reference learning process: exploration, fitted-Q iterations, on-policy rounds."""
     c = budget.fqi
     cfg = base.replace(n_robots=spec.learning_robots)
     rng = np.random.default_rng([seed, sum(spec.name.encode())])
-    reward = resolve_reward(spec.featurizer, spec.reward)
     data = Transitions.concat(
-        [
-            collect(cfg, None, spec.featurizer, reward, spec.actions, budget.arenas, 0.0, rng)
-            for _ in range(budget.explore_trials)
-        ]
+        [collect(cfg, None, formulation, budget.arenas, 0.0, rng) for _ in range(budget.explore_trials)]
     )
     tuples = len(data)
     q = QNetwork.for_states(data.state, c, seed)
     fit_q(q, data, c, c.iterations, rng)
     per_round = max(1, round(budget.phase2_trials / c.rounds))
     for r in range(c.rounds):
-        fresh = [
-            collect(cfg, q, spec.featurizer, reward, spec.actions, budget.arenas, c.epsilon, rng)
-            for _ in range(per_round)
-        ]
+        fresh = [collect(cfg, q, formulation, budget.arenas, c.epsilon, rng) for _ in range(per_round)]
         tuples += sum(len(t) for t in fresh)
         data = Transitions.concat([data, *fresh])
         data = data.take(slice(max(0, len(data) - c.buffer), None))
         fit_q(q, data, c, c.round_iterations, rng)
         say(f"round {r + 1}/{c.rounds}: {tuples} tuples")
-    return NetworkController(q, spec.featurizer, spec.actions, act_every=act_every or base.action_steps), tuples
+    every = formulation.act_every or base.action_steps
+    return NetworkController(q, formulation, act_every=every), tuples
 
 
-def _refit(agent: TabularAgent, data: Transitions, budget: Budget, seed: int) -> tuple[TabularAgent, Discretization]:
+def _refit(
+    agent: TabularAgent, data: Transitions, budget: Budget, seed: int, cfg: ScenarioConfig
+) -> tuple[TabularAgent, Discretization]:
     """Phase 1 again on on-policy ``data``, bootstrapped from the agent's tables (their mean over robots); a new
     agent over the new discretization with the tables carried over (each new cell from the nearest old one)."""
     old = agent.discretization
     config = budget.phase1
     if budget.refit_seed_prototypes is not None:
         config = dataclasses.replace(config, seed_prototypes=budget.refit_seed_prototypes)
-    fit = phase1(data, N_ACTIONS, config, seed=seed, warm_start=old, values=agent.tables.mean(axis=0))
+    lost = agent.template.formulation.featurizer.sees_none(cfg, data.next_state)
+    values = agent.tables.mean(axis=0)
+    fit = phase1(
+        data, N_ACTIONS, config, seed=seed, warm_start=old, values=values, lost=lost, lost_reward=cfg.lost_reward
+    )
     disc = fit.discretization
     template = dataclasses.replace(agent.template, discretization=disc, tables=disc.carry_over(old, agent.tables))
     return TabularAgent(dataclasses.replace(template, visits=None), budget.phase2), disc
@@ -211,16 +217,18 @@ def train(
     base: ScenarioConfig | None = None,
     progress: Progress | None = None,
     lost_behaviour: LostBehaviour = "wander",
-    act_every: int | None = None,
+    formulation: Formulation | None = None,
 ) -> Outcome:
     """One independent learning process of ``spec``, tested on the paper's protocol; ``lost_behaviour`` is what a
-    robot that sees no target does in the test trials, ``act_every`` the steps between its decisions there (None:
-    ``action_steps``, as it learned)."""
+    robot that sees no target does in the test trials. ``formulation`` (None: the method's own) is what it learns
+    on; its ``act_every`` is the steps between a robot's decisions in the test trials (None: ``action_steps``, as
+    it learned)."""
+    formulation = formulation or spec.formulation
     start = time.perf_counter()
     base = base or scenario()
     say = progress or (lambda message: log.info("%s[%d]: %s", spec.name, seed, message))
     if spec.algorithm == "fqi":
-        network, tuples = _train_fqi(spec, budget, seed, base, say, act_every)
+        network, tuples = _train_fqi(spec, budget, seed, base, say, formulation)
         result = evaluate(base, network, budget.test_trials, budget.test_steps, seed=budget.test_seed)
         say(f"test coverage {result.coverage_mean:.2f}%")
         return Outcome(spec.name, seed, None, result.coverage_per_trial, 0.0, tuples, time.perf_counter() - start)
@@ -228,34 +236,31 @@ def train(
     seeds = np.random.SeedSequence([seed, sum(spec.name.encode())]).spawn(2)
     explorer = ExperienceSlice(
         learn_cfg,
-        SliceConfig(n_arenas=budget.arenas, featurizer=spec.featurizer, reward=spec.reward, actions=spec.actions),
+        SliceConfig(formulation, n_arenas=budget.arenas),
         seeds[0],
     )
     data = Transitions.concat([explorer.run_trial() for _ in range(budget.explore_trials)])
     say(f"explored {len(data)} tuples")
-    disc, action_mode = _discretize(spec, data, budget, seed, base.lost_reward)
+    disc, action_mode = _discretize(spec, data, budget, seed, learn_cfg, formulation)
     say(f"discretization: {disc.size} cells, {disc.sizes().mean():.1f} per action")
     rows = spec.learning_robots if spec.per_robot_tables and not spec.shared_table else 1
+    phase2 = formulation.replace(reward=spec.phase2_reward)
     template = Policy(
-        featurizer=spec.featurizer,
-        reward=resolve_reward(spec.featurizer, spec.phase2_reward or spec.reward),
+        formulation=phase2,
         discretization=disc,
         tables=np.tile(disc.labels, (rows, 1)),
         robot_table=np.arange(spec.learning_robots) % rows,
         action_steps=base.action_steps,
         action_mode=action_mode,
         method=spec.name,
-        actions=spec.actions,
     )
     agent = TabularAgent(template, budget.phase2)
     learners = None if spec.per_robot_tables or spec.shared_table else (0,)
     learner_slice = ExperienceSlice(
         learn_cfg,
         SliceConfig(
+            phase2,
             n_arenas=budget.arenas,
-            featurizer=spec.featurizer,
-            reward=spec.phase2_reward or spec.reward,
-            actions=spec.actions,
             learning_robots=learners,
             action_mode=action_mode,
         ),
@@ -275,14 +280,14 @@ def train(
         if (trial + 1) % max(1, budget.phase2_trials // 4) == 0:
             say(f"phase 2: {trial + 1}/{budget.phase2_trials} trial batches, {tuples} tuples")
         if trial + 1 in refit_at:
-            agent, disc = _refit(agent, Transitions.concat(recent), budget, seed + trial)
+            agent, disc = _refit(agent, Transitions.concat(recent), budget, seed + trial, learn_cfg)
             say(f"refit: {disc.sizes().mean():.1f} prototypes per action")
     test_robots = base.n_robots
     robot_table = np.arange(test_robots) % rows
     policy = dataclasses.replace(
         agent.policy(robot_table=robot_table, meta={"seed": seed, "tuples": tuples}),
         lost_behaviour=lost_behaviour,
-        action_steps=act_every or base.action_steps,
+        action_steps=formulation.act_every or base.action_steps,
     )
     result = evaluate(base, PolicyController(policy), budget.test_trials, budget.test_steps, seed=budget.test_seed)
     say(f"test coverage {result.coverage_mean:.2f}%")

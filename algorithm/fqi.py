@@ -11,7 +11,7 @@ rounds that each collect ε-greedy learning trials with the current network and 
     q = QNetwork.for_states(data.state, FQIConfig(), seed=0)
     fit_q(q, data, FQIConfig(), rng)
     actions = q.greedy(states)                    # (N,) argmax_a Q(s, a)
-    evaluate(cfg, NetworkController(q, "shared8d", "compass"), trials=10, steps=1000)
+    evaluate(cfg, NetworkController(q, FORMULATIONS["shared-difference"]), trials=10, steps=1000)
 """
 
 from __future__ import annotations
@@ -23,9 +23,9 @@ import numpy as np
 
 from algorithm.transitions import Transitions
 from sim import ScenarioConfig
-from sim.actions import action_set
 from sim.controllers import random_headings, wander
-from sim.features import featurize, lost
+from sim.features import lost
+from sim.formulation import Formulation
 from sim.trial import reset_trial, step_trial
 from sim.world import Observation, WorldState
 
@@ -120,16 +120,14 @@ def fit_q(q: QNetwork, data: Transitions, config: FQIConfig, iterations: int, rn
 def collect(
     cfg: ScenarioConfig,
     q: QNetwork | None,
-    featurizer: str,
-    reward: str,
-    actions: str,
+    formulation: Formulation,
     arenas: int,
     epsilon: float,
     rng: np.random.Generator,
 ) -> Transitions:
     """One learning trial in ``arenas`` arenas under :mod:`sim.trial`'s rules, every robot learning (option 2's
     slice): random actions without a network, ε-greedy ones with it; the tuples of every robot."""
-    state = reset_trial(cfg, arenas, np.ones(cfg.n_robots, bool), featurizer, rng, reward, actions)
+    state = reset_trial(cfg, arenas, np.ones(cfg.n_robots, bool), formulation, rng)
     decide = np.ones(state.shape, bool)
     parts = []
     while True:
@@ -161,8 +159,8 @@ class NetworkController:
     heading reflected off the wall, as the learned policies and the hand-made laws do."""
 
     q: QNetwork
-    featurizer: str
-    actions: str
+    formulation: Formulation
+    """Its state and action set."""
     act_every: int = 1
     name: str = "fqi-mlp"
 
@@ -180,9 +178,9 @@ class NetworkController:
     ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
         heading, velocity = memory
         if world.t % self.act_every == 0:
-            states = featurize(cfg, obs, self.featurizer)
+            states = self.formulation.featurizer.compute(cfg, obs)
             chosen = self.q.greedy(states.reshape(-1, states.shape[-1])).reshape(states.shape[:2])
-            moves = action_set(self.actions)
+            moves = self.formulation.actions
             velocity = moves.velocity(cfg, chosen, moves.frame(obs))
         heading = wander(cfg, world, heading)
         move = np.where(lost(obs)[..., None], cfg.robot_speed * heading, velocity)

@@ -52,19 +52,15 @@ class Phase1Config:
     """Fit each action's ENNC on at most this many tuples (a uniform sample); None = all [choice]."""
     targets: Literal["reward", "lost"] = "reward"
     """What ENNC's classes are drawn from: ``reward``, q = r + γ·max_b Q̂(s′, b) [paper]; ``lost``, the same with r
-    replaced by the lost reward where the tuple ended its robot's trial by losing every target and by 0 elsewhere
-    [beyond the paper: a per-decision reward gives noisy, many-valued targets on which ENNC keeps few prototypes;
-    the lost signal is the crisp one the paper's delayed reward gives, while phase 2 learns the reward itself]."""
+    replaced by the lost reward where the tuple ended its robot's trial by losing every target (a terminal s′ in
+    which the featurizer sees no target: :attr:`sim.features.Featurizer.sees_none`) and by 0 elsewhere [beyond the
+    paper: a per-decision reward gives noisy, many-valued targets on which ENNC keeps few prototypes; the lost signal
+    is the crisp one the paper's delayed reward gives, while phase 2 learns the reward itself]."""
     seed_prototypes: int = 0
     """0: each ENNC starts from one prototype [paper]. P > 0: from P of the action's training states (a uniform
     sample), each with the majority class of its region, so that the discretization starts as fine as P cells spread
     with the states and ENNC refines it where the classes mix [beyond the paper: the class boundaries alone leave
     the rest of the space in a few large cells]."""
-    smooth_k: int = 0
-    """0: ENNC fits each tuple's own target q [paper]. k > 0: it fits the mean target of the tuple's k nearest
-    tuples of the same action (standardized states), an estimate of Q(s, a) = E[q | s, a]: the targets of a
-    per-step reward are noisy, and ENNC, which keeps a prototype only where its class is pure, shrinks to a few
-    prototypes on noisy classes [beyond the paper]."""
     device: str = "cpu"
     """torch device of the ENNC operators."""
     standardize: bool = True
@@ -84,8 +80,8 @@ class Phase1Config:
             raise ValueError("max_patterns must be positive or None")
         if self.targets not in ("reward", "lost"):
             raise ValueError(f"targets must be 'reward' or 'lost', got {self.targets!r}")
-        if self.seed_prototypes < 0 or self.smooth_k < 0:
-            raise ValueError("seed_prototypes and smooth_k must be non-negative")
+        if self.seed_prototypes < 0:
+            raise ValueError("seed_prototypes must be non-negative")
 
 
 CMOMMT_PHASE1 = Phase1Config(max_iterations=1, max_patterns=30_000)
@@ -132,15 +128,6 @@ def _constant(states: np.ndarray, n_actions: int, scale: np.ndarray | None) -> D
     return Discretization.from_per_action([centre] * n_actions, scale=scale)
 
 
-def _smoothed(states: np.ndarray, q: np.ndarray, k: int) -> np.ndarray:
-    """(N,) mean of ``q`` over each state's ``k`` nearest states (itself included)."""
-    from scipy.spatial import cKDTree
-
-    k = min(k, len(q))
-    _, nearest = cKDTree(states).query(states, k=k)
-    return q[nearest.reshape(len(q), k)].mean(axis=1)
-
-
 def standard_scale(states: np.ndarray) -> np.ndarray:
     """(d,) per-dimension standard deviation, with constant dimensions kept at 1."""
     std = np.asarray(states, dtype=np.float64).std(axis=0)
@@ -158,8 +145,49 @@ def estimator() -> type[ENNC]:
     return ENNC
 
 
-# Over 60 lines: the fitted iterations of ENNC-QL phase 1 as one loop (targets, classes, one ENNC per action, the
-# stopping rule) that reads as the paper's algorithm.
+def _fit_action(
+    ennc_class: type[ENNC],
+    config: Phase1Config,
+    rng: np.random.Generator,
+    states: np.ndarray,
+    q: np.ndarray,
+    warm: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One action's ENNC on its (standardized) training ``states`` and targets ``q``: its prototypes (standardized)
+    and their Q-value labels.
+
+    ``warm`` (first iteration of a warm start only): the action's warm prototypes (standardized), their labels, and
+    the Q values learned over them (or None); without seeds the fit starts from those prototypes, labelled with the
+    class nearest their learned value, or else with their own labels among the classes.
+    """
+    model = ennc_class(
+        n_cycles=config.n_cycles,
+        k_fight=config.k_fight,
+        random_state=int(rng.integers(2**31)),
+        device=config.device,
+    )
+    classes = to_classes(q, config)
+    # ENNC refuses continuous targets, so it fits on class indices, numbered in the order of the Q values so that
+    # its ties (first class wins) still fall on the lowest Q value.
+    if config.seed_prototypes > 0:
+        q_values, index = np.unique(classes, return_inverse=True)
+        start = rng.choice(len(q), min(config.seed_prototypes, len(q)), replace=False)
+        model.fit(states, index, init_prototypes=states[np.sort(start)])
+    elif warm is not None and warm[2] is not None:
+        prototypes, _, learned = warm
+        q_values, index = np.unique(classes, return_inverse=True)
+        nearest = np.abs(np.asarray(learned, np.float64)[:, None] - q_values[None, :]).argmin(axis=1)
+        model.fit(states, index, init_prototypes=prototypes, init_labels=nearest)
+    elif warm is not None:
+        prototypes, warm_labels, _ = warm
+        q_values, index = np.unique(np.concatenate([classes, warm_labels]), return_inverse=True)
+        model.fit(states, index[: len(q)], init_prototypes=prototypes, init_labels=index[len(q) :])
+    else:
+        q_values, index = np.unique(classes, return_inverse=True)
+        model.fit(states, index)
+    return model.prototypes_, q_values[model.labels_]
+
+
 def phase1(
     data: Transitions,
     n_actions: int,
@@ -168,6 +196,7 @@ def phase1(
     warm_start: Discretization | None = None,
     progress: Progress | None = None,
     values: np.ndarray | None = None,
+    lost: np.ndarray | None = None,
     lost_reward: float = -1.0,
 ) -> Phase1Result:
     """Fitted ENNC iterations until no predicted value changes or ``max_iterations``.
@@ -176,8 +205,10 @@ def phase1(
     grows; with ``seed_prototypes`` the fits start from seeds instead, and the warm start gives only its scale and
     values). ``values`` (Σ P_a,), with ``warm_start``: Q values learned over its cells (phase 2's tables); the
     first iteration's targets then bootstrap from them instead of from Q̂^(0) ≡ 0, and each warm prototype starts
-    labelled with the class nearest its value. ``lost_reward`` is the scenario's (``targets="lost"`` finds the
-    tuples that lost every target by it). ``progress(iteration, action)`` is called after each fit.
+    labelled with the class nearest its value. ``lost`` (N,) bool, needed by ``targets="lost"``: the tuples whose s′
+    sees no target (the featurizer's :attr:`~sim.features.Featurizer.sees_none` of ``data.next_state``); the
+    terminal ones among them get the scenario's ``lost_reward`` as their reward. ``progress(iteration, action)`` is
+    called after each fit.
     """
     ennc_class = estimator()
     config = config or Phase1Config()
@@ -191,7 +222,9 @@ def phase1(
         raise ValueError(f"tuples name action {actions.max()} but there are only {n_actions} actions")
     rewards = np.asarray(data.reward, dtype=np.float64)
     if config.targets == "lost":
-        rewards = np.where(data.done & (rewards == np.float32(lost_reward)), lost_reward, 0.0)
+        if lost is None or np.shape(lost) != (len(data),):
+            raise ValueError("targets='lost' needs lost: whether each tuple's s' sees no target")
+        rewards = np.where(data.done & lost, lost_reward, 0.0)
     scale = warm_start.scale if warm_start is not None else standard_scale(states) if config.standardize else None
     unit = np.ones(states.shape[1]) if scale is None else scale.astype(np.float64)
     if values is not None:
@@ -216,45 +249,15 @@ def phase1(
                 continue
             if config.max_patterns is not None and rows.size > config.max_patterns:
                 rows = np.sort(rng.choice(rows, config.max_patterns, replace=False))
-            model = ennc_class(
-                n_cycles=config.n_cycles,
-                k_fight=config.k_fight,
-                random_state=int(rng.integers(2**31)),
-                device=config.device,
-            )
-            target = q[rows] if config.smooth_k <= 0 else _smoothed(states[rows] / unit, q[rows], config.smooth_k)
-            classes = to_classes(target, config)
-            # ENNC refuses continuous targets, so it fits on class indices, numbered in the order of the Q values
-            # so that its ties (first class wins) still fall on the lowest Q value.
-            if config.seed_prototypes > 0:
-                q_values, index = np.unique(classes, return_inverse=True)
-                start = rng.choice(rows.size, min(config.seed_prototypes, rows.size), replace=False)
-                model.fit(states[rows] / unit, index, init_prototypes=states[rows[np.sort(start)]] / unit)
-            elif warm_start is not None and it == 1 and values is not None:
+            warm = None
+            if warm_start is not None and it == 1:
                 lo, hi = warm_start.offsets[a], warm_start.offsets[a + 1]
-                q_values, index = np.unique(classes, return_inverse=True)
-                nearest = np.abs(np.asarray(values[lo:hi], np.float64)[:, None] - q_values[None, :]).argmin(axis=1)
-                model.fit(
-                    states[rows] / unit,
-                    index,
-                    init_prototypes=warm_start.prototypes[lo:hi] / unit,
-                    init_labels=nearest,
-                )
-            elif warm_start is not None and it == 1:
-                lo, hi = warm_start.offsets[a], warm_start.offsets[a + 1]
-                q_values, index = np.unique(np.concatenate([classes, warm_start.labels[lo:hi]]), return_inverse=True)
-                model.fit(
-                    states[rows] / unit,
-                    index[: rows.size],
-                    init_prototypes=warm_start.prototypes[lo:hi] / unit,
-                    init_labels=index[rows.size :],
-                )
-            else:
-                q_values, index = np.unique(classes, return_inverse=True)
-                model.fit(states[rows] / unit, index)
-            protos.append(model.prototypes_ * unit)
-            labels.append(q_values[model.labels_])
-            log.debug("phase 1 iteration %d action %d: %d prototypes", it, a, model.n_prototypes_)
+                learned = None if values is None else values[lo:hi]
+                warm = (warm_start.prototypes[lo:hi] / unit, warm_start.labels[lo:hi], learned)
+            prototypes, action_labels = _fit_action(ennc_class, config, rng, states[rows] / unit, q[rows], warm)
+            protos.append(prototypes * unit)
+            labels.append(action_labels)
+            log.debug("phase 1 iteration %d action %d: %d prototypes", it, a, len(prototypes))
             if progress is not None:
                 progress(it, a)
         disc = Discretization.from_per_action(protos, labels, scale=scale)

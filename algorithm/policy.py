@@ -2,8 +2,8 @@
 
 Usage::
 
-    policy = Policy(featurizer="collab6d", discretization=disc, tables=q, robot_table=np.arange(10), ...)
-    actions = policy.greedy(states, robots)            # (N,) compass actions for states (N, d) of robots (N,)
+    policy = Policy(FORMULATIONS["paper"], discretization=disc, tables=q, robot_table=np.arange(10), ...)
+    actions = policy.greedy(states, robots)            # (N,) action indices for states (N, d) of robots (N,)
     evaluate(cfg, PolicyController(policy), trials=10, steps=1000)
 """
 
@@ -16,10 +16,10 @@ import numpy as np
 
 from algorithm.discretization import Discretization
 from algorithm.qtable import greedy
-from sim import FEATURIZERS, ScenarioConfig
-from sim.actions import ACTION_SETS, action_set
+from sim import ScenarioConfig
 from sim.controllers import wander
-from sim.features import REWARDS, featurize, lost
+from sim.features import lost
+from sim.formulation import Formulation
 from sim.world import Observation, WorldState
 
 LostBehaviour = Literal["wander", "stay", "policy"]
@@ -30,15 +30,16 @@ ActionMode = Literal["fixed", "until_change"]
 class Policy:
     """Everything needed to act: state definition, discretization, Q tables and the acting rules."""
 
-    featurizer: str
-    """State definition, a name of :data:`sim.features.FEATURIZER_REGISTRY`."""
+    formulation: Formulation
+    """What it was learned on: its state definition, what its action indices mean, and (provenance: acting does not
+    read them) the reward and trial rules."""
     discretization: Discretization
     tables: np.ndarray
     """(R, Σ P_a) float32 Q tables; option 2 has one row per robot, option 1 and VQQL one row."""
     robot_table: np.ndarray
     """(m,) int64: the table row robot i uses."""
     action_steps: int = 5
-    """Steps a compass action lasts (``fixed`` mode) [choice]."""
+    """Steps an action lasts (``fixed`` mode) [choice]."""
     action_mode: ActionMode = "fixed"
     """``fixed``: act every ``action_steps``; ``until_change``: keep the action until the discretized state
     changes, at most ``max_action_steps`` steps (VQQL) [paper]."""
@@ -55,20 +56,9 @@ class Policy:
     """Name of the method that learned it, e.g. ``ennc-ql-collab-option2``."""
     meta: dict[str, Any] = field(default_factory=dict)
     """Free-form provenance (seeds, configs) kept in the policy file header."""
-    reward: str = "eq2"
-    """The reward function it was learned with, a name of :data:`sim.features.REWARDS` (provenance: acting does
-    not read it)."""
-    actions: str = "compass"
-    """What its action indices mean, a name of :data:`sim.actions.ACTION_SETS`."""
 
     def __post_init__(self) -> None:
-        if self.featurizer not in FEATURIZERS:
-            raise ValueError(f"unknown featurizer {self.featurizer!r}")
-        if self.reward not in REWARDS:
-            raise ValueError(f"unknown reward {self.reward!r}; known: {', '.join(REWARDS)}")
-        if self.actions not in ACTION_SETS:
-            raise ValueError(f"unknown action set {self.actions!r}; known: {', '.join(ACTION_SETS)}")
-        if FEATURIZERS[self.featurizer] != self.discretization.dim:
+        if self.formulation.dim != self.discretization.dim:
             raise ValueError("featurizer dimension and discretization dimension differ")
         if self.tables.ndim != 2 or self.tables.shape[1] != self.discretization.size:
             raise ValueError(f"tables must have shape (R, {self.discretization.size}), got {self.tables.shape}")
@@ -101,7 +91,7 @@ class Policy:
 
 @dataclass(frozen=True, slots=True)
 class _Memory:
-    action: np.ndarray  # (E, m) int64 current compass action
+    action: np.ndarray  # (E, m) int64 current action index
     heading: np.ndarray  # (E, m, 2) unit heading of wandering robots
     held: np.ndarray  # (E, m) int64 steps the current action has lasted
     cell: np.ndarray  # (E, m) int64 cell of the state the action started in (until_change mode)
@@ -131,7 +121,7 @@ class PolicyController:
     ) -> tuple[np.ndarray, _Memory]:
         p = self.policy
         n_arenas, m = memory.action.shape
-        states = featurize(cfg, obs, p.featurizer).reshape(n_arenas * m, -1)
+        states = p.formulation.featurizer.compute(cfg, obs).reshape(n_arenas * m, -1)
         robots = np.tile(np.arange(m), n_arenas)
         held = memory.held
         if p.action_mode == "fixed":
@@ -144,7 +134,7 @@ class PolicyController:
             decide = (cell_now != memory.cell) | (held >= p.max_action_steps)
         action = memory.action
         cell = memory.cell
-        moves = action_set(p.actions)
+        moves = p.formulation.actions
         frame = memory.frame
         if cells is not None and decide.any():
             chosen = p.greedy(states, robots, cells).reshape(n_arenas, m)

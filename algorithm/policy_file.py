@@ -35,9 +35,8 @@ import numpy as np
 from algorithm.discretization import Discretization
 from algorithm.files import save_npz_atomic
 from algorithm.policy import Policy
-from sim import FEATURIZERS, ScenarioConfig
-from sim.actions import action_set
-from sim.features import FEATURIZER_REGISTRY, REWARDS, resolve_reward
+from sim import ScenarioConfig
+from sim.formulation import Formulation
 
 FRAMES = {
     "world": "world (x east, y north), target/robot position minus own position",
@@ -55,7 +54,8 @@ class PolicyFileError(ValueError):
 
 
 def header_for(policy: Policy, cfg: ScenarioConfig) -> dict[str, Any]:
-    moves = action_set(policy.actions)
+    formulation = policy.formulation
+    moves, state = formulation.actions, formulation.featurizer
     return {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
@@ -63,10 +63,10 @@ def header_for(policy: Policy, cfg: ScenarioConfig) -> dict[str, Any]:
         "version": policy.version,
         "scenario": dataclasses.asdict(cfg),
         "featurizer": {
-            "name": policy.featurizer,
-            "dim": FEATURIZERS[policy.featurizer],
-            "state": list(FEATURIZER_REGISTRY[policy.featurizer].state),
-            "frame": FRAMES[FEATURIZER_REGISTRY[policy.featurizer].frame],
+            "name": state.name,
+            "dim": state.dim,
+            "state": list(state.state),
+            "frame": FRAMES[state.frame],
             "mask_value": cfg.mask_value,
             "local_target": cfg.local_target,
         },
@@ -78,7 +78,7 @@ def header_for(policy: Policy, cfg: ScenarioConfig) -> dict[str, Any]:
             {"index": i, "name": name, "direction": [float(v) for v in moves.directions[i]]}
             for i, name in enumerate(moves.moves)
         ],
-        "reward": {"name": policy.reward, "per_decision": REWARDS[policy.reward].per_decision},
+        "reward": {"name": formulation.reward.name, "per_decision": formulation.reward.per_decision},
         "action_steps": policy.action_steps,
         "action_mode": policy.action_mode,
         "max_action_steps": policy.max_action_steps,
@@ -136,8 +136,15 @@ def load_policy(path: str | os.PathLike[str]) -> tuple[Policy, dict[str, Any]]:
         )
     try:
         disc = Discretization(arrays["prototypes"], arrays["labels"], arrays["offsets"], arrays.get("scale"))
+        # Files written before rewards were named were all learned with their featurizer's paper reward, and before
+        # action sets were named all used the compass.
+        formulation = Formulation.of(
+            header["featurizer"]["name"],
+            header["reward"]["name"] if "reward" in header else "paper",
+            header.get("action_set", {"name": "compass"})["name"],
+        )
         policy = Policy(
-            featurizer=header["featurizer"]["name"],
+            formulation=formulation,
             discretization=disc,
             tables=arrays["tables"],
             robot_table=arrays["robot_table"],
@@ -149,12 +156,6 @@ def load_policy(path: str | os.PathLike[str]) -> tuple[Policy, dict[str, Any]]:
             version=int(header["version"]),
             method=str(header["method"]),
             meta=dict(header.get("meta", {})),
-            # Files written before rewards were named were all learned with their featurizer's paper reward.
-            reward=header["reward"]["name"]
-            if "reward" in header
-            else resolve_reward(header["featurizer"]["name"], "paper"),
-            # Files written before action sets were named all used the compass.
-            actions=header.get("action_set", {"name": "compass"})["name"],
         )
     except (KeyError, TypeError, ValueError) as exc:
         raise PolicyFileError(f"{path}: inconsistent policy file ({exc})") from exc
@@ -163,8 +164,10 @@ def load_policy(path: str | os.PathLike[str]) -> tuple[Policy, dict[str, Any]]:
 
 def scenario_from_header(header: dict[str, Any]) -> ScenarioConfig:
     """The scenario the policy was learned in, rebuilt from the header (unknown fields are errors)."""
-    from sim.config import ForceLawConfig
-
     fields = dict(header["scenario"])
-    fields["force"] = ForceLawConfig(**fields.get("force", {}))
+    # Files written before the hand-made controllers held their own force-law parameters carry them, and files
+    # written while the learning-trial rules were scenario fields carry those (the formulation's now); no part of a
+    # learned policy's test trials reads either.
+    for moved in ("force", "lost_ends_trial", "timeout_terminal"):
+        fields.pop(moved, None)
     return ScenarioConfig(**fields)

@@ -17,7 +17,7 @@ class Transitions:
     state: np.ndarray
     """(N, d) float32."""
     action: np.ndarray
-    """(N,) uint8 compass action index."""
+    """(N,) uint8 action index (a move of the formulation's action set)."""
     reward: np.ndarray
     """(N,) float32."""
     next_state: np.ndarray

@@ -1,15 +1,16 @@
 """A simulator slice: E arenas with all m robots running learning trials, vectorized over arenas and robots.
 
 The trial rules live in :mod:`sim.trial` [paper §4; choices as tagged]: ``learning_steps`` steps long; learning
-robots start within sensing range of a random target [choice]; a compass action lasts ``action_steps`` steps (or,
-for VQQL, until the discretized state changes); the reward is delayed to the end of the trial; a learning robot
-that loses every target gets ``lost_reward``, its trial ends and it stays motionless [paper]. This slice chooses the
+robots start within sensing range of a random target [choice]; an action of the formulation's set lasts
+``action_steps`` steps (or, for VQQL, until the discretized state changes); the formulation's reward, by default
+delayed to the end of the trial; under the paper's rules a learning robot that loses every target gets
+``lost_reward``, its trial ends and it stays motionless [paper]. This slice chooses the
 actions: robots that do not learn follow the current policy greedily (random before there is one) and search like
 test-time robots when lost; it turns every finished action of a learner into a tuple.
 
 Usage::
 
-    sl = ExperienceSlice(cfg, SliceConfig(n_arenas=256), seed=0)
+    sl = ExperienceSlice(cfg, SliceConfig(formulation, n_arenas=256), seed=0)
     batch = sl.run_trial()                      # random exploration: Transitions of every learning robot
     batch = sl.run_trial(agent, update=True)    # ε-greedy phase 2, updating the agent's tables on-line
 """
@@ -23,21 +24,18 @@ import numpy as np
 from algorithm.agent import TabularAgent
 from algorithm.policy import ActionMode
 from algorithm.transitions import Transitions
-from sim import FEATURIZERS, ScenarioConfig
-from sim.features import resolve_reward
+from sim import ScenarioConfig
+from sim.formulation import Formulation
 from sim.rollout import StepHook
 from sim.trial import TrialState, TrialStep, random_actions, reset_trial, step_trial
 
 
 @dataclass(frozen=True, slots=True)
 class SliceConfig:
+    formulation: Formulation
+    """The learners' state, reward and trial rules, and every robot's action set."""
     n_arenas: int = 256
     """E, arenas simulated side by side."""
-    featurizer: str = "collab6d"
-    reward: str = "paper"
-    """Reward function of the learners (:data:`sim.features.REWARDS`, or ``paper``: the featurizer's own)."""
-    actions: str = "compass"
-    """Action set of every robot (:data:`sim.actions.ACTION_SETS`)."""
     learning_robots: tuple[int, ...] | None = None
     """Robot ids that learn and emit tuples; None = every robot (option 2)."""
     action_mode: ActionMode = "fixed"
@@ -48,9 +46,6 @@ class SliceConfig:
     def __post_init__(self) -> None:
         if self.n_arenas < 1:
             raise ValueError("n_arenas must be at least 1")
-        if self.featurizer not in FEATURIZERS:
-            raise ValueError(f"unknown featurizer {self.featurizer!r}")
-        resolve_reward(self.featurizer, self.reward)
         if self.action_mode not in ("fixed", "until_change"):
             raise ValueError(f"action_mode must be 'fixed' or 'until_change', got {self.action_mode!r}")
 
@@ -74,7 +69,7 @@ class ExperienceSlice:
         ``on_step`` (optional) sees the world and observation after every step, e.g. to draw an arena.
         """
         cfg, setup, rng = self.cfg, self.config, self.rng
-        state = reset_trial(cfg, setup.n_arenas, self.learner_mask, setup.featurizer, rng, setup.reward, setup.actions)
+        state = reset_trial(cfg, setup.n_arenas, self.learner_mask, setup.formulation, rng)
         # VQQL actions last until the held action's cell changes, so they need the agent's discretization.
         until_change = setup.action_mode == "until_change" and agent is not None
         hold = setup.max_action_steps if until_change else cfg.action_steps
@@ -100,7 +95,7 @@ class ExperienceSlice:
                     out = out.with_boundary(now != cell_sa)
             self._emit(out, agent if update else None, cell_sa, cells, parts)
             if out.trial_over:
-                return Transitions.concat(parts) if parts else Transitions.empty(FEATURIZERS[setup.featurizer])
+                return Transitions.concat(parts) if parts else Transitions.empty(setup.formulation.dim)
             decide = out.decide
 
     def _emit(

@@ -3,7 +3,8 @@
 The learner and the actors never build or unpack a message field by field themselves; they call these::
 
     update = policy_update(policy, scenario="cmommt-v1")                  # learner: Policy -> PolicyUpdate
-    policy = policy_from_update(update, n_robots=10)                      # actor: PolicyUpdate -> Policy
+    why = formulation_mismatch(formulation, update)                       # either end: "" or the part that differs
+    policy = policy_from_update(update, n_robots=10, formulation=formulation)  # actor: PolicyUpdate -> Policy
     header = Header(actor_id="actor-0", incarnation=7, seq=5, policy_version=3)
     batch = experience_message(header, transitions, formulation)          # Transitions -> ExperienceBatch
     for seq, build in enumerate(experience_batches(transitions, 16384, formulation)):  # in messages of <= 16384
@@ -22,7 +23,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Iterator, Mapping
 from functools import partial
-from typing import Any, TypeVar
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
@@ -30,7 +31,7 @@ from algorithm.discretization import Discretization
 from algorithm.policy import Policy
 from algorithm.transitions import Transitions
 from protocol.messages import ExperienceBatch, Header, PolicyUpdate, QTableIncrement
-from sim.features import Formulation
+from sim.formulation import Formulation
 
 _U32_MAX = np.iinfo(np.uint32).max
 F = TypeVar("F")
@@ -41,6 +42,32 @@ def _u32(counts: np.ndarray) -> np.ndarray:
     return np.minimum(counts, _U32_MAX).astype(np.uint32)
 
 
+class _NamesFormulation(Protocol):
+    """A message that names a formulation: :class:`ExperienceBatch` and :class:`PolicyUpdate`."""
+
+    @property
+    def featurizer(self) -> str: ...
+    @property
+    def reward_function(self) -> str: ...
+    @property
+    def action_set(self) -> str: ...
+
+
+def formulation_mismatch(own: Formulation, msg: _NamesFormulation) -> str:
+    """ "" if ``msg`` names the formulation ``own``, else its first part that differs, e.g. ``reward_function eq2,
+    expected difference`` (fits a Reject's 64-character reason): both ends of the wire refuse another formulation
+    with it, the learner an experience message, an actor a policy broadcast."""
+    for part, theirs, mine in zip(
+        ("featurizer", "reward_function", "action_set"),
+        (msg.featurizer, msg.reward_function, msg.action_set),
+        own.names,
+        strict=True,
+    ):
+        if theirs != mine:
+            return f"{part} {theirs}, expected {mine}"
+    return ""
+
+
 def policy_update(policy: Policy, scenario: str) -> PolicyUpdate:
     """The broadcast message of ``policy``: one table row per robot (robot i's row is ``tables[robot_table[i]]``)."""
     disc = policy.discretization
@@ -49,9 +76,9 @@ def policy_update(policy: Policy, scenario: str) -> PolicyUpdate:
     return PolicyUpdate(
         version=policy.version,
         scenario=scenario,
-        featurizer=policy.featurizer,
-        reward_function=policy.reward,
-        action_set=policy.actions,
+        featurizer=policy.formulation.featurizer.name,
+        reward_function=policy.formulation.reward.name,
+        action_set=policy.formulation.actions.name,
         action_steps=policy.action_steps,
         prototypes=disc.prototypes.astype(np.float32),
         labels=disc.labels.astype(np.float32),
@@ -63,9 +90,10 @@ def policy_update(policy: Policy, scenario: str) -> PolicyUpdate:
     )
 
 
-def policy_from_update(update: PolicyUpdate, n_robots: int, method: str = "") -> Policy:
-    """The acting policy of a broadcast for ``n_robots`` robots: robot i uses the update's row for robot i; robots
-    the update does not name use the mean of its rows (with no visits)."""
+def policy_from_update(update: PolicyUpdate, n_robots: int, formulation: Formulation, method: str = "") -> Policy:
+    """The acting policy of a broadcast over ``formulation`` (the receiver's own, which
+    :func:`formulation_mismatch` found it names) for ``n_robots`` robots: robot i uses the update's row for robot i;
+    robots the update does not name use the mean of its rows (with no visits)."""
     disc = Discretization(
         prototypes=np.array(update.prototypes),
         labels=np.array(update.labels),
@@ -79,7 +107,7 @@ def policy_from_update(update: PolicyUpdate, n_robots: int, method: str = "") ->
             tables[robot] = update.q_tables[row]
             visits[robot] = update.visits[row]
     return Policy(
-        featurizer=update.featurizer,
+        formulation=formulation,
         discretization=disc,
         tables=tables,
         robot_table=np.arange(n_robots),
@@ -87,8 +115,6 @@ def policy_from_update(update: PolicyUpdate, n_robots: int, method: str = "") ->
         visits=visits,
         version=int(update.version),
         method=method,
-        reward=update.reward_function,
-        actions=update.action_set,
     )
 
 
@@ -100,9 +126,9 @@ def experience_message(header: Header, transitions: Transitions, formulation: Fo
         incarnation=header.incarnation,
         seq=header.seq,
         policy_version=header.policy_version,
-        featurizer=formulation.featurizer,
-        reward_function=formulation.reward,
-        action_set=formulation.actions,
+        featurizer=formulation.featurizer.name,
+        reward_function=formulation.reward.name,
+        action_set=formulation.actions.name,
         robot=transitions.robot,
         state=transitions.state,
         action=transitions.action,

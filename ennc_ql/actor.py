@@ -55,12 +55,8 @@ def cmd_actor(args: argparse.Namespace) -> int:
         open_monitor(sink_from_args(args), process=config.actor_id, recording_id=args.recording_id) as monitor,
     ):
         actor = RobotActor(transport, config, monitor=monitor)
-        handles = connect(actor, transport)
-        try:
+        with connect(actor, transport):
             status = actor.run(stop)
-        finally:
-            for handle in reversed(handles):
-                handle.close()
     line = (
         f"actor {config.actor_id}: {status.tuples_sent} tuples sent, {status.tuples_acked} acknowledged, policy "
         f"version {status.policy_version}"

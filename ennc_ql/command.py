@@ -166,10 +166,19 @@ def check_device(device: str, command: str, flag: str) -> None:
 def registry_choices() -> dict[str, Collection[str]]:
     """The values of configuration fields that name an entry of a registry, by field name: their flags offer
     exactly these."""
-    from sim import FEATURIZERS, SCENARIOS  # imported here: the router's process never loads the simulator
-    from sim.features import FORMULATIONS, REWARD_NAMES
+    from sim import SCENARIOS  # imported here: the router's process never loads the simulator
+    from sim.actions import ACTION_SETS
+    from sim.features import FEATURIZER_REGISTRY
+    from sim.formulation import FORMULATIONS, REWARD_NAMES, TRIAL_RULES
 
-    return {"formulation": FORMULATIONS, "featurizer": FEATURIZERS, "reward": REWARD_NAMES, "scenario": SCENARIOS}
+    return {
+        "formulation": FORMULATIONS,
+        "featurizer": FEATURIZER_REGISTRY,
+        "reward": REWARD_NAMES,
+        "actions": ACTION_SETS,
+        "trial_rules": TRIAL_RULES,
+        "scenario": SCENARIOS,
+    }
 
 
 def zenoh_message(exc: BaseException) -> str:

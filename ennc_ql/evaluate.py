@@ -11,8 +11,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from algorithm.policy import PolicyController
 from algorithm.policy_file import PolicyFileError, load_policy, scenario_from_header
 from ennc_ql.command import emit, fail
@@ -20,7 +18,7 @@ from ennc_ql.config import non_negative, positive
 from ennc_ql.parser import CommandHelp, add_command
 from monitor import add_rerun_args, open_monitor, sink_from_args
 from monitor.trial import trial_hook
-from sim import HAND_MADE, SCENARIOS, Controller, ScenarioConfig, evaluate, scenario
+from sim import CONTROLLERS, HAND_MADE, ORACLES, SCENARIOS, Controller, ScenarioConfig, evaluate, scenario
 from sim.rollout import EvalResult
 
 HELP = CommandHelp(
@@ -28,8 +26,10 @@ HELP = CommandHelp(
     "score a policy on seeded test trials: a hand-made controller or a learned policy file",
     "Scores a policy with metric A, the percentage of the targets that at least one robot observes, averaged over "
     "every step of every test trial (10 robots, 10 targets, 1000-step trials, as in the paper). The policy is a "
-    "hand-made controller by name (random, local, a-cmommt: A-CMOMMT on what robots sense or are told, "
-    "a-cmommt-oracle: the same law on true positions, force-6d, force-6d-shared) or a policy file written by a run "
+    "hand-made controller by name (random, local, a-cmommt: A-CMOMMT tuned on training trials, on what robots sense "
+    "or are told; a-cmommt-public: its public untuned parameters; force-6d, force-6d-shared: its law on the learned "
+    "state's information), the labelled oracle a-cmommt-oracle (true target positions no robot senses), or a policy "
+    "file written by a run "
     "(runs/<id>/policy.npz). The same seed gives the same trials, so two policies scored with it compare directly. "
     "With --rerun, one trial is drawn in the Rerun viewer.",
     (
@@ -47,7 +47,8 @@ def add_eval_parser(sub: Any) -> None:
     p.add_argument(
         "--policy",
         default="a-cmommt",
-        help=f"a hand-made controller ({', '.join(HAND_MADE)}) or a policy file (.npz)",
+        help=f"a hand-made controller ({', '.join(HAND_MADE)}), the oracle ({', '.join(ORACLES)}) or a policy "
+        "file (.npz)",
     )
     p.add_argument("--scenario", default="cmommt-v1", choices=sorted(SCENARIOS), help="the simulated world")
     p.add_argument("--trials", type=positive(int), default=10, help="independent test trials")
@@ -97,15 +98,14 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if other is not None:
         # The second policy runs on the scenario of the first: a paired comparison needs the same trials.
         against = evaluate(cfg, other[0], trials=args.trials, steps=args.steps, seed=args.seed)
-        diff = result.coverage_per_trial - against.coverage_per_trial
-        se = float(diff.std(ddof=1) / np.sqrt(diff.size)) if diff.size > 1 else float("nan")
+        mean, se = result.minus(against)
         out["against"] = {"policy": args.against, **other[2], **_scores(against)}
-        out["paired_difference"] = {"mean": round(float(diff.mean()), 4), "se": round(se, 4), "trials": diff.size}
+        out["paired_difference"] = {"mean": round(mean, 4), "se": round(se, 4), "trials": args.trials}
         table += (
             f"\nagainst {_title(args.against, other[2])} on the same trials: "
             f"{out['against']['coverage_mean']:.2f} %  (std {out['against']['coverage_std']:.2f})\n"
             f"  {_spread_line(out['against'])}\n"
-            f"paired difference (policy - against): {diff.mean():+.2f} ± {se:.2f} points (s.e., {diff.size} trials)"
+            f"paired difference (policy - against): {mean:+.2f} ± {se:.2f} points (s.e., {args.trials} trials)"
         )
     out["seconds"] = round(time.perf_counter() - start, 3)
     emit(out, args.json, table)
@@ -140,15 +140,15 @@ def _controller(
     policy: str, scenario_name: str, flag: str = "--policy"
 ) -> tuple[Controller, ScenarioConfig, dict[str, Any]]:
     """A hand-made controller by name, or a learned policy from a policy file; a one-line error otherwise."""
-    if policy in HAND_MADE:
-        return HAND_MADE[policy], scenario(scenario_name), {}
+    if policy in CONTROLLERS:
+        return CONTROLLERS[policy], scenario(scenario_name), {}
     path = Path(policy)
     if path.is_dir():
         inside = path / "policy.npz"
         hint = f"; its policy is {inside}" if inside.is_file() else ""
         fail("eval", f"{flag} {policy}: a folder, not a policy file{hint}")
     if not path.exists():
-        names = ", ".join(HAND_MADE)
+        names = ", ".join(CONTROLLERS)
         fail("eval", f"{flag} {policy}: neither a hand-made controller ({names}) nor an existing policy file")
     try:
         learned, header = load_policy(path)
@@ -157,7 +157,7 @@ def _controller(
         fail("eval", f"{flag} {policy}: {str(exc).removeprefix(f'{path}: ')}")
     info = {
         "method": learned.method,
-        "formulation": f"{learned.featurizer} state, {learned.actions} moves, {learned.reward} reward",
+        "formulation": "{0} state, {2} moves, {1} reward".format(*learned.formulation.names),
         "prototypes_per_action": header["prototypes_per_action"],
     }
     return PolicyController(learned), cfg, info

@@ -19,7 +19,6 @@ from algorithm.policy import Policy, PolicyController
 from monitor import style
 from monitor.geometry import COLORMAP, VIEW_COLUMNS, observed_targets, project_2d, q_colors, q_range, view_subject
 from sim import ScenarioConfig, evaluate
-from sim.actions import action_set
 from sim.world import Observation, WorldState
 
 SNAPSHOT_STEP = 300
@@ -52,7 +51,7 @@ def policy_figure(policy: Policy, cfg: ScenarioConfig, out: Path, seed: int = 0,
     panels: Any = fig.subfigures(1, 2, width_ratios=[1.0, 1.45])
     _arena_panel(panels[0], policy, cfg, seed, step)
     _prototype_panels(panels[1], policy, cfg)
-    fig.supxlabel(caption(policy.featurizer), fontsize=8, ha="left", x=0.01)
+    fig.supxlabel(caption(policy.formulation.featurizer.name), fontsize=8, ha="left", x=0.01)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=100)
     return out
@@ -89,13 +88,13 @@ def _prototype_panels(right: Any, policy: Policy, cfg: ScenarioConfig) -> None:
     from matplotlib.patches import Circle
 
     prototypes, q_values = policy.prototypes_by_action()
-    points = [project_2d(p, policy.featurizer) for p in prototypes]
+    points = [project_2d(p, policy.formulation.featurizer.name) for p in prototypes]
     colors = q_colors(q_values)
     scale = policy.discretization.scale
-    column = VIEW_COLUMNS.get(policy.featurizer, (0, 1))[0]
+    column = VIEW_COLUMNS.get(policy.formulation.featurizer.name, (0, 1))[0]
     # The masked feature value (nothing in view) sits far out; clip the panels to where the targets in view lie.
     reach = cfg.sensing_range / (1.0 if scale is None else float(scale[column]))
-    moves = action_set(policy.actions).moves
+    moves = policy.formulation.actions.moves
     axes = right.subplots(2, 4, sharex=True, sharey=True)
     for k, panel in enumerate(axes.flat):
         if k >= len(points):
@@ -115,7 +114,8 @@ def _prototype_panels(right: Any, policy: Policy, cfg: ScenarioConfig) -> None:
     )
     bar.set_label("Q value of the move (mean over robots)", fontsize=8)
     bar.ax.tick_params(labelsize=7)
-    right.suptitle(f"prototypes per move (count in the title): {view_subject(policy.featurizer)}", fontsize=9)
+    subject = view_subject(policy.formulation.featurizer.name)
+    right.suptitle(f"prototypes per move (count in the title): {subject}", fontsize=9)
 
 
 def caption(featurizer: str) -> str:

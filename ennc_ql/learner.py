@@ -97,12 +97,8 @@ def cmd_learner(args: argparse.Namespace) -> int:
                 import torch  # loaded by the service already, after its checkpoint was read: only a learner fits
 
                 torch.set_num_threads(config.threads)
-            handles = connect(service, transport)
-            try:
+            with connect(service, transport):
                 report = service.run(stop)
-            finally:
-                for handle in reversed(handles):
-                    handle.close()
     line = (
         f"learner {config.learner_id}: {report.tuples_received} tuples from {len(report.actors)} actors, "
         f"policy version {report.policy_version}, final coverage {report.final_coverage_mean}; "

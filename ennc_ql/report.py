@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 from monitor.style import REFERENCES as STYLES
 from sim.controllers import COMPASS_NAMES
-from sim.features import FORMULATIONS
+from sim.formulation import FORMULATIONS
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -27,12 +27,13 @@ if TYPE_CHECKING:
 REPORT_MD = "report.md"
 LEARNING_CURVE_PNG = "learning_curve.png"
 REFERENCE_NOTES = {
-    "a-cmommt": "hand-made; reads only what its robots sense or are told",
-    "a-cmommt-oracle": "hand-made; reads true target positions that no robot senses",
-    "force-6d-shared": "A-CMOMMT's force law fed the 6-D state and the shared-observation flags",
+    "a-cmommt": "hand-made, tuned on training trials; reads only what its robots sense or are told",
+    "force-6d-shared": "A-CMOMMT's force law fed the 6-D state and the shared-observation flags, tuned",
+    "a-cmommt-public": "hand-made; the public code's untuned parameters (teammate-observed weight 0.25)",
     "force-6d": "A-CMOMMT's force law fed the paper's 6-D state",
     "local": "hand-made; attraction to the targets in view, no cooperation",
     "random": "a random compass move every 5 steps",
+    "a-cmommt-oracle": "oracle, not a rival: reads true target positions that no robot senses",
 }
 """Every hand-made reference, in the order a result lists them (strongest first), with what it is."""
 LEARNED_COLOUR = "#000000"
@@ -92,13 +93,20 @@ def headline(report: Mapping[str, Any]) -> list[str]:
     if final is None:
         return ["result: no policy was learned (the first fit waits for --learner-min-tuples tuples)"]
     formulation = _formulation(report)
-    trials = report.get("final_eval_trials", 50)
+    trials = report.get("final_eval_trials", 200)
     what = f", formulation {formulation}" if formulation else ""
     lines = [f"result: the learned policy observes {final:.2f} % of the targets ({trials} seeded test trials{what})"]
     references = _references(report.get("final_reference_coverage") or {})
     if references:
         lines.append("on the same trials: " + ", ".join(f"{_label(n)} {v:.2f} %" for n, v in references))
+    rival = (report.get("final_comparison") or {}).get("a-cmommt")
+    if rival:
+        lines.append(f"learned - {_label('a-cmommt')}: {_paired(rival)} (paired, {trials} trials)")
     return lines
+
+
+def _paired(row: Mapping[str, float]) -> str:
+    return f"{row['learned_minus']:+.2f} ± {row['learned_minus_se']:.2f} points"
 
 
 def next_commands(report: Mapping[str, Any]) -> list[tuple[str, str]]:
@@ -110,7 +118,7 @@ def next_commands(report: Mapping[str, Any]) -> list[tuple[str, str]]:
         left = float(stop["duration_s"]) - float(stop["at_s"])
         commands.append((str(stop["resume"]), f"continue the run from its checkpoint ({left:.0f} s of training left)"))
     if report.get("policy_file"):
-        trials = report.get("final_eval_trials", 50)
+        trials = report.get("final_eval_trials", 200)
         commands.append(
             (
                 f"ennc-ql eval --policy {report['policy_file']} --trials {trials}",
@@ -189,7 +197,7 @@ def _result(report: Mapping[str, Any], curve_png: str) -> list[str]:
     lines = ["## Result", ""]
     if final is None:
         return [*lines, headline(report)[0].removeprefix("result: ").capitalize() + ".", ""]
-    trials = report.get("final_eval_trials", 50)
+    trials = report.get("final_eval_trials", 200)
     formulation = _formulation(report)
     learned = f"version {report['policy_version']}" + (f", formulation {formulation}" if formulation else "")
     rows = [("**learned policy**", learned, f"**{final:.2f}**")]
@@ -202,10 +210,49 @@ def _result(report: Mapping[str, Any], curve_png: str) -> list[str]:
         "the hand-made controllers on the same trials:",
         "",
         *_table(("policy", "what it is", f"% of targets observed ({trials} trials)"), rows),
+        *_spread(report.get("final_comparison") or {}, trials),
         f"![the learning curve beside the hand-made controllers' levels]({curve_png})",
         "",
     ]
     return lines
+
+
+def _spread(comparison: Mapping[str, Mapping[str, float]], trials: int) -> list[str]:
+    """Why one policy covers more: how each team spread over the targets, per robot-step, and the learned policy's
+    paired difference from each reference."""
+    if not comparison:
+        return []
+    rows = [
+        (
+            "**learned policy**" if name == "learned" else _label(name),
+            f"{row['coverage']:.2f}",
+            "" if name == "learned" else _paired(row),
+            f"{row['only_shared_pct']:.1f}",
+            f"{row['none_in_view_pct']:.1f}",
+            f"{row['robots_per_covered_target']:.2f}",
+        )
+        for name, row in [
+            ("learned", comparison["learned"]),
+            *(
+                (n, comparison[n])
+                for n, _ in _references({k: v["coverage"] for k, v in comparison.items() if k != "learned"})
+            ),
+        ]
+    ]
+    header = (
+        "policy",
+        "% observed",
+        "learned − it (paired, ± s.e.)",
+        "% robot-steps seeing only teammate-watched targets",
+        "% robot-steps seeing no target",
+        "robots per covered target",
+    )
+    return [
+        f"How each team spreads over the targets on the same {trials} trials: a robot that sees only targets a "
+        "teammate also sees adds nothing where it stands; one that sees none is searching.",
+        "",
+        *_table(header, rows),
+    ]
 
 
 def _throughput(report: Mapping[str, Any]) -> list[str]:
@@ -309,7 +356,7 @@ def learning_curve_figure(report: Mapping[str, Any]) -> Figure:
     curve = report.get("coverage_curve") or []
     duration = (report.get("config") or {}).get("duration") or report["seconds"]
     end = float(report["seconds"])
-    trials, final_trials = report.get("eval_trials", 10), report.get("final_eval_trials", 50)
+    trials, final_trials = report.get("eval_trials", 10), report.get("final_eval_trials", 200)
     final = report.get("final_coverage_mean")
     finals = dict(report.get("final_reference_coverage") or {})
     fig = Figure(figsize=(10, 4.8))

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from algorithm.checks import require_at_least, require_id, require_known, require_positive
 from algorithm.phase1 import CMOMMT_PHASE1, Phase1Config
 from sim import SCENARIOS
-from sim.features import DEFAULT_FORMULATION, Formulation, resolve_formulation
+from sim.formulation import DEFAULT_FORMULATION, Formulation, resolve_formulation
 
 LEARNER_PHASE1 = dataclasses.replace(CMOMMT_PHASE1, max_iterations=2, n_cycles=60, seed_prototypes=512)
 """The learner's phase 1 [beyond the paper, README "Learning quality"]: ENNC starts from 512 of each action's
@@ -28,14 +28,13 @@ class LearnerConfig:
     scenario: str = "cmommt-v1"
     """Scenario the policy is learned and evaluated on."""
     formulation: str = DEFAULT_FORMULATION
-    """State, reward and action set of the experience, and how often the evaluated policy decides, by name:
-    shared-difference (the shared8d state, the difference reward, deciding every step) or paper (the paper's
-    collab6d state and Eq. 2 reward, deciding once per action). The actors' must be the same."""
+    """State, reward and action set of the experience, and how often the evaluated policy decides, by name (see
+    README "Formulation"; paper is the paper's). The actors' must be the same."""
     featurizer: str | None = None
-    """State definition instead of the formulation's: local2d, collab6d or shared8d (none: the formulation's)."""
+    """State definition instead of the formulation's (none: the formulation's)."""
     reward: str | None = None
-    """Reward instead of the formulation's (none: the formulation's), as the actors' --reward: recorded in the
-    policy; the learner's fits read the rewards of the tuples."""
+    """Reward instead of the formulation's (none: the formulation's; paper: the state's own), as the actors'
+    --reward: recorded in the policy; the learner's fits read the rewards of the tuples."""
     act_every: int | None = None
     """Steps between a robot's decisions when the learned policy is evaluated and in the policy file, instead of the
     formulation's (none: the formulation's; the paper's is the scenario's action_steps, as the actors learn); the
@@ -56,9 +55,10 @@ class LearnerConfig:
     """Seconds between evaluations of the current policy."""
     eval_trials: int = 10
     """Test trials of the periodic evaluations (the learning curve), as the paper scores one process [paper]."""
-    final_eval_trials: int = 50
-    """Test trials of the final policy's figure: as many as behind each figure of the paper (5 learning processes
-    x 10 trials), since one run of ten trials varies by a few points from one set of trials to another [choice]."""
+    final_eval_trials: int = 200
+    """Test trials of the final policy's figure and of its paired comparison with every reference: 200, since one
+    run of ten trials varies by a few points from one set of trials to another, and a paired difference of a point
+    needs about 200 trials for a standard error near 0.5 [choice; the paper's figures rest on 5 x 10]."""
     eval_steps: int = 1000
     """Steps of each test trial [paper]."""
     checkpoint_interval: float = 2.0
@@ -103,4 +103,4 @@ class LearnerConfig:
     @property
     def method(self) -> str:
         """The name the learned policy carries (as in ``reproduce``'s table)."""
-        return "ennc-ql-local" if self.resolved.featurizer == "local2d" else "ennc-ql-collab-option2"
+        return "ennc-ql-local" if self.resolved.featurizer.name == "local2d" else "ennc-ql-collab-option2"

@@ -9,6 +9,7 @@ Usage::
     evaluator.latest                         # the newest point's coverage (None before the first evaluation)
     evaluator.references()                   # the hand-made controllers on the curve's trials
     evaluator.references(trials=50)          # ... and on the final figure's
+    evaluator.comparison()                   # the final policy beside each of them: spread and paired difference
     meta = evaluator.to_meta(); evaluator.restore(meta)   # the curve survives a resume
 """
 
@@ -17,7 +18,7 @@ from __future__ import annotations
 from typing import Any
 
 from algorithm.policy import Policy, PolicyController
-from sim import HAND_MADE, ScenarioConfig, evaluate
+from sim import CONTROLLERS, EvalResult, ScenarioConfig, evaluate
 
 TEST_SEED = 0
 """Every evaluation runs the same trials, as the hand-made controllers' figures do."""
@@ -30,13 +31,17 @@ class Evaluator:
         self.steps = steps
         self.final_trials = final_trials
         self.curve: list[tuple[float, float]] = []
-        self._references: dict[int, dict[str, float]] = {}
+        self.spread: dict[str, float] = {}
+        """How the team of the newest evaluated policy spread over the targets (``sim.rollout.Cooperation``)."""
+        self._references: dict[int, dict[str, EvalResult]] = {}
+        self._final: EvalResult | None = None
 
     def periodic(self, policy: Policy, at: float) -> float:
         """Coverage (%) of ``policy``, kept on the curve at ``at`` seconds of training."""
-        coverage = self._coverage(policy, self.trials)
-        self.curve.append((round(at, 2), round(coverage, 3)))
-        return coverage
+        result = self._evaluate(policy, self.trials)
+        self.curve.append((round(at, 2), round(result.coverage_mean, 3)))
+        self.spread = _spread(result)
+        return result.coverage_mean
 
     @property
     def latest(self) -> float | None:
@@ -46,17 +51,42 @@ class Evaluator:
         """Metric A (%) of the hand-made controllers on these same test trials (``trials``: the first that many;
         default the curve's): the levels a figure is read against. Measured once per trial count (0.4 s for the
         default 10 trials of 1000 steps, on 2 busy cores)."""
-        trials = self.trials if trials is None else trials
-        if trials not in self._references:
-            self._references[trials] = {
-                name: round(evaluate(self.cfg, controller, trials, self.steps, seed=TEST_SEED).coverage_mean, 3)
-                for name, controller in HAND_MADE.items()
-            }
-        return self._references[trials]
+        return {name: round(r.coverage_mean, 3) for name, r in self._reference_results(trials).items()}
+
+    def reference_spread(self, trials: int | None = None) -> dict[str, dict[str, float]]:
+        """How each hand-made controller's team spreads over the targets on these test trials."""
+        return {name: _spread(r) for name, r in self._reference_results(trials).items()}
 
     def final(self, policy: Policy) -> float:
         """The final figure; the curve keeps one protocol, so this point stays off it."""
-        return self._coverage(policy, self.final_trials)
+        self._final = self._evaluate(policy, self.final_trials)
+        return self._final.coverage_mean
+
+    def comparison(self) -> dict[str, dict[str, float]]:
+        """The final policy (``learned``) and every reference on the final figure's trials: coverage, the team's
+        spread over the targets, and for each reference the paired difference learned − it with its standard
+        error; empty before :meth:`final`."""
+        if self._final is None:
+            return {}
+        rows = {"learned": {"coverage": round(self._final.coverage_mean, 3), **_spread(self._final)}}
+        for name, result in self._reference_results(self.final_trials).items():
+            mean, se = self._final.minus(result)
+            rows[name] = {
+                "coverage": round(result.coverage_mean, 3),
+                **_spread(result),
+                "learned_minus": round(mean, 3),
+                "learned_minus_se": round(se, 3),
+            }
+        return rows
+
+    def _reference_results(self, trials: int | None) -> dict[str, EvalResult]:
+        trials = self.trials if trials is None else trials
+        if trials not in self._references:
+            self._references[trials] = {
+                name: evaluate(self.cfg, controller, trials, self.steps, seed=TEST_SEED)
+                for name, controller in CONTROLLERS.items()
+            }
+        return self._references[trials]
 
     def to_meta(self) -> dict[str, Any]:
         return {"coverage_curve": list(self.curve)}
@@ -64,5 +94,10 @@ class Evaluator:
     def restore(self, meta: dict[str, Any]) -> None:
         self.curve = [(float(t), float(c)) for t, c in meta["coverage_curve"]]
 
-    def _coverage(self, policy: Policy, trials: int) -> float:
-        return evaluate(self.cfg, PolicyController(policy), trials, self.steps, seed=TEST_SEED).coverage_mean
+    def _evaluate(self, policy: Policy, trials: int) -> EvalResult:
+        return evaluate(self.cfg, PolicyController(policy), trials, self.steps, seed=TEST_SEED)
+
+
+def _spread(result: EvalResult) -> dict[str, float]:
+    spread = {} if result.cooperation is None else result.cooperation.summary()
+    return {k: round(v, 3) for k, v in spread.items()}

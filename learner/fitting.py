@@ -57,9 +57,16 @@ class Fitter:
         log.info("phase 1 on %d tuples (%s)", len(data), "first fit" if warm_start is None else "warm start")
         began = time.monotonic()
         seed = int(self._rng.integers(2**31))
-        lost = scenario(self.config.scenario).lost_reward
+        cfg = scenario(self.config.scenario)
+        lost = self.config.resolved.featurizer.sees_none(cfg, data.next_state)
         disc = phase1(
-            data, N_ACTIONS, self.config.phase1, seed=seed, warm_start=warm_start, lost_reward=lost
+            data,
+            N_ACTIONS,
+            self.config.phase1,
+            seed=seed,
+            warm_start=warm_start,
+            lost=lost,
+            lost_reward=cfg.lost_reward,
         ).discretization
         self.fits += 1
         log.info(

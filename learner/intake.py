@@ -29,11 +29,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from algorithm.transitions import Transitions
-from algorithm.wire import transitions_from_batch
+from algorithm.wire import formulation_mismatch, transitions_from_batch
 from learner.store import ExperienceStore, SequenceLedger
 from protocol import DEFAULT_KEYS, ExperienceBatch, ProtocolError, Reject, Transport, peek_sequence
 from protocol.messages import MAX_NAME_LEN
-from sim.features import FEATURIZERS, Formulation
+from sim.formulation import Formulation
 
 log = logging.getLogger(__name__)
 
@@ -83,7 +83,7 @@ class ExperienceIntake:
         """Where Rejects go (None: refusals are only counted, as in the transport benchmark)."""
         self._keys = DEFAULT_KEYS if transport is None else transport.keys
         self._lock = threading.Lock()
-        self._store = ExperienceStore(capacity, FEATURIZERS[formulation.featurizer])
+        self._store = ExperienceStore(capacity, formulation.dim)
         self._ledger = SequenceLedger()
         self._rejected: Counter[str] = Counter()
         self._refused = 0
@@ -110,14 +110,9 @@ class ExperienceIntake:
     def _mismatch(self, msg: ExperienceBatch) -> tuple[str, str]:
         """(kind, why) ``msg`` cannot join the store, or ("", ""): tuples of another formulation mean something else.
         The reason names the first part that differs (a Reject's reason holds 64 characters)."""
-        own = self.formulation
-        for part, theirs, mine in (
-            ("featurizer", msg.featurizer, own.featurizer),
-            ("reward_function", msg.reward_function, own.reward),
-            ("action_set", msg.action_set, own.actions),
-        ):
-            if theirs != mine:
-                return FORMULATION, f"{part} {theirs}, expected {mine}"
+        mismatch = formulation_mismatch(self.formulation, msg)
+        if mismatch:
+            return FORMULATION, mismatch
         if msg.state.shape[1] != self._store.dim:
             return STATE_DIMENSION, f"state dimension {msg.state.shape[1]}, expected {self._store.dim}"
         return "", ""

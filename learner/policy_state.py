@@ -2,7 +2,7 @@
 
 Usage (thread-safe: every method takes the state's own lock)::
 
-    state = PolicyState(n_robots=10, featurizer="collab6d", scenario="cmommt-v1", action_steps=5, method="...")
+    state = PolicyState(n_robots=10, formulation=f, scenario="cmommt-v1", action_steps=5, method="...")
     state.adopt(discretization)            # after phase 1: tables from the labels, or carried over on a refit
     state.add_increment(msg)               # an actor's table change; False if it was over another discretization
     update = state.publish()               # merge what is pending, bump the version: the PolicyUpdate to broadcast
@@ -26,34 +26,28 @@ from algorithm.policy import Policy
 from algorithm.qtable import merge_increments
 from algorithm.wire import increment_arrays, policy_update
 from protocol import PolicyUpdate, QTableIncrement
+from sim.formulation import Formulation
 
 
 class PolicyState:
     def __init__(
         self,
         n_robots: int,
-        featurizer: str,
+        formulation: Formulation,
         scenario: str,
         action_steps: int,
         method: str,
         on_version: Callable[[int], None] | None = None,
-        reward: str = "eq2",
-        act_every: int | None = None,
-        actions: str = "compass",
     ) -> None:
         self.on_version = on_version
         """Called with each new version before anyone can see it (the learner persists its version mark there)."""
         self.n_robots = n_robots
-        self.featurizer = featurizer
+        self.formulation = formulation
+        """What the actors learn on (the policy file records it); its ``act_every`` is how often the evaluated and
+        saved policy decides (None: ``action_steps``)."""
         self.scenario = scenario
         self.action_steps = action_steps
         self.method = method
-        self.reward = reward
-        """The reward function the actors learn with (a name of :data:`sim.features.REWARDS`), for the policy file."""
-        self.actions = actions
-        """The action set the tables' actions mean (a name of :data:`sim.actions.ACTION_SETS`)."""
-        self.act_every = act_every
-        """Steps between decisions of the evaluated and saved policy (None: ``action_steps``)."""
         self._lock = threading.Lock()
         self._disc: Discretization | None = None
         self._disc_id = 0
@@ -139,7 +133,8 @@ class PolicyState:
             if self._disc is None:
                 return None
             policy = self._policy()
-        return policy if self.act_every is None else dataclasses.replace(policy, action_steps=self.act_every)
+        every = self.formulation.act_every
+        return policy if every is None else dataclasses.replace(policy, action_steps=every)
 
     def lag(self, latest_version: dict[str, int]) -> dict[str, int]:
         """Versions each actor's newest experience is behind the current policy."""
@@ -213,7 +208,7 @@ class PolicyState:
     def _policy(self) -> Policy:
         assert self._disc is not None
         return Policy(
-            featurizer=self.featurizer,
+            formulation=self.formulation,
             discretization=self._disc,
             tables=self._tables.astype(np.float32),
             robot_table=np.arange(self.n_robots),
@@ -221,8 +216,6 @@ class PolicyState:
             visits=self._visits.copy(),
             version=self._version,
             method=self.method,
-            reward=self.reward,
-            actions=self.actions,
         )
 
 

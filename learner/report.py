@@ -128,10 +128,15 @@ class LearnerReport:
     eval_trials: int
     coverage_curve: list[list[float]]
     reference_coverage: dict[str, float]
-    """Metric A (%) of each hand-made controller (``sim.HAND_MADE``) on the curve's test trials; empty when no
-    policy was learned."""
+    """Metric A (%) of each hand-made controller and the oracle (``sim.CONTROLLERS``) on the curve's test trials;
+    empty when no policy was learned."""
     final_reference_coverage: dict[str, float]
     """The same on the final figure's test trials: the levels the final coverage is read against."""
+    final_comparison: dict[str, dict[str, float]]
+    """On the final figure's trials, the final policy (``learned``) and every reference: ``coverage``, how the team
+    spread over the targets per robot-step (``only_shared_pct``, ``none_in_view_pct``,
+    ``robots_per_covered_target``) and, for a reference, the paired difference learned − it (``learned_minus``)
+    with its standard error (``learned_minus_se``); empty when no policy was learned."""
     policy_file: str | None
     checkpoint: str
     seconds: float
@@ -185,6 +190,7 @@ class LearnerReport:
             coverage_curve=[list(p) for p in evaluator.curve],
             reference_coverage={} if final is None else evaluator.references(),
             final_reference_coverage={} if final is None else evaluator.references(config.final_eval_trials),
+            final_comparison={} if final is None else evaluator.comparison(),
             policy_file=None if policy_file is None else str(policy_file),
             checkpoint=str(checkpoint),
             seconds=round(status.elapsed, 2),
@@ -200,7 +206,13 @@ class LearnerReport:
         names = {f.name for f in fields(cls)} - {"extra"}
         # Reports written before these figures existed lack them.
         given = {k: v for k, v in data.items() if k in names}
-        known = {"reference_coverage": {}, "final_reference_coverage": {}, "out_of_order": 0, **given}
+        known = {
+            "reference_coverage": {},
+            "final_reference_coverage": {},
+            "final_comparison": {},
+            "out_of_order": 0,
+            **given,
+        }
         return cls(**known, extra={k: v for k, v in data.items() if k not in names})
 
     def with_extra(self, **extra: Any) -> LearnerReport:

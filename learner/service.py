@@ -4,9 +4,8 @@ Call sequence (``learner.wiring.connect`` holds every subscription; tests and se
 transport)::
 
     service = LearnerService(transport, LearnerConfig(), run_dir=Path("runs/x"), resume=False)
-    handles = connect(service, transport)   # subscriptions, late-joiner queryable, liveliness
-    report = service.run(stop)              # until stop / duration: fits, merges, broadcasts, evaluations, checkpoints
-    for h in reversed(handles): h.close()
+    with connect(service, transport):       # subscriptions, late-joiner queryable, liveliness (one ExitStack)
+        report = service.run(stop)          # until stop / duration: fits, merges, broadcasts, evaluations, checkpoints
 
 Experience is de-duplicated by (actor, incarnation, seq) into a bounded store (``learner.intake``, which also
 rejects what it refuses for good); it is acknowledged only once a checkpoint holding it is on disk, so an actor's
@@ -67,14 +66,11 @@ class LearnerService:
         self.version_mark = VersionMark(run_dir)
         self.state = PolicyState(
             self.scenario.n_robots,
-            formulation.featurizer,
+            formulation,
             self.scenario.name,
             self.scenario.action_steps,
             config.method,
             on_version=self.version_mark.record,
-            reward=formulation.reward,
-            act_every=formulation.act_every,
-            actions=formulation.actions,
         )
         self.fitter = Fitter(config, on_fitted=self._adopt)
         self.evaluator = Evaluator(self.scenario, config.eval_trials, config.eval_steps, config.final_eval_trials)
@@ -127,7 +123,7 @@ class LearnerService:
     def run(self, stop: threading.Event) -> LearnerReport:
         c = self.config
         self._started = time.monotonic()
-        self.watch.started(c.resolved.featurizer, self.state.reward, self.evaluator.references, c.resolved.actions)
+        self.watch.started(c.resolved, self.evaluator.references)
         next_broadcast = next_checkpoint = next_status = self._started
         next_eval = self._started + c.eval_interval
         while not stop.is_set():
@@ -169,7 +165,10 @@ class LearnerService:
         if policy is None:
             return
         coverage = self.evaluator.periodic(policy, at=self.elapsed())
-        self.watch.evaluated(policy, coverage)
+        spread = {"learned": {"coverage": coverage, **self.evaluator.spread}}
+        for name, figures in self.evaluator.reference_spread().items():
+            spread[name] = {"coverage": self.evaluator.references()[name], **figures}
+        self.watch.evaluated(policy, coverage, spread, trials=self.config.eval_trials)
         log.info("evaluation of policy version %d: %.2f%% of targets observed", policy.version, coverage)
 
     # -- status, checkpoints, report --------------------------------------------------------------------------------
@@ -242,7 +241,7 @@ class LearnerService:
             policy = self.state.policy()
             assert policy is not None
             final = self.evaluator.final(policy)
-            self.watch.final(policy, final, trials=self.config.final_eval_trials)
+            self.watch.final(policy, final, self.config.final_eval_trials, self.evaluator.comparison())
             log.info("final policy version %d: %.2f%% of targets observed", policy.version, final)
         report = self._report(final, self.checkpoint(), self.elapsed())
         (self.run_dir / "report.json").write_text(json.dumps(report.to_dict(), indent=2))

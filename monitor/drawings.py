@@ -11,7 +11,7 @@ import numpy as np
 import rerun as rr
 
 from monitor import geometry, paths, style
-from sim.actions import action_set
+from sim.actions import ActionSet
 
 NORTH_UP = rr.Transform3D(mat3x3=[[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]])
 """Mirrors y, logged at each drawing root (see :mod:`monitor.paths`): Rerun's 2-D views draw +y downwards."""
@@ -72,7 +72,7 @@ def q_ends(lo: float, hi: float) -> rr.Points2D:
 
 
 def prototype_frame(
-    action: int, sensing_range: float, actions: str = "compass"
+    action: int, sensing_range: float, actions: ActionSet
 ) -> list[tuple[str, rr.LineStrips2D | rr.Arrows2D]]:
     """(path, archetype) of what the view of ``action``'s prototypes is read against, in arena units around the
     robot: the dx = 0 and dy = 0 axes, the sensing circle (targets in view lie inside it), and an arrow in the
@@ -82,7 +82,7 @@ def prototype_frame(
     reach = geometry.PROTOTYPE_REACH * sensing_range
     axes = [np.array([[-reach, 0.0], [reach, 0.0]]), np.array([[0.0, -reach], [0.0, reach]])]
     axes.append(geometry.circle(sensing_range))
-    heading = 0.5 * sensing_range * action_set(actions).directions[action]
+    heading = 0.5 * sensing_range * actions.directions[action]
     return [
         (f"{frame}/axes", rr.LineStrips2D(axes, radii=_THIN, colors=style.rgba(style.MID_GREY), draw_order=0.0)),
         (f"{frame}/heading", rr.Arrows2D(vectors=[heading], radii=_THIN, colors=style.rgba(style.LIGHT_GREY))),

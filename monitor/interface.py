@@ -8,9 +8,12 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from types import TracebackType
-from typing import Self
+from typing import TYPE_CHECKING, Self
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from sim.formulation import Formulation
 
 
 class Monitor:
@@ -72,9 +75,9 @@ class Monitor:
     def q_stats(self, q_tables: Sequence[np.ndarray], *, policy_version: int, learner_step: int | None = None) -> None:
         """Mean, min and max over every finite entry of ``q_tables`` at ``learner/q/{mean,min,max}``."""
 
-    def formulation(self, featurizer: str, reward: str, actions: str = "compass") -> None:
-        """The state, reward and action set the policy is learned with: the first two name the learning curve, the
-        state and the moves lay out the prototype views (call before the curve starts and before the layout)."""
+    def formulation(self, formulation: Formulation) -> None:
+        """The formulation the policy is learned with: its state and reward name the learning curve, its state and
+        moves lay out the prototype views (call before the curve starts and before the layout)."""
 
     def eval_coverage(self, coverage: float, *, policy_version: int, learner_step: int | None = None) -> None:
         """Metric A (%) of the current policy on the test trials, at ``learner/coverage/eval`` (the learning curve);
@@ -90,6 +93,18 @@ class Monitor:
     ) -> None:
         """The final figure (%) on ``trials`` test trials, a marker of its own at ``learner/coverage/final``: it is
         measured on more trials than the curve's points, so it is not joined to them."""
+
+    def cooperation(
+        self,
+        rows: Mapping[str, Mapping[str, float]],
+        *,
+        trials: int,
+        policy_version: int,
+        learner_step: int | None = None,
+    ) -> None:
+        """How each team spreads over the targets on ``trials`` test trials, per robot-step (``learned`` and every
+        reference by ``sim.CONTROLLERS`` name; ``sim.rollout.Cooperation.summary``'s figures, with ``coverage`` and
+        the paired ``learned_minus`` where known): a table at ``learner/cooperation``."""
 
     def learner_metrics(
         self,
@@ -132,8 +147,8 @@ class Monitor:
         sensing_range: float | None = None,
     ) -> None:
         """Lay the viewer out (see :func:`monitor.layout.default_blueprint`) and log the colour key: for training,
-        the curves, an arena view per actor and the compass rose of prototype views; for ``eval_trial`` (replaying a
-        test trial) the trial and its coverage.
+        the curves, an arena view per actor and the rose of prototype views, one per move; for ``eval_trial``
+        (replaying a test trial) the trial and its coverage.
 
         ``arena_radius`` and ``sensing_range`` fix the 2-D views' ranges (None: fitted to the data); with
         ``sensing_range`` the prototype views get their static axes and sensing circle.

@@ -4,8 +4,8 @@ A researcher opening a run should see the learning curve at once, as TensorBoard
 large, over the whole history: so the viewer opens at the end of the data (following a live run), every time series
 spans the whole run on the ``train_time`` timeline, and the test coverage has a panel of its own, first and largest,
 with the hand-made controllers' levels and the final figure. Training-trial figures come next, then the arenas and
-the prototypes (north up, a compass rose), then the system figures. Colours come from :mod:`monitor.style`, one per
-actor and per statistic in every panel; the logged data only name their series.
+the prototypes (a rose of the action set's moves: for the compass, north up), then the system figures. Colours come
+from :mod:`monitor.style`, one per actor and per statistic in every panel; the logged data only name their series.
 """
 
 from __future__ import annotations
@@ -21,15 +21,16 @@ from rerun.encodings import EntityPathLike
 
 from monitor import paths, style
 from monitor.geometry import PROTOTYPE_REACH
-from sim.actions import action_set
+from sim.actions import ActionSet
+from sim.formulation import default_formulation
 
 
-def rose(actions: str) -> tuple[int | None, ...]:
+def rose(actions: ActionSet) -> tuple[int | None, ...]:
     """Action of each cell of the 3x3 rose, row by row from the top left, the key in the middle: each action in the
     cell its direction points to (compass: NW N NE / W key E / SW S SE; relative: the move ``toward`` the nearest
     target on the right, as the target frame's prototypes are drawn)."""
     cells: list[int | None] = [None] * 9
-    for k, (dx, dy) in enumerate(action_set(actions).directions):
+    for k, (dx, dy) in enumerate(actions.directions):
         cells[3 * (1 - round(float(dy))) + round(float(dx)) + 1] = k
     return tuple(cells)
 
@@ -98,6 +99,7 @@ def _learning(actor_ids: Sequence[str]) -> rrb.Container:
             y_range=(0.0, 100.0),
         ),
         _series("mean trial reward", _per_actor(actor_ids, paths.ACTOR_REWARD), legend=Corner2D.RightBottom),
+        rrb.TextDocumentView(name="spread over targets", origin=paths.LEARNER_COOPERATION),
         name="training trials",
     )
     return rrb.Horizontal(test, training, column_shares=[3, 2], name="learning")
@@ -157,19 +159,19 @@ def _key_view() -> rrb.Spatial2DView:
     return rrb.Spatial2DView(name="key", origin=paths.KEY, contents=f"{paths.KEY}/**", visual_bounds=KEY_BOUNDS)
 
 
-def _rose(sensing_range: float | None, actions: str) -> rrb.Container:
+def _rose(sensing_range: float | None, actions: ActionSet) -> rrb.Container:
     """The prototype views as a rose around the key, one shared fixed range (None: fitted to the data)."""
     bounds = _square(sensing_range, PROTOTYPE_REACH)
-    moves = action_set(actions).moves
+    moves = actions.moves
     cells = [_key_view() if k is None else _drawing(moves[k], paths.prototypes_of(k), bounds) for k in rose(actions)]
     return rrb.Grid(*cells, grid_columns=3, name="prototypes by Q")
 
 
 def _below(
-    actor_ids: Sequence[str], arena_radius: float | None, sensing_range: float | None, actions: str
+    actor_ids: Sequence[str], arena_radius: float | None, sensing_range: float | None, actions: ActionSet
 ) -> rrb.Container:
-    """Arenas, compass rose and system side by side: each gets the row's height, which keeps the 2-D views about
-    square in a landscape window."""
+    """Arenas, the rose of the moves and system side by side: each gets the row's height, which keeps the 2-D views
+    about square in a landscape window."""
     columns = max(1, math.ceil(len(actor_ids) / 2))  # two arenas stacked per column of a ~300-pixel width
     bounds = _square(arena_radius, ARENA_MARGIN)
     arenas = rrb.Grid(
@@ -184,10 +186,11 @@ def default_blueprint(
     eval_trial: bool = False,
     arena_radius: float | None = None,
     sensing_range: float | None = None,
-    actions: str = "compass",
+    actions: ActionSet | None = None,
 ) -> rrb.Blueprint:
     """The training layout (learning curves, arenas and prototypes, system), or for ``eval_trial`` (``ennc-ql eval``
-    recording a trial) the trial, its coverage and the key.
+    recording a trial) the trial, its coverage and the key. ``actions``: the moves the prototype views are named and
+    laid out by (None: the run's default formulation's).
 
     View contents list every path explicitly: Rerun 0.41 query expressions only allow ``/**`` as a wildcard and
     visualizer overrides (the colours) take exact paths, so a per-actor series needs its actor id here, and an actor
@@ -201,7 +204,9 @@ def default_blueprint(
         time_panel = rrb.TimePanel(timeline=paths.SIM_STEP, state="collapsed")
     else:
         root = rrb.Vertical(
-            _learning(actor_ids), _below(actor_ids, arena_radius, sensing_range, actions), row_shares=[1, 1]
+            _learning(actor_ids),
+            _below(actor_ids, arena_radius, sensing_range, actions or default_formulation().actions),
+            row_shares=[1, 1],
         )
         # Opening at the end (and following a live run) shows the whole curve and the latest arena and policy.
         time_panel = rrb.TimePanel(timeline=paths.TRAIN_TIME, play_state="following", state="collapsed")

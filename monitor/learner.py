@@ -3,7 +3,7 @@
 Usage (the learner's loop; every method returns at once when the monitor is off, before any work is done)::
 
     watch = LearnerWatch(monitor, cfg, clock=run_clock)       # train_time: the learner's run clock
-    watch.started("shared8d", "difference", evaluator.references)   # once: the curve's name and reference levels
+    watch.started(formulation, evaluator.references)          # once: the curve's name and reference levels
     watch.status(status, actors=["actor-0"], lag={"actor-0": 1})    # each status publish: one learner_step
     watch.policy(policy)                                      # a new discretization: prototypes and Q statistics
     watch.evaluated(policy, 61.2)                             # a point of the learning curve
@@ -22,6 +22,7 @@ from monitor.interface import Monitor
 if TYPE_CHECKING:
     from algorithm.policy import Policy
     from sim.config import ScenarioConfig
+    from sim.formulation import Formulation
 
 log = logging.getLogger(__name__)
 
@@ -50,14 +51,12 @@ class LearnerWatch:
         self._laid_out: list[str] | None = None  # actors in the viewer layout last sent
         monitor.use_clock(clock)
 
-    def started(
-        self, featurizer: str, reward: str, references: Callable[[], Mapping[str, float]], actions: str = "compass"
-    ) -> None:
+    def started(self, formulation: Formulation, references: Callable[[], Mapping[str, float]]) -> None:
         """Name the learning curve by its formulation, lay the prototype views out by its moves, and draw the
         reference levels ``references()`` measures."""
         if not self.monitor.enabled:
             return
-        self.monitor.formulation(featurizer, reward, actions)
+        self.monitor.formulation(formulation)
         began = time.monotonic()
         levels = references()
         self.monitor.reference_levels(levels)
@@ -94,16 +93,24 @@ class LearnerWatch:
         self.monitor.prototypes(prototypes, q_values, policy_version=policy.version)
         self.monitor.q_stats([policy.tables], policy_version=policy.version, learner_step=self.step)
 
-    def evaluated(self, policy: Policy, coverage: float) -> None:
-        """A point of the learning curve, with the policy it measured."""
+    def evaluated(
+        self, policy: Policy, coverage: float, spread: Mapping[str, Mapping[str, float]], trials: int
+    ) -> None:
+        """A point of the learning curve, with the policy it measured and how its team and the references' spread
+        over the targets on those ``trials``."""
         if not self.monitor.enabled:
             return
         self.monitor.eval_coverage(coverage, policy_version=policy.version, learner_step=self.step)
+        self.monitor.cooperation(spread, trials=trials, policy_version=policy.version, learner_step=self.step)
         self.policy(policy)
 
-    def final(self, policy: Policy, coverage: float, trials: int) -> None:
-        """The final figure on ``trials`` test trials, with the policy it measured."""
+    def final(
+        self, policy: Policy, coverage: float, trials: int, comparison: Mapping[str, Mapping[str, float]]
+    ) -> None:
+        """The final figure on ``trials`` test trials, with the policy it measured and its comparison with the
+        references on those trials (:meth:`learner.evaluator.Evaluator.comparison`)."""
         if not self.monitor.enabled:
             return
         self.monitor.final_coverage(coverage, trials=trials, policy_version=policy.version, learner_step=self.step)
+        self.monitor.cooperation(comparison, trials=trials, policy_version=policy.version, learner_step=self.step)
         self.policy(policy)

@@ -15,7 +15,9 @@ import rerun as rr
 from monitor import drawings, geometry, paths, style
 from monitor.interface import Monitor
 from monitor.layout import default_blueprint
+from sim.actions import ActionSet
 from sim.controllers import N_ACTIONS
+from sim.formulation import Formulation, default_formulation
 
 log = logging.getLogger(__name__)
 
@@ -50,8 +52,9 @@ class RerunMonitor(Monitor):
         self._flipped: set[str] = set()
         self._references: dict[str, float] = {}
         self._learned = "learned policy"
-        self._featurizer: str | None = None  # which state columns the prototypes are drawn at (formulation)
-        self._actions = "compass"  # the moves the prototype views are named and laid out by (formulation)
+        # Which state columns the prototypes are drawn at, and the moves their views are named and laid out by; the
+        # run's default formulation until the learner names its own.
+        self._formulation: Formulation | None = None
         opened = time.monotonic()
         self._clock: Callable[[], float] = lambda: time.monotonic() - opened
         self._closed = False
@@ -164,7 +167,7 @@ class RerunMonitor(Monitor):
         self._at(None, policy_version, None)
         for k, (protos, q, rgba) in enumerate(zip(prototypes, q_values, colors, strict=True)):
             q = np.asarray(q, dtype=np.float64).reshape(-1)
-            points = geometry.project_2d(protos, self._featurizer)
+            points = geometry.project_2d(protos, self._state_name)
             if len(points) != len(q):
                 raise ValueError(f"action {k}: {len(points)} prototypes but {len(q)} Q values")
             self._north_up(paths.prototypes_of(k))
@@ -186,10 +189,17 @@ class RerunMonitor(Monitor):
         stats = dict(zip(paths.Q_STATS, (entries.mean(), entries.min(), entries.max()), strict=True))
         self.scalars(paths.LEARNER_Q, stats, policy_version=policy_version, learner_step=learner_step)
 
-    def formulation(self, featurizer: str, reward: str, actions: str = "compass") -> None:
-        self._learned = f"learned policy ({featurizer}, {reward} reward)"
-        self._featurizer = featurizer
-        self._actions = actions
+    def formulation(self, formulation: Formulation) -> None:
+        self._learned = f"learned policy ({formulation.featurizer.name}, {formulation.reward.name} reward)"
+        self._formulation = formulation
+
+    @property
+    def _state_name(self) -> str | None:
+        return None if self._formulation is None else self._formulation.featurizer.name
+
+    @property
+    def _actions(self) -> ActionSet:
+        return (self._formulation or default_formulation()).actions
 
     def eval_coverage(self, coverage: float, *, policy_version: int, learner_step: int | None = None) -> None:
         if self._closed:
@@ -223,6 +233,22 @@ class RerunMonitor(Monitor):
         name = f"final, {trials} trials"
         self._scalar(paths.LEARNER_COVERAGE_FINAL, name, coverage, rr.components.MarkerShape.Diamond)
         self._log_references()
+
+    def cooperation(
+        self,
+        rows: Mapping[str, Mapping[str, float]],
+        *,
+        trials: int,
+        policy_version: int,
+        learner_step: int | None = None,
+    ) -> None:
+        if self._closed:
+            return
+        self._at(None, policy_version, learner_step)
+        self.rec.log(
+            paths.LEARNER_COOPERATION,
+            rr.TextDocument(style.cooperation_table(rows, trials), media_type="text/markdown"),
+        )
 
     def learner_metrics(
         self,

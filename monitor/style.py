@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import re
 import zlib
+from collections.abc import Mapping
 
 Rgb = tuple[int, int, int]
 
@@ -34,12 +35,38 @@ REFERENCES: dict[str, tuple[str, Rgb]] = {
     "random": ("random", MID_GREY),
     "local": ("local", SKY_BLUE),
     "a-cmommt": ("A-CMOMMT", REDDISH_PURPLE),
+    "a-cmommt-public": ("A-CMOMMT, public untuned parameters", ORANGE),
     "a-cmommt-oracle": ("A-CMOMMT oracle (true positions)", BLUE),
     "force-6d": ("force law on the 6-D state", BLUISH_GREEN),
     "force-6d-shared": ("force law, 6-D state + shared flags", VERMILLION),
 }
-"""Legend name and colour of each hand-made controller (by its ``sim.HAND_MADE`` name) drawn as a reference level
+"""Legend name and colour of each hand-made controller (by its ``sim.CONTROLLERS`` name) drawn as a reference level
 on the learning curve."""
+
+
+def cooperation_table(rows: Mapping[str, Mapping[str, float]], trials: int) -> str:
+    """Markdown: each team's spread over the targets per robot-step, the learned policy first, then the references
+    in :data:`REFERENCES`' order."""
+    names = [n for n in ("learned", *REFERENCES) if n in rows]
+    lines = [
+        f"Per robot-step on {trials} test trials: a robot that sees only teammate-watched targets adds nothing where "
+        "it stands; one that sees none is searching.",
+        "",
+        "| policy | % observed | only watched in view % | none in view % | robots per covered target |",
+        "|---|---|---|---|---|",
+    ]
+    for name in names:
+        row = rows[name]
+        label = "learned policy" if name == "learned" else REFERENCES[name][0]
+        coverage = f"{row['coverage']:.2f}" if "coverage" in row else "–"
+        if "learned_minus" in row:
+            coverage += f" (learned {row['learned_minus']:+.2f})"
+        lines.append(
+            f"| {label} | {coverage} | {row['only_shared_pct']:.1f} | {row['none_in_view_pct']:.1f} "
+            f"| {row['robots_per_covered_target']:.2f} |"
+        )
+    return "\n".join(lines)
+
 
 Q_STATS: dict[str, Rgb] = {"mean": LIGHT_GREY, "min": SKY_BLUE, "max": ORANGE}
 

@@ -9,7 +9,7 @@ the chosen parameters as JSON::
 
     python scripts/tune_references.py --out runs/tune-references.json
 
-The chosen values are the defaults of :class:`sim.config.ForceLawConfig` (``a-cmommt``) and
+The chosen values are :data:`sim.controllers.ACMOMMT_LAW` (``a-cmommt``) and
 :data:`sim.controllers.STATE_FORCE_LAW` (``force-6d-shared``); docs/learning-quality.md gives the figures.
 """
 
@@ -45,8 +45,8 @@ STATE_LAW_PARAMETERS = ("shared_target_weight", "dr1", "dr2", "do1", "do2")
 
 
 def score(controller: str, law: ForceLawConfig, seeds: list[int], trials: int) -> float:
-    cfg = scenario(force=law)
-    return float(np.mean([evaluate(cfg, HAND_MADE[controller], trials=trials, seed=s).coverage_mean for s in seeds]))
+    cfg, policy = scenario(), dataclasses.replace(HAND_MADE[controller], law=law)
+    return float(np.mean([evaluate(cfg, policy, trials=trials, seed=s).coverage_mean for s in seeds]))
 
 
 def tune(

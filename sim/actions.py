@@ -30,9 +30,10 @@ from sim.world import Observation
 _EIGHTHS = np.arange(8) * np.pi / 4
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, eq=False)
 class ActionSet:
-    """Eight moves named in a frame: the world's (``relative=False``) or the nearest target's."""
+    """Eight moves named in a frame: the world's (``relative=False``) or the nearest target's. Two sets are equal
+    when their names, moves and frames are."""
 
     name: str
     moves: tuple[str, ...]
@@ -55,6 +56,16 @@ class ActionSet:
             return cfg.robot_speed * local
         return cfg.robot_speed * np.einsum("...k,...kd->...d", local, frame)
 
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, ActionSet) and (self.name, self.moves, self.relative) == (
+            other.name,
+            other.moves,
+            other.relative,
+        )
+
+    def __hash__(self) -> int:
+        return hash((self.name, self.moves, self.relative))
+
 
 RELATIVE_NAMES = ("toward", "toward-left", "left", "away-left", "away", "away-right", "right", "toward-right")
 
@@ -68,13 +79,6 @@ ACTION_SETS: dict[str, ActionSet] = {
 """Every action set by name: ``compass``, the 8 compass moves, north = +y, clockwise [paper]; ``relative``, the 8
 moves at multiples of 45° counter-clockwise from the direction of the nearest target in view, "left" meaning the
 side of the furthest target (or of the nearest robot) [beyond the paper]."""
-
-
-def action_set(name: str) -> ActionSet:
-    try:
-        return ACTION_SETS[name]
-    except KeyError:
-        raise ValueError(f"unknown action set {name!r}; known: {', '.join(ACTION_SETS)}") from None
 
 
 def target_frame(obs: Observation) -> np.ndarray:

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Literal
 
 LocalTarget = Literal["furthest", "nearest"]
@@ -28,7 +28,7 @@ class ForceLawConfig:
     ``f_target(d)`` is -1 + d/do1 up to do1, rises to 1 at do2, stays 1 up to do3 (= sensing range), and falls to
     0 at do4 (the predictive tracking range: beyond sensing, a robot knows only its own predicted sightings and its
     teammates' reports). ``g_robot(d)`` is -1 up to dr1 and rises to 0 at dr2. Defaults are the public
-    code's values scaled to this arena [public].
+    code's values scaled to this arena [public]; each hand-made controller holds its own (``sim.controllers``).
     """
 
     do1: float = 20.0
@@ -84,7 +84,7 @@ class ScenarioConfig:
     mask_value: float = 1000.0
     """Both components of a feature pair when nothing is in view [paper]."""
     action_steps: int = 5
-    """Simulation steps one discrete compass action lasts [choice; the paper fixes but does not give it]."""
+    """Simulation steps one discrete action lasts [choice; the paper fixes but does not give it]."""
     test_steps: int = 1000
     """Length of a test trial [paper]."""
     test_trials: int = 10
@@ -92,21 +92,15 @@ class ScenarioConfig:
     learning_steps: int = 100
     """Length of a learning trial [paper]."""
     lost_reward: float = -1.0
-    """Reward when a robot loses all targets [paper: negative; value: choice]."""
-    lost_ends_trial: bool = True
-    """A learning robot that loses every target gets ``lost_reward``, its trial ends and it stays motionless [paper].
-    False: it searches as a test-time robot does (keeps its heading, reflected off the wall) and goes on deciding and
-    learning; its tuples carry the reward's own value [beyond the paper: leaving a target that a teammate already
-    observes, to search for an unobserved one, is then no terminal failure]."""
-    timeout_terminal: bool = True
-    """The tuple a learner holds when the trial's ``learning_steps`` run out is terminal (q = r) [paper: the trial
-    ends]. False: it bootstraps from its s′, as a time limit that is not part of the task should [beyond the paper;
-    only with a per-decision reward, whose value is not paid at the end of the trial]."""
+    """Reward when a robot loses all targets [paper: negative; value: choice]. Whether that ends its learning trial is
+    one of the formulation's trial rules (:class:`sim.formulation.TrialRules`)."""
     robot_in_view_penalty: float = 2.0
     """k(T) in the collaborative reward r_i(T) = Σ_j b_ij(T) − k(T) [paper Eq. 2]."""
+    redundancy_penalty: float = 0.5
+    """What the ``difference-redundancy`` reward takes from a robot for a step in which it sees targets, but only
+    ones a teammate sees too [choice]."""
     local_target: LocalTarget = "furthest"
     """Target the 2-D local state points at [paper: furthest; once 'nearest']."""
-    force: ForceLawConfig = field(default_factory=ForceLawConfig)
 
     def __post_init__(self) -> None:
         positive = ("arena_radius", "sensing_range", "robot_speed", "mask_value", "robot_in_view_penalty")
@@ -123,6 +117,10 @@ class ScenarioConfig:
             raise ValueError("target_turn_prob must lie in [0, 1]")
         if self.sensor_noise_std < 0:
             raise ValueError("sensor_noise_std must be non-negative")
+        if not (math.isfinite(self.redundancy_penalty) and self.redundancy_penalty >= 0):
+            raise ValueError(
+                f"redundancy_penalty must be a non-negative finite number, got {self.redundancy_penalty!r}"
+            )
         if self.mask_value <= self.sensing_range:
             raise ValueError("mask_value must exceed sensing_range so a masked feature cannot look like a real one")
         if self.local_target not in ("furthest", "nearest"):

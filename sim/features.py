@@ -17,7 +17,8 @@ Featurizers (:data:`FEATURIZER_REGISTRY`; :data:`FEATURIZERS` gives each one's d
   every rotation and reflection of a situation; with the ``relative`` action set the moves are named in it too].
 
 Rewards (:data:`REWARDS`), each given with the trial rules of :mod:`sim.trial`; a learning robot that loses every
-target always gets ``lost_reward`` instead and its trial ends:
+target gets ``lost_reward`` instead and, under the paper's rules (:class:`sim.formulation.TrialRules`), its trial
+ends:
 
 * ``observed``: Σ_j b_ij(T) at the end of the trial [paper, local experiments].
 * ``eq2``: Σ_j b_ij(T) − k(T), k(T) = ``robot_in_view_penalty`` when another robot is in view [paper Eq. 2].
@@ -25,9 +26,12 @@ target always gets ``lost_reward`` instead and its trial ends:
   targets robot i observes and no other robot does [beyond the paper: Agogino & Tumer's difference reward].
 * ``difference-decision``: the same D_i, earned at every step and paid at the end of each action as its mean over
   the action's steps (a reward per decision, so that credit need not travel back a whole trial) [beyond the paper].
+* ``difference-redundancy``: the same, less ``redundancy_penalty`` for a step in which the robot sees only targets a
+  teammate sees too: a redundant robot is told so at once, as A-CMOMMT with the teammate-observed weight at 0 lets
+  it feel no pull [beyond the paper; the analogue of Eq. 2's k(T)].
 
-``paper`` names the featurizer's own reward of the paper (:func:`resolve_reward`): ``observed`` for ``local2d``,
-``eq2`` for the collaborative states.
+``paper`` names the featurizer's own reward of the paper: ``observed`` for ``local2d``, ``eq2`` for the collaborative
+states. :mod:`sim.formulation` resolves the names of a formulation's parts into these objects, once.
 """
 
 from __future__ import annotations
@@ -38,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim import _kernels
-from sim.actions import ACTION_SETS, target_frame
+from sim.actions import target_frame
 from sim.config import ScenarioConfig
 from sim.world import Observation
 
@@ -64,6 +68,8 @@ class Featurizer:
     """(E, m, d) float32 states of every robot."""
     paper_reward: str
     """The reward ``paper`` stands for with this state."""
+    sees_none: Callable[[ScenarioConfig, np.ndarray], np.ndarray]
+    """(…,) bool of states (…, d): the robot sees no target (phase 1's ``targets="lost"`` reads lost tuples by it)."""
     frame: str = "world"
     """The frame its offsets are given in: ``world`` (x east, y north) or ``target``
     (:func:`sim.actions.target_frame`)."""
@@ -71,6 +77,28 @@ class Featurizer:
     @property
     def dim(self) -> int:
         return len(self.state)
+
+
+def _nearest_masked(cfg: ScenarioConfig, states: np.ndarray) -> np.ndarray:
+    # The first pair is the mask when no target is in view; a real offset never reaches it (mask > sensing range).
+    return (states[..., 0] == np.float32(cfg.mask_value)) & (states[..., 1] == np.float32(cfg.mask_value))
+
+
+def _distance_masked(cfg: ScenarioConfig, states: np.ndarray) -> np.ndarray:
+    return states[..., 0] == np.float32(cfg.mask_value)
+
+
+@dataclass(frozen=True, slots=True)
+class _NearestAbsent:
+    """No target in view for the presence-coded states: the nearest target's columns are 0 and so is the furthest
+    target's presence bit (a target exactly at the robot's position reads the same: a set of measure zero). A
+    module-level class, not a closure, so that a featurizer pickles into a worker process."""
+
+    nearest: slice
+    present: int
+
+    def __call__(self, cfg: ScenarioConfig, states: np.ndarray) -> np.ndarray:
+        return (states[..., self.nearest] == 0).all(axis=-1) & (states[..., self.present] == 0)
 
 
 def _local2d(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
@@ -126,9 +154,15 @@ def _frame9d(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
 FEATURIZER_REGISTRY: dict[str, Featurizer] = {
     f.name: f
     for f in (
-        Featurizer("local2d", ("target_dx", "target_dy"), _local2d, "observed"),
-        Featurizer("collab6d", _COLLAB_STATE, _collab6d, "eq2"),
-        Featurizer("shared8d", (*_COLLAB_STATE, "nearest_target_shared", "furthest_target_shared"), _shared8d, "eq2"),
+        Featurizer("local2d", ("target_dx", "target_dy"), _local2d, "observed", _nearest_masked),
+        Featurizer("collab6d", _COLLAB_STATE, _collab6d, "eq2", _nearest_masked),
+        Featurizer(
+            "shared8d",
+            (*_COLLAB_STATE, "nearest_target_shared", "furthest_target_shared"),
+            _shared8d,
+            "eq2",
+            _nearest_masked,
+        ),
         Featurizer(
             "present10d",
             (
@@ -145,6 +179,7 @@ FEATURIZER_REGISTRY: dict[str, Featurizer] = {
             ),
             _present10d,
             "eq2",
+            _NearestAbsent(slice(0, 2), 4),
         ),
         Featurizer(
             "frame7d",
@@ -159,6 +194,7 @@ FEATURIZER_REGISTRY: dict[str, Featurizer] = {
             ),
             _frame7d,
             "eq2",
+            _distance_masked,
             frame="target",
         ),
         Featurizer(
@@ -176,6 +212,7 @@ FEATURIZER_REGISTRY: dict[str, Featurizer] = {
             ),
             _frame9d,
             "eq2",
+            _NearestAbsent(slice(0, 1), 3),
             frame="target",
         ),
     )
@@ -183,13 +220,6 @@ FEATURIZER_REGISTRY: dict[str, Featurizer] = {
 """Every featurizer by name."""
 FEATURIZERS: dict[str, int] = {name: f.dim for name, f in FEATURIZER_REGISTRY.items()}
 """State dimension of each featurizer."""
-
-
-def _featurizer(name: str) -> Featurizer:
-    try:
-        return FEATURIZER_REGISTRY[name]
-    except KeyError:
-        raise ValueError(f"unknown featurizer {name!r}; known: {', '.join(FEATURIZER_REGISTRY)}") from None
 
 
 @dataclass(frozen=True, slots=True)
@@ -217,6 +247,11 @@ def _difference(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
     return obs.n_only.astype(np.float32)
 
 
+def _difference_redundancy(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
+    redundant = (obs.n_seen > 0) & (obs.n_only == 0)
+    return obs.n_only.astype(np.float32) - np.float32(cfg.redundancy_penalty) * redundant.astype(np.float32)
+
+
 REWARDS: dict[str, Reward] = {
     r.name: r
     for r in (
@@ -224,88 +259,16 @@ REWARDS: dict[str, Reward] = {
         Reward("eq2", _eq2, per_decision=False),
         Reward("difference", _difference, per_decision=False),
         Reward("difference-decision", _difference, per_decision=True),
+        Reward("difference-redundancy", _difference_redundancy, per_decision=True),
     )
 }
-"""Every reward function by name; ``paper`` is accepted wherever a reward is named (:func:`resolve_reward`)."""
-REWARD_NAMES: tuple[str, ...] = ("paper", *REWARDS)
-"""What a configuration may name as its reward."""
+"""Every reward function by name; ``paper`` is accepted wherever a reward is named: the featurizer's own
+(:meth:`sim.formulation.Formulation.of`)."""
 
 
-@dataclass(frozen=True, slots=True)
-class Formulation:
-    """What a learning problem is made of besides the algorithm: the state, the reward, the action set, and how often
-    a robot of the learned policy decides in test trials. Constructing one checks every name against its registry::
-
-        Formulation("shared8d", "difference", act_every=1)      # FORMULATIONS["shared-difference"]
-        resolve_formulation("paper", reward="difference")       # a named one with an explicit part over it
-    """
-
-    featurizer: str
-    """A name of :data:`FEATURIZER_REGISTRY`."""
-    reward: str
-    """A name of :data:`REWARDS` (``paper`` is resolved before: :func:`resolve_formulation`)."""
-    act_every: int | None = None
-    """Steps between a robot's decisions in test trials; None: ``action_steps``, as it learned [paper]. Learning
-    always holds an action ``action_steps`` steps."""
-    actions: str = "compass"
-    """A name of :data:`sim.actions.ACTION_SETS`."""
-
-    def __post_init__(self) -> None:
-        _featurizer(self.featurizer)
-        if self.reward not in REWARDS:
-            raise ValueError(f"unknown reward {self.reward!r}; known: {', '.join(REWARD_NAMES)}")
-        if self.actions not in ACTION_SETS:
-            raise ValueError(f"unknown action set {self.actions!r}; known: {', '.join(ACTION_SETS)}")
-        if self.act_every is not None and self.act_every < 1:
-            raise ValueError(f"act_every must be at least 1, got {self.act_every}")
-
-    def describe(self) -> str:
-        every = {None: "every action", 1: "every step"}.get(self.act_every, f"every {self.act_every} steps")
-        return f"{self.featurizer} state, {self.reward} reward, deciding {every} in tests"
-
-
-FORMULATIONS: dict[str, Formulation] = {
-    "paper": Formulation("collab6d", "eq2"),
-    "shared-difference": Formulation("shared8d", "difference", act_every=1),
-    "frame-difference": Formulation("frame9d", "difference-decision", act_every=1, actions="relative"),
-}
-"""Every formulation by name: ``paper`` is the paper's collaborative formulation [paper §4, Eq. 2];
-``shared-difference`` the best with the world-frame state and compass moves that the README's ablations found;
-``frame-difference`` the state and the moves in the frame of the nearest target, the difference reward paid per
-decision [beyond the paper, README "Learning quality"]."""
-DEFAULT_FORMULATION = "frame-difference"
-"""The formulation of every process (``up``, ``learner``, ``actor``, compose's) unless another is named."""
-
-
-def resolve_formulation(
-    name: str, *, featurizer: str | None = None, reward: str | None = None, act_every: int | None = None
-) -> Formulation:
-    """The formulation ``name`` with the parts given explicitly over its own; a ``reward`` of ``paper`` becomes the
-    state's own reward. ValueError names an unknown name."""
-    if name not in FORMULATIONS:
-        raise ValueError(f"unknown formulation {name!r}; known: {', '.join(FORMULATIONS)}")
-    base = FORMULATIONS[name]
-    state = featurizer or base.featurizer
-    return Formulation(
-        state,
-        resolve_reward(state, reward or base.reward),
-        act_every=base.act_every if act_every is None else act_every,
-        actions=base.actions,
-    )
-
-
-def resolve_reward(featurizer: str, reward: str) -> str:
-    """The reward function's name: ``reward`` itself, or the featurizer's paper reward for ``paper``."""
-    if reward == "paper":
-        return _featurizer(featurizer).paper_reward
-    if reward not in REWARDS:
-        raise ValueError(f"unknown reward {reward!r}; known: {', '.join(REWARD_NAMES)}")
-    return reward
-
-
-def featurize(cfg: ScenarioConfig, obs: Observation, featurizer: str) -> np.ndarray:
+def featurize(cfg: ScenarioConfig, obs: Observation, featurizer: Featurizer) -> np.ndarray:
     """(E, m, d) float32 states of every robot under ``featurizer``."""
-    return _featurizer(featurizer).compute(cfg, obs)
+    return featurizer.compute(cfg, obs)
 
 
 def lost(obs: Observation) -> np.ndarray:
@@ -313,17 +276,9 @@ def lost(obs: Observation) -> np.ndarray:
     return obs.n_seen == 0
 
 
-def reward_value(cfg: ScenarioConfig, obs: Observation, reward: str) -> np.ndarray:
-    """(E, m) float32 value of ``reward`` (a name of :data:`REWARDS`) in this observation, lost robots included."""
-    rule = REWARDS.get(reward)
-    if rule is None:
-        raise ValueError(f"unknown reward {reward!r}; known: {', '.join(REWARDS)}")
-    return rule.value(cfg, obs)
-
-
-def trial_reward(cfg: ScenarioConfig, obs: Observation, reward: str) -> np.ndarray:
+def trial_reward(cfg: ScenarioConfig, obs: Observation, reward: Reward) -> np.ndarray:
     """(E, m) float32 reward of a trial-end ``reward`` at this observation, ``lost_reward`` for a lost robot."""
-    return np.where(lost(obs), np.float32(cfg.lost_reward), reward_value(cfg, obs, reward)).astype(np.float32)
+    return np.where(lost(obs), np.float32(cfg.lost_reward), reward.value(cfg, obs)).astype(np.float32)
 
 
 def coverage(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:

@@ -81,6 +81,15 @@ class EvalResult:
     def coverage_std(self) -> float:
         return float(self.coverage_per_trial.std())
 
+    def minus(self, other: EvalResult) -> tuple[float, float]:
+        """The paired difference of metric A, this policy minus ``other`` scored on the same trials: its mean over
+        the trials and that mean's standard error (NaN with one trial)."""
+        if other.coverage_per_trial.shape != self.coverage_per_trial.shape:
+            raise ValueError("a paired difference needs the same trials")
+        diff = self.coverage_per_trial - other.coverage_per_trial
+        se = float(diff.std(ddof=1) / np.sqrt(diff.size)) if diff.size > 1 else float("nan")
+        return float(diff.mean()), se
+
 
 def evaluate(
     cfg: ScenarioConfig,

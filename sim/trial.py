@@ -9,14 +9,16 @@ The rules [paper §4; choices as tagged]:
 * the reward is one of :data:`sim.features.REWARDS`: by default delayed to the end of the trial, 0 before it and
   paper Eq. 2 at it; a per-decision reward is paid at the end of every action instead;
 * a learning robot that loses every target gets ``lost_reward``, its trial ends [choice] and it stays motionless
-  [paper];
+  [paper]; the formulation's :class:`~sim.formulation.TrialRules` may let it search on instead, and let the time-out
+  bootstrap [beyond the paper];
 * robots that do not learn follow the caller's actions, or a controller's velocity, and when lost search by keeping
   a heading reflected off the wall [choice, as in test trials].
 
 Call sequence::
 
     rng = np.random.default_rng(seed)
-    state = reset_trial(cfg, n_arenas=E, learners=np.arange(m) == 0, featurizer="collab6d", rng=rng)
+    formulation = FORMULATIONS["paper"]              # the state, reward, action set and trial rules
+    state = reset_trial(cfg, n_arenas=E, learners=np.arange(m) == 0, formulation=formulation, rng=rng)
     decide = np.ones(state.shape, bool)              # every robot takes a first action
     while True:
         action = random_actions(state, rng)          # or a policy's (E, m) actions; read only where ``decide``
@@ -38,10 +40,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.actions import action_set
 from sim.config import ScenarioConfig
 from sim.controllers import N_ACTIONS, wander
-from sim.features import FEATURIZERS, REWARDS, featurize, lost, resolve_reward, reward_value, trial_reward
+from sim.features import lost, trial_reward
+from sim.formulation import Formulation
 from sim.world import Observation, WorldState, place_near_targets, reset, sense, step
 
 
@@ -52,16 +54,12 @@ class TrialState:
     world: WorldState
     obs: Observation
     """What every robot perceives in ``world``."""
-    featurizer: str
-    """State definition of ``features`` (a key of :data:`sim.features.FEATURIZERS`)."""
-    reward: str
-    """Reward function of the learners (a key of :data:`sim.features.REWARDS`)."""
-    actions: str
-    """Action set of the action indices (a key of :data:`sim.actions.ACTION_SETS`)."""
+    formulation: Formulation
+    """The state of ``features``, the learners' reward, the action set of the action indices, the trial rules."""
     features: np.ndarray
     """(E, m, d) float32: every robot's state now."""
     action: np.ndarray
-    """(E, m) int64: the compass action each robot holds."""
+    """(E, m) int64: the action each robot holds (an index of the formulation's action set)."""
     held: np.ndarray
     """(E, m) int64: steps the held action has lasted."""
     start_features: np.ndarray
@@ -69,11 +67,12 @@ class TrialState:
     frame: np.ndarray
     """(E, m, 2, 2) float64: the frame the held action is named in, fixed when it was chosen (rows: x, y axes)."""
     learner: np.ndarray
-    """(E, m) bool: robots that learn; their trial ends when they lose every target."""
+    """(E, m) bool: robots that learn; their trial ends when they lose every target (paper rules)."""
     active: np.ndarray
     """(E, m) bool: learners whose trial goes on."""
     heading: np.ndarray
-    """(E, m, 2) float64 unit vectors: the search heading of robots that do not learn, used while they are lost."""
+    """(E, m, 2) float64 unit vectors: the search heading of robots that search while they are lost (those that do not
+    learn, and learners whose rules let them search on)."""
     earned: np.ndarray
     """(E, m) float32: a per-decision reward's value summed over the held action's steps so far (0 otherwise)."""
 
@@ -99,7 +98,8 @@ class TrialStep:
     a trial-end reward's value where ``done``, a per-decision reward's mean over the action where it ends."""
     done: np.ndarray
     """(E, m) bool: learners whose tuple ending on this step is terminal: they lost every target (with
-    ``lost_ends_trial``), or it was the last step (with ``timeout_terminal``)."""
+    :attr:`~sim.formulation.TrialRules.lost_ends_trial`), or it was the last step (with
+    :attr:`~sim.formulation.TrialRules.timeout_terminal`)."""
     truncated: np.ndarray
     """(E, m) bool: learners whose trial the time-out cut on this step without a terminal tuple (their tuple ends
     here and bootstraps from s′; ``timeout_terminal`` False)."""
@@ -142,37 +142,28 @@ def reset_trial(
     cfg: ScenarioConfig,
     n_arenas: int,
     learners: np.ndarray,
-    featurizer: str,
+    formulation: Formulation,
     rng: np.random.Generator,
-    reward: str = "paper",
-    actions: str = "compass",
 ) -> TrialState:
     """E fresh arenas whose ``learners`` (bool, broadcastable to (E, m)) start within sensing range of a target.
 
-    ``reward`` names the learners' reward (a key of :data:`sim.features.REWARDS`, or ``paper``), ``actions`` the
-    action set (:data:`sim.actions.ACTION_SETS`). No robot holds an action yet: the first :func:`step_trial` must
-    let every robot decide.
+    ``formulation`` gives the state, the learners' reward, the action set and the trial rules. No robot holds an
+    action yet: the first :func:`step_trial` must let every robot decide.
     """
-    if featurizer not in FEATURIZERS:
-        raise ValueError(f"unknown featurizer {featurizer!r}; known: {', '.join(FEATURIZERS)}")
-    reward = resolve_reward(featurizer, reward)
-    frame = action_set(actions).frame
     learner = np.broadcast_to(np.asarray(learners, dtype=bool), (n_arenas, cfg.n_robots)).copy()
     world = place_near_targets(cfg, reset(cfg, n_arenas, rng), learner, rng)
     obs = sense(cfg, world, rng)
-    features = featurize(cfg, obs, featurizer)
+    features = formulation.featurizer.compute(cfg, obs)
     angle = rng.uniform(0.0, 2.0 * np.pi, learner.shape)
     return TrialState(
         world=world,
         obs=obs,
-        featurizer=featurizer,
-        reward=reward,
-        actions=actions,
+        formulation=formulation,
         features=features,
         action=np.zeros(learner.shape, np.int64),
         held=np.zeros(learner.shape, np.int64),
         start_features=features,
-        frame=np.array(frame(obs), dtype=np.float64),
+        frame=np.array(formulation.actions.frame(obs), dtype=np.float64),
         learner=learner,
         active=learner.copy(),
         heading=np.stack([np.cos(angle), np.sin(angle)], axis=-1),
@@ -181,7 +172,7 @@ def reset_trial(
 
 
 def random_actions(state: TrialState, rng: np.random.Generator) -> np.ndarray:
-    """(E, m) uniform compass actions, the exploration rule [choice].
+    """(E, m) uniform action indices, the exploration rule [choice].
 
     Drawn for every robot, whoever decides, so that the random stream does not depend on who is deciding.
     """
@@ -202,7 +193,7 @@ def step_trial(
 ) -> tuple[TrialState, TrialStep]:
     """Advance every arena one step under the trial rules.
 
-    ``action`` (E, m) compass indices is read only where ``decide`` (E, m) bool: those robots start a new action
+    ``action`` (E, m) action indices is read only where ``decide`` (E, m) bool: those robots start a new action
     now (every robot on the first step, then ``out.decide`` of the previous step). ``velocity`` (E, m, 2), if
     given, moves the robots that do not learn instead of their actions and search, e.g. a hand-made controller's.
     ``hold`` is the length after which an action ends (default ``cfg.action_steps``; VQQL passes its cap).
@@ -212,7 +203,8 @@ def step_trial(
     decide = np.asarray(decide, dtype=bool)
     if decide.shape != state.shape:
         raise ValueError(f"decide must have shape {state.shape}, got {decide.shape}")
-    moves = action_set(state.actions)
+    formulation = state.formulation
+    moves, rules = formulation.actions, formulation.rules
     held_action, start, held, frame = state.action, state.start_features, state.held, state.frame
     if decide.any():
         held_action = np.where(decide, action, held_action)
@@ -224,7 +216,7 @@ def step_trial(
             frame = np.where(decide[..., None, None], moves.frame(state.obs), frame)
     # Only robots that do not learn search (and learners, where losing every target does not end their trial); with
     # none in the batch the headings are never read.
-    seeker = ~state.learner | (not cfg.lost_ends_trial)
+    seeker = ~state.learner | (not rules.lost_ends_trial)
     heading = wander(cfg, state.world, state.heading) if seeker.any() else state.heading
     move = moves.velocity(cfg, held_action, frame)
     if velocity is not None:
@@ -236,26 +228,26 @@ def step_trial(
     move = np.where((state.learner & ~state.active)[..., None], 0.0, move)
     world = step(cfg, state.world, move, rng)
     obs = sense(cfg, world, rng)
-    features = featurize(cfg, obs, state.featurizer)
+    features = formulation.featurizer.compute(cfg, obs)
     held = held + 1
     trial_over = world.t >= cfg.learning_steps
     gone = lost(obs)
-    per_decision = REWARDS[state.reward].per_decision
+    per_decision = formulation.reward.per_decision
     # A trial-end reward is paid only at the end, so its time-out is always terminal.
-    timeout_ends = trial_over and (cfg.timeout_terminal or not per_decision)
-    lost_ends = gone & cfg.lost_ends_trial
+    timeout_ends = trial_over and (rules.timeout_terminal or not per_decision)
+    lost_ends = gone & rules.lost_ends_trial
     done = state.active & (lost_ends | timeout_ends)
     truncated = state.active & ~done & trial_over
     active = state.active & ~done & ~truncated
     boundary = held >= (cfg.action_steps if hold is None else hold)
     earned, action_mean = state.earned, None
     if per_decision:
-        earned = np.where(decide, np.float32(0.0), earned) + reward_value(cfg, obs, state.reward)
+        earned = np.where(decide, np.float32(0.0), earned) + formulation.reward.value(cfg, obs)
         action_mean = (earned / held).astype(np.float32)
         pay = np.where(done & lost_ends, np.float32(cfg.lost_reward), action_mean)
         reward = np.where(done | truncated | (active & boundary), pay, np.float32(0.0)).astype(np.float32)
     elif done.any():
-        reward = np.where(done, trial_reward(cfg, obs, state.reward), 0.0).astype(np.float32)
+        reward = np.where(done, trial_reward(cfg, obs, formulation.reward), 0.0).astype(np.float32)
     else:
         reward = np.zeros(state.shape, np.float32)
     out = TrialStep(
@@ -274,9 +266,7 @@ def step_trial(
     new_state = TrialState(
         world=world,
         obs=obs,
-        featurizer=state.featurizer,
-        reward=state.reward,
-        actions=state.actions,
+        formulation=formulation,
         features=features,
         action=held_action,
         held=held,

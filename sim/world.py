@@ -20,8 +20,6 @@ import numpy as np
 from sim import _kernels
 from sim.config import ScenarioConfig
 
-FloatArray = np.ndarray
-
 
 @dataclass(frozen=True, slots=True)
 class WorldState:

@@ -15,9 +15,7 @@ from algorithm.phase1 import Phase1Config
 from algorithm.policy import Policy
 from learner.report import LearnerReport
 from learner.service import LearnerService
-from sim import ScenarioConfig, TrialState, WorldState, featurize, sense
-from sim.actions import action_set
-from sim.features import resolve_reward
+from sim import FORMULATIONS, Formulation, ScenarioConfig, TrialState, WorldState, sense
 
 TINY = Budget(
     arenas=24,
@@ -38,11 +36,10 @@ def situation(
     learner: list[bool],
     target_vel: list[tuple[float, float]] | None = None,
     heading: list[tuple[float, float]] | None = None,
-    featurizer: str = "collab6d",
-    reward: str = "paper",
-    actions: str = "compass",
+    formulation: Formulation = FORMULATIONS["paper"],
 ) -> TrialState:
-    """One arena at the start of a trial, robots and targets where given (targets still unless ``target_vel``)."""
+    """One arena at the start of a trial under ``formulation`` (the paper's unless given), robots and targets where
+    given (targets still unless ``target_vel``)."""
     vel = np.zeros((1, len(targets), 2)) if target_vel is None else np.array([target_vel], dtype=np.float64)
     world = WorldState(
         robot_pos=np.array([robots], dtype=np.float64),
@@ -51,19 +48,17 @@ def situation(
         target_speed=np.linalg.norm(vel, axis=-1),
     )
     obs = sense(cfg, world)
-    features = featurize(cfg, obs, featurizer)
+    features = formulation.featurizer.compute(cfg, obs)
     mask = np.array([learner])
     m = len(robots)
     return TrialState(
         world=world,
         obs=obs,
-        featurizer=featurizer,
-        reward=resolve_reward(featurizer, reward),
-        actions=actions,
+        formulation=formulation,
         features=features,
         action=np.zeros((1, m), np.int64),
         held=np.zeros((1, m), np.int64),
-        frame=np.array(action_set(actions).frame(obs), dtype=np.float64),
+        frame=np.array(formulation.actions.frame(obs), dtype=np.float64),
         start_features=features,
         learner=mask,
         active=mask.copy(),
@@ -77,7 +72,7 @@ def make_policy(rng: np.random.Generator, robots: int = 10, rows: int = 10) -> P
     labels = [rng.normal(size=len(p)) for p in protos]
     disc = Discretization.from_per_action(protos, labels, scale=np.full(6, 50.0, np.float32))
     return Policy(
-        featurizer="collab6d",
+        formulation=FORMULATIONS["paper"],
         discretization=disc,
         tables=rng.normal(size=(rows, disc.size)).astype(np.float32),
         robot_table=np.arange(robots) % rows,

@@ -22,7 +22,7 @@ from algorithm.experiments import METHODS, train
 from algorithm.policy_file import save_policy
 from ennc_ql.cli import main
 from sim import scenario
-from sim.features import DEFAULT_FORMULATION, FORMULATIONS
+from sim.formulation import DEFAULT_FORMULATION, FORMULATIONS
 from tests.fakes import TINY as TINY_REPRODUCE
 
 RUNNER = Path(__file__).resolve().parents[1] / "examples" / "policy_runner.py"
@@ -33,22 +33,18 @@ TINY = dataclasses.replace(TINY_REPRODUCE, test_trials=1, test_steps=10)
 
 
 OPTION2 = METHODS["ennc-ql-collab-option2"]
-FRAME = FORMULATIONS[DEFAULT_FORMULATION]
 SPECS = {
-    "shared8d": (dataclasses.replace(OPTION2, featurizer="shared8d", reward="difference"), None),
+    "shared8d": (OPTION2, OPTION2.formulation.replace(featurizer="shared8d", reward="difference")),
     "vqql-local-16": (METHODS["vqql-local-16"], None),
-    DEFAULT_FORMULATION: (
-        dataclasses.replace(OPTION2, featurizer=FRAME.featurizer, reward=FRAME.reward, actions=FRAME.actions),
-        FRAME.act_every,
-    ),
+    DEFAULT_FORMULATION: (OPTION2, FORMULATIONS[DEFAULT_FORMULATION]),
 }
 
 
 @pytest.fixture(scope="module", params=list(SPECS))
 def policy_file(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    spec, act_every = SPECS[request.param]
-    outcome = train(spec, TINY, seed=0, act_every=act_every)
-    assert outcome.policy.featurizer == spec.featurizer and outcome.policy.actions == spec.actions
+    spec, formulation = SPECS[request.param]
+    outcome = train(spec, TINY, seed=0, formulation=formulation)
+    assert outcome.policy is not None and outcome.policy.formulation == (formulation or spec.formulation)
     return save_policy(outcome.policy, scenario(), tmp_path_factory.mktemp("policy") / f"{request.param}.npz")
 
 

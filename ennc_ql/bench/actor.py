@@ -21,7 +21,7 @@ from ennc_ql.bench.sim import sim_rate
 from ennc_ql.progress import ProgressBar
 from protocol import Header
 from sim import N_ACTIONS, ScenarioConfig, scenario
-from sim.features import Formulation
+from sim.formulation import FORMULATIONS
 
 ACTOR_TARGET_RATIO = 0.25
 """An actor's phase-2 slice must run at this fraction of the bare simulator's robot-steps/s (actor throughput issue)."""
@@ -33,11 +33,12 @@ def bench_policy(cfg: ScenarioConfig, arenas: int = 500, explore_trials: int = 2
     Two trials in 500 arenas give ≈ 180 k tuples and ≈ 150–300 prototypes per action, the size a ``make run``
     policy has (see the README), so the nearest-prototype search costs what it costs in a real run.
     """
-    explorer = ExperienceSlice(cfg, SliceConfig(n_arenas=arenas, featurizer="collab6d"), seed)
+    paper = FORMULATIONS["paper"]
+    explorer = ExperienceSlice(cfg, SliceConfig(paper, n_arenas=arenas), seed)
     data = Transitions.concat([explorer.run_trial() for _ in range(explore_trials)])
     disc = phase1(data, N_ACTIONS, CMOMMT_PHASE1, seed=seed).discretization
     return Policy(
-        featurizer="collab6d",
+        formulation=paper,
         discretization=disc,
         tables=np.tile(disc.labels, (cfg.n_robots, 1)),
         robot_table=np.arange(cfg.n_robots),
@@ -55,8 +56,8 @@ def _actor_trials(
     Returns the robot-steps, tuples and the seconds spent in the slice and in building the messages.
     """
     policy = agent.template
-    formulation = Formulation(policy.featurizer, policy.reward, actions=policy.actions)
-    parts = SliceConfig(arenas, formulation.featurizer, formulation.reward, formulation.actions)
+    formulation = policy.formulation
+    parts = SliceConfig(formulation, n_arenas=arenas)
     experience = ExperienceSlice(cfg, parts, seed)
     steps = tuples = 0
     slice_s = message_s = 0.0

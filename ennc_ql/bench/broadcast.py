@@ -36,7 +36,7 @@ from algorithm.wire import policy_from_update, policy_update
 from ennc_ql.progress import ProgressBar
 from ennc_ql.system import free_port
 from protocol import DEFAULT_KEYS, N_ACTIONS, PolicyUpdate, ZenohTransport, decode_as, encode, zenoh_config
-from sim import scenario
+from sim import FORMULATIONS, scenario
 
 DIM = 6
 _DELIVERY_TIMEOUT_S = 30.0
@@ -53,7 +53,7 @@ def random_policy(prototypes_per_action: int, n_robots: int, seed: int = 0) -> P
         scale=np.ones(DIM, np.float32),
     )
     return Policy(
-        featurizer="collab6d",
+        formulation=FORMULATIONS["paper"],
         discretization=disc,
         tables=rng.random((n_robots, size)).astype(np.float32),
         robot_table=np.arange(n_robots),
@@ -72,7 +72,7 @@ def _median_ms(fn: Callable[[], object], rounds: int) -> float:
 
 
 def _apply(update: PolicyUpdate, n_robots: int, probe: np.ndarray) -> None:
-    agent = TabularAgent(policy_from_update(update, n_robots), Phase2Config())
+    agent = TabularAgent(policy_from_update(update, n_robots, FORMULATIONS["paper"]), Phase2Config())
     agent.cells(probe)
 
 

@@ -6,13 +6,13 @@ import numpy as np
 
 from algorithm.transitions import Transitions
 from algorithm.trials import ExperienceSlice, SliceConfig
-from sim import scenario
+from sim import FORMULATIONS, scenario
 
 
 def cmommt_experience(tuples: int, seed: int = 0, action: int | None = None) -> Transitions:
     """``tuples`` collaborative (6-D) tuples from random-exploration learning trials (only ``action``'s, if given)."""
     cfg = scenario()
-    explorer = ExperienceSlice(cfg, SliceConfig(n_arenas=1000, featurizer="collab6d"), seed)
+    explorer = ExperienceSlice(cfg, SliceConfig(FORMULATIONS["paper"], n_arenas=1000), seed)
     parts: list[Transitions] = []
     collected = 0
     while collected < tuples:

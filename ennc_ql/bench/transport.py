@@ -50,11 +50,11 @@ from ennc_ql.system import free_port
 from learner.intake import ExperienceIntake
 from protocol import DEFAULT_KEYS, ExperienceBatch, ZenohTransport, encode
 from protocol.security import ROUTER
-from sim.features import FEATURIZERS, FORMULATIONS
+from sim.formulation import FORMULATIONS
 
 FORMULATION = FORMULATIONS["paper"]
 """What the batches are stamped with and the receiver stores: collab6d (d = 6), as in every figure measured so far."""
-DIM = FEATURIZERS[FORMULATION.featurizer]
+DIM = FORMULATION.dim
 STORE_CAPACITY = 1 << 20
 """Tuples the receiver's store keeps (the learner's default is of the same order)."""
 TARGET = {"tuples_per_s": 5e6, "ratio": 0.5, "lost": 0}
@@ -101,7 +101,7 @@ def _publishers(
 ) -> Iterator[_Publishers]:
     procs: list[subprocess.Popen[str]] = []
     shm_flag = "--shared-memory" if shared_memory else "--no-shared-memory"
-    stamp = [FORMULATION.featurizer, FORMULATION.reward, FORMULATION.actions]
+    stamp = list(FORMULATION.names)
     try:
         for i in range(actors):
             argv = [endpoint, f"bench-{i}", str(batch_size), "--stamp", *stamp, "--dim", str(DIM), shm_flag]
@@ -252,7 +252,7 @@ def _figures(
     raw_received: int,
 ) -> dict[str, Any]:
     figures = ingest.figures()
-    stamp = (FORMULATION.featurizer, FORMULATION.reward, FORMULATION.actions)
+    stamp = FORMULATION.names
     return {
         "actors": actors,
         "batch_size": batch_size,

@@ -14,7 +14,7 @@ import zenoh
 
 from ennc_ql.chaos.observe import RECOVERY_TIMEOUT_S, wait_for
 from protocol import Ack, ExperienceBatch, KeySpace, Reject, ZenohTransport, encode
-from sim.features import FEATURIZERS, Formulation
+from sim.formulation import Formulation
 
 POISON_TUPLES, INTRUDER_TUPLES, SPOOF_PUTS = 5, 3, 3
 """Tuples per batch of a poison round (two of its three batches are stored: mallory's count is 10 per round, so any
@@ -58,7 +58,7 @@ class Peer:
         self.ident = ident
         self.formulation = formulation
         """The run's: the learner refuses batches of any other, so the peer's must pass that check to test the rest."""
-        self.dims = FEATURIZERS[formulation.featurizer]
+        self.dims = formulation.dim
         self.own_key = keys.experience(ident)
         self.transport = ZenohTransport.open(conf, keys)
 
@@ -76,9 +76,9 @@ class Peer:
             incarnation=incarnation,
             seq=seq,
             policy_version=0,
-            featurizer=self.formulation.featurizer,
-            reward_function=self.formulation.reward,
-            action_set=self.formulation.actions,
+            featurizer=self.formulation.featurizer.name,
+            reward_function=self.formulation.reward.name,
+            action_set=self.formulation.actions.name,
             robot=np.zeros(n, np.int16),
             state=np.zeros((n, self.dims), np.float32),
             action=np.zeros(n, np.uint8),

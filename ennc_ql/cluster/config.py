@@ -17,7 +17,7 @@ from actors.config import ActorConfig
 from algorithm.checks import require_at_least, require_known, require_positive
 from ennc_ql.config import dump_config
 from learner.config import LearnerConfig
-from sim.features import DEFAULT_FORMULATION, FORMULATIONS
+from sim.formulation import DEFAULT_FORMULATION, FORMULATIONS
 
 FORMULATION_PARTS = ("featurizer", "reward", "act_every")
 """Fields of the learner's and the actors' configurations that override their formulation's parts: ``up`` gives
@@ -33,10 +33,9 @@ class UpConfig:
     seed: int = 0
     """Run seed, given to the learner and to every actor (each derives its own stream from it and its id)."""
     formulation: str = DEFAULT_FORMULATION
-    """State, reward and action set of every process, by name: frame-difference (the frame9d state, the relative
-    moves, the difference reward per decision, deciding every step in tests: the best formulation of
-    docs/learning-quality.md), shared-difference (the shared8d state, compass moves, the difference reward) or paper
-    (the paper's collab6d state, Eq. 2 reward and compass moves, deciding once per action)."""
+    """State, reward, action set and test-time decision period of every process, by name (README "Formulation"):
+    the default is the best formulation of docs/learning-quality.md, paper the paper's. The actors' learning-trial
+    rules are the formulation's unless --actor-trial-rules names others."""
     max_restarts: int = 3
     """Times in a row a child that dies (the learner, an actor, the router) is started again, after 1, 2, 4 ... s,
     before the run gives up on it (the learner resumes from its checkpoint; one that ran a minute starts a new

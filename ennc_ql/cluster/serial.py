@@ -31,12 +31,12 @@ def run_serial(learner: LearnerConfig, actors: list[ActorConfig], run_dir: Path)
     with ExitStack() as stack:
         learner_transport = stack.enter_context(InMemoryTransport(bus))
         service = LearnerService(learner_transport, learner, run_dir)
-        handles = connect_learner(service, learner_transport)
+        stack.enter_context(connect_learner(service, learner_transport))
         threads = []
         for config in actors:
             transport = stack.enter_context(InMemoryTransport(bus))
             actor = RobotActor(transport, config)
-            handles += connect_actor(actor, transport)
+            stack.enter_context(connect_actor(actor, transport))
             threads.append(threading.Thread(target=actor.run, args=(stop_actors,), name=config.actor_id))
         for thread in threads:
             thread.start()
@@ -49,6 +49,4 @@ def run_serial(learner: LearnerConfig, actors: list[ActorConfig], run_dir: Path)
             stop_actors.set()
             for thread in threads:
                 thread.join()
-            for handle in reversed(handles):
-                handle.close()
     return report

@@ -3,7 +3,7 @@ the same seeded test trials; a table (mean ± std over processes) and a chart.
 
 Each ``--set KEY=V1[,V2...]`` names a field of :class:`Setup` by its dotted path (``budget.phase2.alpha``,
 ``budget.phase1.max_classes``, ``scenario.action_steps``, ``scenario.learning_steps``, ``lost_behaviour``, and the
-formulation: ``featurizer``, ``reward``, ``act_every``); several
+formulation's parts: ``featurizer``, ``reward``, ``actions``, ``trial_rules``, ``act_every``); several
 values sweep it, and several ``--set`` sweep their product. Usage::
 
     ennc-ql ablate ennc-ql-collab-option2 --set budget.phase2.alpha=0.05,0.2 --set scenario.action_steps=3,5 \\
@@ -48,19 +48,18 @@ from ennc_ql.progress import ProgressBar
 from ennc_ql.slurm.array import ArrayConfig, learn_on_slurm
 from ennc_ql.slurm.sbatch import SlurmError
 from monitor.style import REFERENCES as STYLES
-from sim import FEATURIZERS, HAND_MADE, ScenarioConfig, evaluate
-from sim.actions import ACTION_SETS
-from sim.features import REWARD_NAMES
+from sim import CONTROLLERS, ScenarioConfig, evaluate
+from sim.formulation import Formulation, choices_help
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 Sweep = list[tuple[str, list[Any]]]
-REFERENCES = ("a-cmommt", "a-cmommt-oracle", "force-6d", "force-6d-shared")
-"""Hand-made controllers scored beside every variant: A-CMOMMT (on what its robots sense or are told), the same law
-on true target positions no robot senses (the oracle, a labelled reference only), and its force law limited to the
-6-D state (without and with the shared-observation flags), i.e. what the learned policy's own state allows a
-hand-made law."""
+REFERENCES = ("a-cmommt", "a-cmommt-public", "a-cmommt-oracle", "force-6d", "force-6d-shared")
+"""Hand-made controllers scored beside every variant: A-CMOMMT tuned on training trials (on what its robots sense or
+are told), the public code's untuned A-CMOMMT, the tuned law on true target positions no robot senses (the oracle, a
+labelled reference only), and its force law limited to the 6-D state (without, and tuned with, the
+shared-observation flags), i.e. what the learned policy's own state allows a hand-made law."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -72,23 +71,31 @@ class Setup:
     lost_behaviour: LostBehaviour = "wander"
     """What a robot that sees no target does in the test trials: wander, stay, or follow the policy."""
     featurizer: str | None = None
-    """The learners' state (:data:`sim.features.FEATURIZER_REGISTRY`); None: the method's own."""
+    """The learners' state; None: the method's own."""
     reward: str | None = None
-    """The learners' reward (:data:`sim.features.REWARDS`, or ``paper``); None: the method's own."""
+    """The learners' reward (``paper``: the state's own); None: the method's own."""
     act_every: int | None = None
     """Steps between a robot's decisions in the test trials; None: ``action_steps``, as it learned."""
     actions: str | None = None
-    """The action set (:data:`sim.actions.ACTION_SETS`); None: the method's own."""
+    """The action set; None: the method's own."""
+    trial_rules: str = "paper"
+    """The learning-trial rules (:data:`sim.formulation.TRIAL_RULES`): ``paper``, or e.g. ``search-on``, a lost
+    learner searching on and the time-out bootstrapping [beyond the paper]."""
 
-    def __post_init__(self) -> None:
-        if self.actions is not None and self.actions not in ACTION_SETS:
-            raise ConfigError(f"actions {self.actions!r}: known: {', '.join(ACTION_SETS)}")
-        if self.featurizer is not None and self.featurizer not in FEATURIZERS:
-            raise ConfigError(f"unknown {self.featurizer!r}; known: {', '.join(FEATURIZERS)}")
-        if self.reward is not None and self.reward not in REWARD_NAMES:
-            raise ConfigError(f"unknown {self.reward!r}; known: {', '.join(REWARD_NAMES)}")
-        if self.act_every is not None and self.act_every < 1:
-            raise ConfigError(f"act_every must be at least 1, got {self.act_every}")
+    def formulation(self, method: str) -> Formulation:
+        """What ``method`` learns on in this setup: its own formulation's parts with this setup's over them.
+        ``ConfigError`` names an unknown part (the registries' names are checked here, by the formulation)."""
+        spec = METHODS[method]
+        try:
+            return Formulation.of(
+                self.featurizer or spec.featurizer,
+                self.reward or spec.reward,
+                self.actions or spec.actions,
+                act_every=self.act_every,
+                rules=self.trial_rules,
+            )
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
 
 
 def parse_sets(texts: Sequence[str]) -> Sweep:
@@ -169,10 +176,7 @@ def ablate(
             setup.scenario,
             setup.lost_behaviour,
             variant=i + 1,
-            featurizer=setup.featurizer,
-            reward=setup.reward,
-            act_every=setup.act_every,
-            actions=setup.actions,
+            formulation=setup.formulation(method),
         )
         for i, (_, setup) in enumerate(setups)
         for seed in range(processes)
@@ -219,7 +223,7 @@ def _references(setups: list[Setup], progress: JobsBar) -> dict[TestTrials, dict
             progress.running("the references on the variant's test trials")
             cfg, n, steps, seed = trials
             references[trials] = {
-                name: round(evaluate(cfg, HAND_MADE[name], n, steps, seed).coverage_mean, 3) for name in REFERENCES
+                name: round(evaluate(cfg, CONTROLLERS[name], n, steps, seed).coverage_mean, 3) for name in REFERENCES
             }
         progress.finished(", ".join(f"{name} {value:.2f}%" for name, value in references[trials].items()))
     return references
@@ -276,7 +280,7 @@ def chart(report: dict[str, Any]) -> Figure:
     ax.bar(x, means, 0.6, yerr=[r["coverage_std"] for r in rows], color="#3b7dd8", capsize=4)
     for i, row in enumerate(rows):
         ax.text(i, row["coverage_mean"] + row["coverage_std"] + 1.5, f"{row['coverage_mean']:.1f}", ha="center")
-    for name, style in zip(REFERENCES, ("--", (0, (5, 1, 1, 1)), "-.", ":"), strict=True):
+    for name, style in zip(REFERENCES, ("--", (0, (3, 1)), (0, (5, 1, 1, 1)), "-.", ":"), strict=True):
         color = tuple(c / 255 for c in STYLES[name][1])
         for value in sorted({r["references"][name] for r in rows}):
             ax.axhline(value, color=color, linestyle=style, linewidth=1)
@@ -301,8 +305,9 @@ HELP = CommandHelp(
     "one learned method under parameter overrides (a sweep), K learning processes per variant, the same tests",
     "Runs one learned method under overrides of any field of its setup, named by dotted path: the budget "
     "(budget.phase2.alpha, budget.phase1.max_classes, ...), the scenario (scenario.action_steps, ...), the "
-    "test-time rule of a robot that sees no target (lost_behaviour) and the formulation (featurizer, reward, "
-    "actions, act_every). Several values sweep a key and several --set sweep their product; every variant runs "
+    "test-time rule of a robot that sees no target (lost_behaviour) and the formulation's parts (featurizer, reward, "
+    "actions, trial_rules, act_every). Several values sweep a key and several --set sweep their product; every "
+    "variant runs "
     "--processes learning processes, each tested on the same seeded trials, and each row carries A-CMOMMT, its "
     "oracle and the state-limited force laws on those trials. Writes results.md, results.json, ablation.png and "
     "every policy file into --out.",
@@ -324,8 +329,10 @@ def add_ablate_parser(sub: Any) -> None:
         default=[],
         metavar="KEY=V1[,V2...]",
         help="override a field of the setup by dotted path (budget.phase2.alpha, budget.phase1.max_classes, "
-        "scenario.action_steps, lost_behaviour, ...); several values sweep it, several --set sweep their product "
-        "(default: none, the method as configured)",
+        "scenario.action_steps, lost_behaviour, trial_rules, ...); several values sweep it, several --set sweep "
+        "their product. The formulation's parts take: "
+        + "; ".join(f"{part} {{{choices_help(part)}}}" for part in ("featurizer", "reward", "actions", "trial_rules"))
+        + " (default: none, the method as configured)",
     )
     p.add_argument("--processes", type=positive(int), default=3, help="learning processes per variant")
     p.add_argument("--jobs", type=positive(int), default=1, help="learning processes run at once")
@@ -343,7 +350,8 @@ def cmd_ablate(args: argparse.Namespace) -> int:
         sweep = parse_sets(args.set)
         check_used(args.method, sweep)
         base = Setup(budget=Budget.quick() if args.quick else Budget())
-        variants(base, sweep)  # every combination checked before the first process starts
+        for _, setup in variants(base, sweep):  # every combination checked before the first process starts
+            setup.formulation(args.method)
         slurm: ArrayConfig = load_config(ArrayConfig, args=args)
     except ConfigError as exc:
         fail("ablate", str(exc))

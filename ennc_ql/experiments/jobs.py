@@ -7,7 +7,6 @@ worker processes, with a progress bar over them::
 
 from __future__ import annotations
 
-import dataclasses
 import multiprocessing
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -16,6 +15,7 @@ from algorithm.experiments import METHODS, Budget, Outcome, Progress, train
 from algorithm.policy import LostBehaviour
 from ennc_ql.progress import ProgressBar
 from sim import ScenarioConfig
+from sim.formulation import Formulation
 
 
 @dataclass(frozen=True, slots=True)
@@ -29,35 +29,23 @@ class Job:
     lost_behaviour: LostBehaviour = "wander"
     variant: int = 0
     """Which of a sweep's variants this process belongs to (``ennc-ql ablate``)."""
-    featurizer: str | None = None
-    """The learners' state instead of the method's own, if given."""
-    reward: str | None = None
-    """The learners' reward instead of the method's own, if given."""
-    act_every: int | None = None
-    """Steps between decisions in the test trials (None: ``action_steps``)."""
-    actions: str | None = None
-    """The action set instead of the method's own, if given."""
+    formulation: Formulation | None = None
+    """What the process learns on instead of the method's own formulation, if given; its ``act_every`` is the steps
+    between decisions in the test trials (None: ``action_steps``)."""
 
     @property
     def label(self) -> str:
         return f"{self.method}[{self.seed}]" if not self.variant else f"{self.method} v{self.variant}[{self.seed}]"
 
     def run(self, progress: Progress | None = None) -> Outcome:
-        spec = METHODS[self.method]
-        if self.featurizer is not None:
-            spec = dataclasses.replace(spec, featurizer=self.featurizer)
-        if self.reward is not None:
-            spec = dataclasses.replace(spec, reward=self.reward)
-        if self.actions is not None:
-            spec = dataclasses.replace(spec, actions=self.actions)
         return train(
-            spec,
+            METHODS[self.method],
             self.budget,
             self.seed,
             self.scenario,
             progress,
             lost_behaviour=self.lost_behaviour,
-            act_every=self.act_every,
+            formulation=self.formulation,
         )
 
 

@@ -27,18 +27,19 @@ from ennc_ql.parser import CommandHelp, add_command
 from ennc_ql.progress import ProgressBar
 from ennc_ql.slurm.array import ArrayConfig, learn_on_slurm
 from ennc_ql.slurm.sbatch import SlurmError
-from sim import HAND_MADE, EvalResult, ScenarioConfig, evaluate, scenario
+from sim import CONTROLLERS, EvalResult, ScenarioConfig, evaluate, scenario
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 log = logging.getLogger(__name__)
 
-HAND_MADE_ORDER = ("random", "local", "a-cmommt", "a-cmommt-oracle", "force-6d", "force-6d-shared")
+HAND_MADE_ORDER = ("random", "local", "a-cmommt", "a-cmommt-public", "a-cmommt-oracle", "force-6d", "force-6d-shared")
 PAPER: dict[str, dict[str, float | None]] = {
     "random": {"coverage": None, "states": None},
     "local": {"coverage": None, "states": None},
     "a-cmommt": {"coverage": 71.0, "states": None},
+    "a-cmommt-public": {"coverage": None, "states": None},
     "a-cmommt-oracle": {"coverage": None, "states": None},
     "force-6d": {"coverage": None, "states": None},
     "force-6d-shared": {"coverage": None, "states": None},
@@ -76,8 +77,8 @@ def reproduce(
         raise ValueError(f"unknown methods {unknown}; known: {', '.join(PAPER)}")
     out_dir.mkdir(parents=True, exist_ok=True)  # a folder that cannot be written fails now, not after the runs
     cfg = scenario()
-    todo = [Job(n, budget, seed, cfg) for n in names if n not in HAND_MADE for seed in range(processes)]
-    hand_made = [n for n in names if n in HAND_MADE]
+    todo = [Job(n, budget, seed, cfg) for n in names if n not in CONTROLLERS for seed in range(processes)]
+    hand_made = [n for n in names if n in CONTROLLERS]
     with ProgressBar("reproduce", total=len(todo) + len(hand_made), unit="jobs") as bar:
         progress = JobsBar(bar)
         outcomes: dict[str, list[Outcome]] = {job.method: [] for job in todo}
@@ -87,7 +88,8 @@ def reproduce(
         measured = {name: _hand_made(name, cfg, budget, progress) for name in hand_made}
     runs = {name: sorted(found, key=lambda o: o.seed) for name, found in outcomes.items()}
     rows = [
-        _hand_made_row(name, measured[name]) if name in HAND_MADE else _learned_row(name, runs[name]) for name in names
+        _hand_made_row(name, measured[name]) if name in CONTROLLERS else _learned_row(name, runs[name])
+        for name in names
     ]
     report = {
         "scenario": cfg.name,
@@ -111,7 +113,7 @@ def reproduce(
 
 def _hand_made(name: str, cfg: ScenarioConfig, budget: Budget, progress: JobsBar) -> EvalResult:
     progress.running(f"{name}: evaluating")
-    result = evaluate(cfg, HAND_MADE[name], budget.test_trials, budget.test_steps, seed=budget.test_seed)
+    result = evaluate(cfg, CONTROLLERS[name], budget.test_trials, budget.test_steps, seed=budget.test_seed)
     progress.finished(f"{name}: {result.coverage_mean:.2f}%")
     return result
 

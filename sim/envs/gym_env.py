@@ -4,8 +4,10 @@ Usage::
 
     import gymnasium
     import sim.envs  # registers the ids
+    from sim.formulation import FORMULATIONS
 
-    env = gymnasium.make("cmommt/SingleRobot-v1")             # or CmommtSingleRobotEnv(featurizer="local2d")
+    env = gymnasium.make("cmommt/SingleRobot-v1")             # the run's default formulation, or e.g.
+    env = CmommtSingleRobotEnv(formulation=FORMULATIONS["paper"])
     obs, info = env.reset(seed=0)
     obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
     info["coverage"]                                           # % of targets observed now (metric A's summand)
@@ -21,17 +23,21 @@ from gymnasium import spaces
 
 from sim.config import scenario
 from sim.controllers import HAND_MADE, N_ACTIONS, Controller
-from sim.features import FEATURIZERS, coverage, resolve_reward
+from sim.features import coverage
+from sim.formulation import Formulation, default_formulation
 from sim.trial import TrialState, random_actions, reset_trial, step_trial
 
 
 class CmommtSingleRobotEnv(gym.Env[np.ndarray, np.int64]):
-    """Robot 0 of one arena acts through ``Discrete(8)`` compass actions; observations are its features.
+    """Robot 0 of one arena acts through ``Discrete(8)`` moves of the formulation's action set; observations are its
+    state under the formulation's featurizer (default: the run's default formulation,
+    :func:`sim.formulation.default_formulation`).
 
     One env step is one action of robot 0: ``action_steps`` simulation steps, or fewer when it loses every target.
-    The episode terminates at the end of the learning trial with the delayed reward, or earlier with
-    ``lost_reward`` when robot 0 sees no target [paper; choice]. ``others`` moves robots 1…m−1: ``"random"``
-    (default) is the experience slice's exploration rule (a random compass action every ``action_steps`` steps,
+    Under the paper's trial rules the episode terminates at the end of the learning trial with the delayed reward, or
+    earlier with ``lost_reward`` when robot 0 sees no target [paper; choice]; a formulation whose time-out bootstraps
+    truncates it instead. ``others`` moves robots 1…m−1: ``"random"`` (default) is the experience slice's
+    exploration rule (a random action every ``action_steps`` steps,
     searching when lost); any other name of :data:`~sim.controllers.HAND_MADE`, or a
     :class:`~sim.controllers.Controller`, drives them instead.
     """
@@ -41,20 +47,16 @@ class CmommtSingleRobotEnv(gym.Env[np.ndarray, np.int64]):
     def __init__(
         self,
         scenario_name: str = "cmommt-v1",
-        featurizer: str = "collab6d",
+        formulation: Formulation | None = None,
         others: str | Controller = "random",
-        reward: str = "paper",
     ) -> None:
-        if featurizer not in FEATURIZERS:
-            raise ValueError(f"unknown featurizer {featurizer!r}; known: {', '.join(FEATURIZERS)}")
         self.cfg = scenario(scenario_name)
-        self.featurizer = featurizer
-        self.reward = resolve_reward(featurizer, reward)
+        self.formulation = formulation or default_formulation()
         self.others: Controller | None = None
         if others != "random":
             self.others = HAND_MADE[others] if isinstance(others, str) else others
         mask = self.cfg.mask_value
-        self.observation_space = spaces.Box(-mask, mask, shape=(FEATURIZERS[featurizer],), dtype=np.float32)
+        self.observation_space = spaces.Box(-mask, mask, shape=(self.formulation.dim,), dtype=np.float32)
         self.action_space = spaces.Discrete(N_ACTIONS)
         self._learner = np.arange(self.cfg.n_robots) == 0
         self._state: TrialState | None = None
@@ -69,7 +71,7 @@ class CmommtSingleRobotEnv(gym.Env[np.ndarray, np.int64]):
     ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
         rng = self.np_random
-        self._state = reset_trial(self.cfg, 1, self._learner, self.featurizer, rng, self.reward)
+        self._state = reset_trial(self.cfg, 1, self._learner, self.formulation, rng)
         if self.others is not None:
             self._memory = self.others.init(self.cfg, self._state.world, rng)
         self._decide = np.ones(self._state.shape, dtype=bool)

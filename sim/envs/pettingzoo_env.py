@@ -4,7 +4,8 @@ Usage::
 
     from sim.envs import pettingzoo_env
 
-    par = pettingzoo_env.parallel_env()                       # ParallelEnv: all agents act at once
+    par = pettingzoo_env.parallel_env()                       # ParallelEnv: all agents act at once, under the
+                                                              # run's default formulation (or formulation=...)
     observations, infos = par.reset(seed=0)
     observations, rewards, terminations, truncations, infos = par.step(
         {agent: par.action_space(agent).sample() for agent in par.agents}
@@ -24,28 +25,26 @@ from pettingzoo.utils.conversions import parallel_to_aec
 
 from sim.config import scenario
 from sim.controllers import N_ACTIONS
-from sim.features import FEATURIZERS, coverage, resolve_reward
+from sim.features import coverage
+from sim.formulation import Formulation, default_formulation
 from sim.trial import TrialState, reset_trial, step_trial
 
 
 class CmommtParallelEnv(ParallelEnv[str, np.ndarray, np.int64]):
-    """All m robots act at once with ``Discrete(8)`` compass actions, each held for ``action_steps`` steps.
+    """All m robots act at once with ``Discrete(8)`` moves of the formulation's action set, each held for
+    ``action_steps`` steps; ``formulation`` defaults to the run's (:func:`sim.formulation.default_formulation`).
 
-    Robots start within sensing range of a target. A robot that loses every target gets ``lost_reward`` at that
-    simulation step, leaves the episode and stays motionless in the arena [paper]; at the end of the learning trial
-    every remaining robot gets its delayed reward (``reward``, a name of :data:`sim.features.REWARDS`; by default the
-    featurizer's paper reward, Eq. 2 for the collaborative states) and the episode ends; a per-decision reward is
-    paid after every action instead.
+    Robots start within sensing range of a target. Under the paper's trial rules a robot that loses every target gets
+    ``lost_reward`` at that simulation step, leaves the episode and stays motionless in the arena [paper]; at the end
+    of the learning trial every remaining robot gets its delayed reward (the formulation's) and the episode ends; a
+    per-decision reward is paid after every action instead, and a time-out that bootstraps truncates the episode.
     """
 
     metadata: dict[str, Any] = {"name": "cmommt_v1", "render_modes": [], "is_parallelizable": True}  # noqa: RUF012
 
-    def __init__(self, scenario_name: str = "cmommt-v1", featurizer: str = "collab6d", reward: str = "paper") -> None:
-        if featurizer not in FEATURIZERS:
-            raise ValueError(f"unknown featurizer {featurizer!r}; known: {', '.join(FEATURIZERS)}")
+    def __init__(self, scenario_name: str = "cmommt-v1", formulation: Formulation | None = None) -> None:
         self.cfg = scenario(scenario_name)
-        self.featurizer = featurizer
-        self.reward = resolve_reward(featurizer, reward)
+        self.formulation = formulation or default_formulation()
         self.possible_agents = [f"robot_{i}" for i in range(self.cfg.n_robots)]
         self.agents: list[str] = []
         self._index = {name: i for i, name in enumerate(self.possible_agents)}
@@ -57,7 +56,7 @@ class CmommtParallelEnv(ParallelEnv[str, np.ndarray, np.int64]):
     @functools.cache  # noqa: B019 - PettingZoo requires the same space object on every call
     def observation_space(self, agent: str) -> spaces.Box:
         mask = self.cfg.mask_value
-        return spaces.Box(-mask, mask, shape=(FEATURIZERS[self.featurizer],), dtype=np.float32)
+        return spaces.Box(-mask, mask, shape=(self.formulation.dim,), dtype=np.float32)
 
     @functools.cache  # noqa: B019 - PettingZoo requires the same space object on every call
     def action_space(self, agent: str) -> spaces.Discrete:
@@ -69,7 +68,7 @@ class CmommtParallelEnv(ParallelEnv[str, np.ndarray, np.int64]):
         if seed is not None:
             self._rng = np.random.default_rng(seed)
         learners = np.ones(self.cfg.n_robots, dtype=bool)
-        state = reset_trial(self.cfg, 1, learners, self.featurizer, self._rng, self.reward)
+        state = reset_trial(self.cfg, 1, learners, self.formulation, self._rng)
         self._state, self._decide = state, np.ones(state.shape, dtype=bool)
         self.agents = list(self.possible_agents)
         share = float(coverage(self.cfg, state.obs)[0])
@@ -130,15 +129,13 @@ class CmommtParallelEnv(ParallelEnv[str, np.ndarray, np.int64]):
         return observations, rewards, terminations, truncations, infos
 
 
-def parallel_env(
-    scenario_name: str = "cmommt-v1", featurizer: str = "collab6d", reward: str = "paper"
-) -> CmommtParallelEnv:
+def parallel_env(scenario_name: str = "cmommt-v1", formulation: Formulation | None = None) -> CmommtParallelEnv:
     """PettingZoo's ``parallel_env()`` constructor."""
-    return CmommtParallelEnv(scenario_name, featurizer, reward)
+    return CmommtParallelEnv(scenario_name, formulation)
 
 
 def env(
-    scenario_name: str = "cmommt-v1", featurizer: str = "collab6d", reward: str = "paper"
+    scenario_name: str = "cmommt-v1", formulation: Formulation | None = None
 ) -> AECEnv[str, np.ndarray, np.int64 | None]:
     """PettingZoo's ``env()`` constructor: the parallel game as an AEC env, agents taking turns."""
-    return parallel_to_aec(parallel_env(scenario_name, featurizer, reward))
+    return parallel_to_aec(parallel_env(scenario_name, formulation))

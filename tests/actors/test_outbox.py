@@ -18,7 +18,7 @@ from algorithm.discretization import Discretization
 from algorithm.policy import Policy
 from algorithm.wire import policy_update
 from protocol import Ack, Header, InMemoryBus, InMemoryTransport, Reject, Status
-from sim.features import Formulation
+from sim.formulation import Formulation
 
 
 def stamped(header: Header) -> Status:
@@ -130,19 +130,18 @@ def test_a_rejoining_learner_gets_the_whole_outbox_again_and_flush_ends_on_the_l
         assert received == [0.0, 1.0] and outbox.resent == 2 and outbox.acked == 1
 
 
-LOCAL = Formulation("local2d", "observed")
+LOCAL = Formulation.of("local2d", "observed", "compass")
 """The formulation of the one-cell policies below (their prototypes are 2-D)."""
 
 
 def one_cell_policy(version: int, q: float) -> Policy:
     disc = Discretization.from_per_action([np.zeros((1, 2), np.float32)] * 8)
     return Policy(
-        featurizer="local2d",
+        formulation=LOCAL,
         discretization=disc,
         tables=np.full((3, disc.size), q, np.float32),
         robot_table=np.arange(3),
         version=version,
-        reward="observed",
     )
 
 
@@ -179,9 +178,10 @@ def test_policy_client_refuses_a_broadcast_over_another_formulation_and_counts_i
 
     local = one_cell_policy(2, 0.0)
     other_reward = client(LOCAL)
-    other_reward.offer(policy_update(dataclasses.replace(local, reward="difference"), "cmommt-v1"))
-    other_reward.offer(policy_update(dataclasses.replace(local, version=3, reward="eq2"), "cmommt-v1"))
-    other_state = client(Formulation("collab6d", "observed"))
+    difference, eq2 = LOCAL.replace(reward="difference"), LOCAL.replace(reward="eq2")
+    other_reward.offer(policy_update(dataclasses.replace(local, formulation=difference), "cmommt-v1"))
+    other_reward.offer(policy_update(dataclasses.replace(local, version=3, formulation=eq2), "cmommt-v1"))
+    other_state = client(LOCAL.replace(featurizer="collab6d"))
     other_state.offer(policy_update(local, "cmommt-v1"))
     # The wire checks names for their syntax only: a broadcast naming local2d over 6-D prototypes is refused here.
     six = policy_update(local, "cmommt-v1")
@@ -194,10 +194,10 @@ def test_policy_client_refuses_a_broadcast_over_another_formulation_and_counts_i
     ]
     refusals = [r.getMessage() for r in caplog.records if "refused" in r.getMessage()]
     assert refusals == [  # logged once per client, counted every time
-        "policy version 2 is refused: it is over the local2d/difference/compass formulation, this actor's is "
-        "local2d/observed/compass (is the learner started with the same --formulation?)",
-        "policy version 2 is refused: it is over the local2d/observed/compass formulation, this actor's is "
-        "collab6d/observed/compass (is the learner started with the same --formulation?)",
+        "policy version 2 is refused: reward_function difference, expected observed (is the learner started with "
+        "the same --formulation?)",
+        "policy version 2 is refused: featurizer local2d, expected collab6d (is the learner started with the same "
+        "--formulation?)",
         "policy version 2 is refused: its prototypes have 6 dimensions, local2d has 2 (is the learner started with "
         "the same --formulation?)",
     ]

@@ -13,7 +13,7 @@ import pytest
 from algorithm.discretization import Discretization
 from algorithm.policy import Policy, PolicyController
 from algorithm.policy_file import FORMAT_VERSION, PolicyFileError, load_policy, save_policy, scenario_from_header
-from sim import evaluate, scenario
+from sim import FORMULATIONS, Formulation, evaluate, scenario
 from tests.fakes import make_policy
 
 
@@ -28,11 +28,11 @@ def test_round_trip_keeps_every_array_and_field(tmp_path: Path) -> None:
     np.testing.assert_array_equal(loaded.robot_table, policy.robot_table)
     assert loaded.visits is not None and policy.visits is not None
     np.testing.assert_array_equal(loaded.visits, policy.visits)
-    assert (loaded.version, loaded.method, loaded.meta, loaded.featurizer) == (
+    assert (loaded.version, loaded.method, loaded.meta, loaded.formulation) == (
         7,
         policy.method,
         {"seed": 3},
-        "collab6d",
+        policy.formulation,
     )
     assert header["prototypes_per_action"] == list(policy.discretization.sizes())
     assert header["featurizer"]["mask_value"] == 1000.0 and len(header["featurizer"]["state"]) == 6
@@ -44,26 +44,37 @@ def test_round_trip_keeps_every_array_and_field(tmp_path: Path) -> None:
 
 
 def test_the_header_names_the_reward_and_a_file_without_one_had_its_featurizers_paper_reward(tmp_path: Path) -> None:
-    policy = dataclasses.replace(make_policy(np.random.default_rng(0)), reward="difference")
+    paper = make_policy(np.random.default_rng(0))
+    policy = dataclasses.replace(paper, formulation=paper.formulation.replace(reward="difference"))
     path = save_policy(policy, scenario(), tmp_path / "p.npz")
     loaded, header = load_policy(path)
-    assert header["reward"] == {"name": "difference", "per_decision": False} and loaded.reward == "difference"
+    assert (
+        header["reward"] == {"name": "difference", "per_decision": False}
+        and loaded.formulation.reward.name == "difference"
+    )
     with np.load(path) as data:
         arrays = {name: data[name] for name in data.files}
     old = json.loads(arrays["header"].tobytes())
     del old["reward"]
     arrays["header"] = np.frombuffer(json.dumps(old).encode(), np.uint8)
     np.savez(tmp_path / "old.npz", **arrays)
-    assert load_policy(tmp_path / "old.npz")[0].reward == "eq2"
-    with pytest.raises(ValueError, match="unknown reward"):
-        dataclasses.replace(policy, reward="money")
+    assert load_policy(tmp_path / "old.npz")[0].formulation.reward.name == "eq2"
+    old["reward"] = {"name": "money", "per_decision": False}
+    arrays["header"] = np.frombuffer(json.dumps(old).encode(), np.uint8)
+    np.savez(tmp_path / "money.npz", **arrays)
+    with pytest.raises(PolicyFileError, match="unknown reward 'money'"):
+        load_policy(tmp_path / "money.npz")
 
 
 def test_the_header_names_the_action_set_and_a_file_without_one_used_the_compass(tmp_path: Path) -> None:
-    policy = dataclasses.replace(make_policy(np.random.default_rng(0)), actions="relative")
+    paper = make_policy(np.random.default_rng(0))
+    policy = dataclasses.replace(paper, formulation=paper.formulation.replace(actions="relative"))
     path = save_policy(policy, scenario(), tmp_path / "p.npz")
     loaded, header = load_policy(path)
-    assert header["action_set"] == {"name": "relative", "frame": "target"} and loaded.actions == "relative"
+    assert (
+        header["action_set"] == {"name": "relative", "frame": "target"}
+        and loaded.formulation.actions.name == "relative"
+    )
     assert [a["name"] for a in header["actions"]][:3] == ["toward", "toward-left", "left"]
     assert header["actions"][2]["direction"] == pytest.approx([0.0, 1.0])  # left: +y of the target frame
     with np.load(path) as data:
@@ -72,7 +83,7 @@ def test_the_header_names_the_action_set_and_a_file_without_one_used_the_compass
     del old["action_set"]
     arrays["header"] = np.frombuffer(json.dumps(old).encode(), np.uint8)
     np.savez(tmp_path / "old.npz", **arrays)
-    assert load_policy(tmp_path / "old.npz")[0].actions == "compass"
+    assert load_policy(tmp_path / "old.npz")[0].formulation.actions.name == "compass"
 
 
 def test_the_file_is_a_plain_npz_with_a_json_header(tmp_path: Path) -> None:
@@ -111,7 +122,7 @@ def test_greedy_uses_each_robots_own_table() -> None:
     tables = np.zeros((2, 8), np.float32)
     tables[0, 3] = 1.0  # robot 0 prefers action 3
     tables[1, 6] = 1.0  # robot 1 prefers action 6
-    policy = Policy("local2d", disc, tables, np.array([0, 1]))
+    policy = Policy(Formulation.of("local2d", "paper", "compass"), disc, tables, np.array([0, 1]))
     np.testing.assert_array_equal(policy.greedy(np.zeros((4, 2)), np.array([0, 1, 0, 1])), [3, 6, 3, 6])
 
 
@@ -120,7 +131,7 @@ def test_policy_controller_holds_actions_and_searches_when_lost() -> None:
     disc = Discretization.from_per_action([np.zeros((1, 6))] * 8)
     tables = np.zeros((1, 8), np.float32)
     tables[0, 2] = 1.0  # always East
-    policy = Policy("collab6d", disc, tables, np.zeros(10, np.int64))
+    policy = Policy(FORMULATIONS["paper"], disc, tables, np.zeros(10, np.int64))
     from sim import reset, sense
 
     rng = np.random.default_rng(0)
@@ -132,7 +143,7 @@ def test_policy_controller_holds_actions_and_searches_when_lost() -> None:
     assert seeing.any() and (~seeing).any()
     np.testing.assert_allclose(velocity[seeing], np.tile([cfg.robot_speed, 0.0], (int(seeing.sum()), 1)), atol=1e-9)
     np.testing.assert_allclose(np.linalg.norm(velocity[~seeing], axis=-1), cfg.robot_speed)
-    stay = PolicyController(Policy("collab6d", disc, tables, np.zeros(10, np.int64), lost_behaviour="stay"))
+    stay = PolicyController(Policy(FORMULATIONS["paper"], disc, tables, np.zeros(10, np.int64), lost_behaviour="stay"))
     v_stay, _ = stay.act(cfg, world, sense(cfg, world), stay.init(cfg, world, rng), rng)
     assert (v_stay[~seeing] == 0).all()
     # A learned always-East policy is a valid controller for the test protocol.

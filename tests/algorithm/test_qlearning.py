@@ -254,20 +254,25 @@ def test_seeded_phase1_starts_from_training_states_and_keeps_them_where_classes_
 
 def test_phase1_can_draw_its_classes_from_the_lost_signal_alone() -> None:
     # Per-decision rewards 0.2 … 2.0 everywhere, −1 where the tuple lost every target (x < 0): the reward's own
-    # classes are many; the lost signal gives exactly two, −1 left of 0 and 0 right of it.
+    # classes are many; the lost signal gives exactly two, −1 left of 0 and 0 right of it. Right of 0 some tuples
+    # end at the time-out with a reward of −1 too (Eq. 2's one target and a robot in view): the lost signal is what
+    # s′ shows, not the reward's value, so they stay 0.
     rng = np.random.default_rng(1)
     x = rng.uniform(-1, 1, (2000, 2)).astype(np.float32)
     bad = x[:, 0] < 0
+    timed_out = ~bad & (rng.random(2000) < 0.1)
     data = Transitions(
         robot=np.zeros(2000, np.int16),
         state=x,
         action=np.zeros(2000, np.uint8),
-        reward=np.where(bad, -1.0, rng.integers(1, 11, 2000) / 5).astype(np.float32),
+        reward=np.where(bad | timed_out, -1.0, rng.integers(1, 11, 2000) / 5).astype(np.float32),
         next_state=x,
-        done=bad,
+        done=bad | timed_out,
     )
     config = Phase1Config(n_cycles=80, max_iterations=1, targets="lost")
-    disc = phase1(data, n_actions=1, config=config, seed=3, lost_reward=-1.0).discretization
+    with pytest.raises(ValueError, match="needs lost"):
+        phase1(data, n_actions=1, config=config)
+    disc = phase1(data, n_actions=1, config=config, seed=3, lost=bad, lost_reward=-1.0).discretization
     assert set(np.unique(disc.labels)) == {-1.0, 0.0}
     predicted = disc.labels[disc.cells(x)[:, 0]]
     assert np.mean(predicted == np.where(bad, -1.0, 0.0)) > 0.9

@@ -17,7 +17,7 @@ from algorithm.discretization import Discretization, nearest
 from algorithm.policy import Policy
 from algorithm.transitions import Transitions
 from algorithm.trials import ExperienceSlice, SliceConfig
-from sim import FEATURIZERS, scenario
+from sim import FORMULATIONS, Formulation, scenario
 from sim.trial import reset_trial, step_trial
 
 
@@ -87,10 +87,11 @@ def test_cells_reject_states_of_the_wrong_shape() -> None:
 
 def reference_trial(sl: ExperienceSlice, agent: TabularAgent, update: bool) -> Transitions:
     """The slice's trial as it was written before its cells were shared: every use of a state's cells searches it
-    again, by brute force. It calls the slice's own decision so that the random stream is the same."""
+    again, by brute force. It calls the slice's own decision so that the random stream is the same, and runs the
+    slice's formulation: its state, reward and action set."""
     cfg, sc = sl.cfg, sl.config
     until_change = sc.action_mode == "until_change"
-    state = reset_trial(cfg, sc.n_arenas, sl.learner_mask, sc.featurizer, sl.rng)
+    state = reset_trial(cfg, sc.n_arenas, sl.learner_mask, sc.formulation, sl.rng)
     robot_ids = np.broadcast_to(np.arange(cfg.n_robots), state.shape)
     decide = np.ones(state.shape, bool)
     cell_sa = np.zeros(state.shape, np.int64)
@@ -116,7 +117,7 @@ def reference_trial(sl: ExperienceSlice, agent: TabularAgent, update: bool) -> T
             if update:
                 agent.update(robot_ids[emit], cell_sa[emit], cells[emit], batch.reward, batch.done)
         if out.trial_over:
-            return Transitions.concat(parts) if parts else Transitions.empty(FEATURIZERS[sc.featurizer])
+            return Transitions.concat(parts) if parts else Transitions.empty(sc.formulation.dim)
         decide = out.decide
 
 
@@ -124,7 +125,7 @@ def explored_policy(action_mode: str) -> Policy:
     """A policy whose prototypes are explored states (so the search has real work), with random tables."""
     cfg = scenario()
     rng = np.random.default_rng(0)
-    states = ExperienceSlice(cfg, SliceConfig(n_arenas=64), seed=1).run_trial().state
+    states = ExperienceSlice(cfg, SliceConfig(FORMULATIONS["paper"], n_arenas=64), seed=1).run_trial().state
     scale = states.std(axis=0).astype(np.float32)
     if action_mode == "until_change":
         disc = Discretization.shared(states[rng.choice(len(states), 120, replace=False)], 8)
@@ -133,17 +134,24 @@ def explored_policy(action_mode: str) -> Policy:
         picks = [states[rng.choice(len(states), size, replace=False)] for size in (80, 40, 150, 1, 60, 90, 70, 110)]
         disc = Discretization.from_per_action(picks, scale=scale)
     tables = rng.normal(size=(cfg.n_robots, disc.size)).astype(np.float32)
-    return Policy("collab6d", disc, tables, np.arange(cfg.n_robots), action_mode=action_mode)  # type: ignore[arg-type]
+    return Policy(FORMULATIONS["paper"], disc, tables, np.arange(cfg.n_robots), action_mode=action_mode)  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize(
-    ("action_mode", "learners"), [("fixed", None), ("fixed", (0, 3, 7)), ("until_change", None), ("until_change", (2,))]
+    ("action_mode", "learners", "reward", "actions"),
+    [
+        ("fixed", None, "eq2", "compass"),
+        ("fixed", (0, 3, 7), "difference-decision", "relative"),
+        ("until_change", None, "eq2", "compass"),
+        ("until_change", (2,), "difference", "relative"),
+    ],
 )
 def test_run_trial_gives_the_tuples_and_tables_of_the_reference_loop(
-    action_mode: str, learners: tuple[int, ...] | None
+    action_mode: str, learners: tuple[int, ...] | None, reward: str, actions: str
 ) -> None:
-    policy = explored_policy(action_mode)
-    config = SliceConfig(n_arenas=24, learning_robots=learners, action_mode=action_mode)  # type: ignore[arg-type]
+    formulation = Formulation.of("collab6d", reward, actions)
+    policy = dataclasses.replace(explored_policy(action_mode), formulation=formulation)
+    config = SliceConfig(formulation, n_arenas=24, learning_robots=learners, action_mode=action_mode)  # type: ignore[arg-type]
     fast, slow = TabularAgent(policy, Phase2Config()), TabularAgent(policy, Phase2Config())
     fast_slice, slow_slice = ExperienceSlice(scenario(), config, seed=9), ExperienceSlice(scenario(), config, seed=9)
     for _ in range(2):

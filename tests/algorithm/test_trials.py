@@ -8,12 +8,15 @@ from algorithm.agent import Phase2Config, TabularAgent
 from algorithm.discretization import Discretization
 from algorithm.policy import Policy
 from algorithm.trials import ExperienceSlice, SliceConfig
-from sim import scenario
+from sim import FORMULATIONS, Formulation, scenario
+
+PAPER = FORMULATIONS["paper"]
+LOCAL = Formulation.of("local2d", "paper", "compass")
 
 
 def test_exploration_tuples_follow_the_trial_rules() -> None:
     cfg = scenario()
-    sl = ExperienceSlice(cfg, SliceConfig(n_arenas=64, featurizer="collab6d"), seed=0)
+    sl = ExperienceSlice(cfg, SliceConfig(PAPER, n_arenas=64), seed=0)
     batch = sl.run_trial()
     robots_total = 64 * cfg.n_robots
     # Every learning robot's trial ends exactly once: lost or at the end of the trial.
@@ -32,7 +35,7 @@ def test_exploration_tuples_follow_the_trial_rules() -> None:
 
 def test_only_the_named_learners_emit_tuples() -> None:
     cfg = scenario()
-    sl = ExperienceSlice(cfg, SliceConfig(n_arenas=32, learning_robots=(0, 3)), seed=1)
+    sl = ExperienceSlice(cfg, SliceConfig(PAPER, n_arenas=32, learning_robots=(0, 3)), seed=1)
     batch = sl.run_trial()
     assert set(np.unique(batch.robot)) == {0, 3}
     assert batch.done.sum() == 64
@@ -40,9 +43,9 @@ def test_only_the_named_learners_emit_tuples() -> None:
 
 def test_slices_with_the_same_seed_produce_the_same_tuples() -> None:
     cfg = scenario()
-    a = ExperienceSlice(cfg, SliceConfig(n_arenas=16, featurizer="local2d"), seed=5).run_trial()
-    b = ExperienceSlice(cfg, SliceConfig(n_arenas=16, featurizer="local2d"), seed=5).run_trial()
-    c = ExperienceSlice(cfg, SliceConfig(n_arenas=16, featurizer="local2d"), seed=6).run_trial()
+    a = ExperienceSlice(cfg, SliceConfig(LOCAL, n_arenas=16), seed=5).run_trial()
+    b = ExperienceSlice(cfg, SliceConfig(LOCAL, n_arenas=16), seed=5).run_trial()
+    c = ExperienceSlice(cfg, SliceConfig(LOCAL, n_arenas=16), seed=6).run_trial()
     np.testing.assert_array_equal(a.state, b.state)
     np.testing.assert_array_equal(a.reward, b.reward)
     assert len(a) != len(c) or not np.array_equal(a.state, c.state)
@@ -53,9 +56,9 @@ def test_phase2_learns_that_moving_away_from_a_lone_target_loses_it() -> None:
     # Three cells per action on the 2-D local state: target close, far to the east, far to the west.
     protos = [np.array([[0.0, 0.0], [140.0, 0.0], [-140.0, 0.0]])] * 8
     disc = Discretization.from_per_action(protos)
-    policy = Policy("local2d", disc, np.zeros((1, disc.size), np.float32), np.zeros(1, np.int64))
+    policy = Policy(LOCAL, disc, np.zeros((1, disc.size), np.float32), np.zeros(1, np.int64))
     agent = TabularAgent(policy, Phase2Config(alpha=0.1, gamma=0.9, epsilon=1.0))
-    sl = ExperienceSlice(cfg, SliceConfig(n_arenas=400, featurizer="local2d"), seed=2)
+    sl = ExperienceSlice(cfg, SliceConfig(LOCAL, n_arenas=400), seed=2)
     for _ in range(6):
         sl.run_trial(agent, update=True)
     east, west = 2, 6
@@ -72,13 +75,13 @@ def test_until_change_actions_last_until_the_cell_changes_or_the_cap() -> None:
     cfg = scenario()
     # One prototype per action: the cell never changes, so every VQQL action lasts its cap of 25 steps.
     disc = Discretization.from_per_action([np.zeros((1, 6))] * 8)
-    policy = Policy("collab6d", disc, np.zeros((1, disc.size), np.float32), np.zeros(cfg.n_robots, np.int64))
+    policy = Policy(PAPER, disc, np.zeros((1, disc.size), np.float32), np.zeros(cfg.n_robots, np.int64))
     agent = TabularAgent(policy, Phase2Config())
-    config = SliceConfig(n_arenas=32, action_mode="until_change", max_action_steps=25)
+    config = SliceConfig(PAPER, n_arenas=32, action_mode="until_change", max_action_steps=25)
     batch = ExperienceSlice(cfg, config, seed=3).run_trial(agent)
     robots_total = 32 * cfg.n_robots
     assert batch.done.sum() == robots_total
     # Tuples that do not end a trial end an action: at steps 25, 50 and 75 only.
     assert (~batch.done).sum() <= 3 * robots_total
-    fixed = ExperienceSlice(cfg, SliceConfig(n_arenas=32), seed=3).run_trial(agent)
+    fixed = ExperienceSlice(cfg, SliceConfig(PAPER, n_arenas=32), seed=3).run_trial(agent)
     assert (~fixed.done).sum() > (~batch.done).sum()

@@ -14,6 +14,7 @@ from algorithm.qtable import merge_increments
 from algorithm.transitions import Transitions
 from algorithm.wire import (
     experience_batches,
+    formulation_mismatch,
     increment_arrays,
     increment_message,
     policy_from_update,
@@ -24,7 +25,8 @@ from protocol import N_ACTIONS, Header, InvalidValues, decode_as, encode
 from protocol.messages import ExperienceBatch, PolicyUpdate, QTableIncrement
 from sim import COMPASS, scenario
 from sim.actions import ACTION_SETS
-from sim.features import FEATURIZERS, FORMULATIONS, REWARDS, Formulation
+from sim.features import FEATURIZERS, REWARDS
+from sim.formulation import FORMULATIONS, Formulation
 from tests.fakes import make_policy
 
 
@@ -43,15 +45,15 @@ def transitions(n: int, dim: int = 6, seed: int = 0) -> Transitions:
 def test_policy_round_trips_through_the_wire() -> None:
     policy = make_policy(np.random.default_rng(1))  # one table per robot (option 2)
     update = decode_as(encode(policy_update(policy, "cmommt-v1")), PolicyUpdate)
-    back = policy_from_update(update, n_robots=policy.n_robots, method=policy.method)
+    assert formulation_mismatch(policy.formulation, update) == ""
+    back = policy_from_update(update, n_robots=policy.n_robots, formulation=policy.formulation, method=policy.method)
     for name in ("prototypes", "labels", "offsets", "scale"):
         np.testing.assert_array_equal(getattr(back.discretization, name), getattr(policy.discretization, name))
     np.testing.assert_array_equal(back.tables, policy.tables)
     assert policy.visits is not None and back.visits is not None
     np.testing.assert_array_equal(back.visits, policy.visits)
-    assert (back.version, back.featurizer, back.action_steps) == (policy.version, policy.featurizer, 5)
-    assert (update.reward_function, update.action_set) == (policy.reward, policy.actions) == ("eq2", "compass")
-    assert (back.reward, back.actions) == (policy.reward, policy.actions)
+    assert (back.version, back.formulation, back.action_steps) == (policy.version, policy.formulation, 5)
+    assert (update.featurizer, update.reward_function, update.action_set) == ("collab6d", "eq2", "compass")
     assert update.scenario == "cmommt-v1" and update.robots.tolist() == list(range(10))
 
 
@@ -60,7 +62,8 @@ def test_a_shared_table_goes_out_as_every_robots_row() -> None:
     update = policy_update(policy, "cmommt-v1")
     assert update.q_tables.shape == (4, policy.discretization.size)
     np.testing.assert_array_equal(update.q_tables, np.repeat(policy.tables, 4, axis=0))
-    back = policy_from_update(update, n_robots=6)  # robots the update does not name take the mean row
+    back = policy_from_update(update, n_robots=6, formulation=policy.formulation)  # robots the update does not name
+    # take the mean row
     np.testing.assert_allclose(back.tables[5], policy.tables[0], rtol=1e-6)
     assert back.visits is not None and back.visits[5].sum() == 0
 
@@ -112,7 +115,7 @@ def test_the_builders_write_the_pinned_wire_bytes() -> None:
         next_state=np.array([[0.75, -1.0], [2.0, 0.0]], np.float32),
         done=np.array([False, True]),
     )
-    (build,) = experience_batches(tuples, 2, Formulation("local2d", "observed"))
+    (build,) = experience_batches(tuples, 2, Formulation.of("local2d", "observed", "compass"))
     batch = build(Header("actor-0", 0x0123456789ABCDEF, seq=7, policy_version=3))
     assert encode(batch) == (golden / "experience.msgpack").read_bytes()
     increment = increment_message(
@@ -123,6 +126,22 @@ def test_the_builders_write_the_pinned_wire_bytes() -> None:
         offsets=np.arange(N_ACTIONS + 1),
     )
     assert encode(increment) == (golden / "qinc.msgpack").read_bytes()
+
+
+def test_one_check_at_either_end_names_the_first_part_of_another_formulation() -> None:
+    data = transitions(4, dim=8)
+    (build,) = experience_batches(data, 4, FORMULATIONS["shared-difference"])
+    batch = build(Header("a0", 1, 0, 0))
+    update = policy_update(make_policy(np.random.default_rng(0)), "cmommt-v1")  # the paper's
+    assert formulation_mismatch(FORMULATIONS["shared-difference"], batch) == ""
+    assert formulation_mismatch(FORMULATIONS["paper"], batch) == "featurizer shared8d, expected collab6d"
+    relative = FORMULATIONS["paper"].replace(actions="relative")
+    assert formulation_mismatch(relative, update) == "action_set compass, expected relative"
+    assert formulation_mismatch(FORMULATIONS["paper"].replace(reward="observed"), update) == (
+        "reward_function eq2, expected observed"
+    )
+    # The trial rules and the test-time decision period are no part of what the wire carries.
+    assert formulation_mismatch(FORMULATIONS["paper"].replace(rules="search-on", act_every=1), update) == ""
 
 
 def test_the_protocols_constants_are_the_simulators() -> None:

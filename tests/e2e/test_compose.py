@@ -23,7 +23,7 @@ from ennc_ql.cluster import UP_PRESETS, UpConfig, child_configs
 from ennc_ql.config import load_config
 from ennc_ql.system import free_port
 from learner.config import LearnerConfig
-from sim.features import Formulation
+from sim.formulation import Formulation
 from tests.e2e import ACTOR_BUDGET, LEARNER_BUDGET, Processes, ennc_ql
 
 pytestmark = pytest.mark.slow
@@ -96,7 +96,7 @@ def test_the_compose_processes_train_ups_formulation(spec: Any) -> None:
         args = parser.parse_args(service["command"])
         config = load_config(LearnerConfig if args.command == "learner" else ActorConfig, args=args)
         mine = config.resolved
-        assert (mine.featurizer, mine.reward, mine.actions) == (up.featurizer, up.reward, up.actions)
+        assert mine.names == up.names
         if args.command == "learner":
             assert mine.act_every == up.act_every  # the learner alone evaluates and saves the policy
         seen.append(args.command)
@@ -107,7 +107,7 @@ def assert_trained_ups_formulation(run_dir: Path, actors: list[dict[str, Any]]) 
     """The learner's policy file names up's formulation, and no actor refused a broadcast over another one."""
     up = ups_formulation()
     _, header = load_policy(run_dir / "policy.npz")
-    assert (header["featurizer"]["name"], header["reward"]["name"]) == (up.featurizer, up.reward)
+    assert (header["featurizer"]["name"], header["reward"]["name"]) == up.names[:2]
     assert header["action_steps"] == up.act_every  # the test-time decision period the learner saved it with
     assert all(a["policies_refused"] == 0 for a in actors)
 

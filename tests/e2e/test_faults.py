@@ -22,10 +22,9 @@ from algorithm.policy_file import load_policy
 from learner.checkpoint import VersionMark
 from protocol import PolicyUpdate, ZenohTransport, zenoh_config
 from protocol.keys import KeySpace
-from tests.e2e.test_cluster import Cluster, checkpoint_version, cluster, finish, wait_for
+from tests.e2e.cluster import Cluster, checkpoint_version, finish, wait_for
 
 pytestmark = pytest.mark.slow
-__all__ = ["cluster"]  # the fixture, imported for this module's tests
 
 
 class PolicyWatch:

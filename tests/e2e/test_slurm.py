@@ -26,8 +26,8 @@ import pytest
 from learner.checkpoint import VersionMark
 from tests.e2e import ennc_ql
 from tests.e2e import slurm as local_slurm
+from tests.e2e.cluster import checkpoint_version
 from tests.e2e.slurm import LocalSlurm, require_slurm
-from tests.e2e.test_cluster import checkpoint_version
 
 pytestmark = pytest.mark.slow
 

@@ -21,7 +21,7 @@ from learner.checkpoint import VersionMark
 from learner.config import LearnerConfig
 from monitor import Sink
 from tests.e2e import ennc_ql
-from tests.e2e.test_cluster import checkpoint_version, wait_for
+from tests.e2e.cluster import checkpoint_version, wait_for
 
 pytestmark = pytest.mark.slow
 

@@ -15,7 +15,7 @@ from algorithm.policy_file import load_policy
 from ennc_ql.cli import main
 from ennc_ql.config import ConfigError
 from ennc_ql.experiments.ablate import REFERENCES, Setup, ablate, parse_sets, variants
-from sim import HAND_MADE, evaluate, scenario
+from sim import CONTROLLERS, evaluate, scenario
 
 
 @pytest.mark.parametrize(
@@ -27,8 +27,9 @@ from sim import HAND_MADE, evaluate, scenario
         (["--set", "budget.phase2.alpha=2"], "budget.phase2.alpha: alpha must lie in (0, 1], got 2.0"),
         (["--set", "lost_behaviour=fly"], "invalid choice: 'fly'"),
         (["--set", "scenario.action_steps=3", "--set", "scenario.action_steps=5"], "given twice"),
-        (["--set", "featurizer=pixels"], "featurizer: unknown 'pixels'; known: local2d, collab6d, shared8d"),
-        (["--set", "reward=money"], "reward: unknown 'money'; known: paper, observed, eq2, difference"),
+        (["--set", "featurizer=pixels"], "unknown featurizer 'pixels'; known: local2d, collab6d, shared8d"),
+        (["--set", "reward=money"], "unknown reward 'money'; known: paper, observed, eq2, difference"),
+        (["--set", "trial_rules=lenient"], "unknown trial rules 'lenient'; known: paper, search-on"),
     ],
 )
 def test_bad_settings_are_one_line_errors(
@@ -88,7 +89,7 @@ def test_a_tiny_sweep_scores_every_variant_on_the_same_trials_and_saves_the_over
         "lost_behaviour=stay, scenario.action_steps=3, featurizer=shared8d, reward=difference",
     ]
     cfg = scenario(action_steps=3)
-    references = {name: evaluate(cfg, HAND_MADE[name], 2, 60, seed=0).coverage_mean for name in REFERENCES}
+    references = {name: evaluate(cfg, CONTROLLERS[name], 2, 60, seed=0).coverage_mean for name in REFERENCES}
     for row in rows:
         assert len(row["coverage_per_run"]) == 2
         assert row["coverage_mean"] == pytest.approx(np.mean(row["coverage_per_run"]), abs=1e-3)
@@ -97,7 +98,7 @@ def test_a_tiny_sweep_scores_every_variant_on_the_same_trials_and_saves_the_over
         for seed in (0, 1):
             policy = load_policy(tmp_path / "policies" / f"v{variant}-{seed}.npz")[0]
             assert (policy.action_steps, policy.lost_behaviour) == (3, behaviour)
-            assert (policy.featurizer, policy.reward, policy.discretization.dim) == ("shared8d", "difference", 8)
+            assert (*policy.formulation.names[:2], policy.discretization.dim) == ("shared8d", "difference", 8)
     # The test-time rule changes no learning: the same seed learns the same tables in both variants.
     for seed in (0, 1):
         a = load_policy(tmp_path / "policies" / f"v1-{seed}.npz")[0]
@@ -124,7 +125,7 @@ def test_the_neural_reference_is_scored_beside_without_a_policy_file(tmp_path: P
     report = ablate("fqi-mlp", sweep, Setup(budget=budget), processes=1, out_dir=tmp_path)
     (row,) = report["variants"]
     assert len(row["coverage_per_run"]) == 1 and 0.0 <= row["coverage_mean"] <= 100.0
-    honest = evaluate(scenario(), HAND_MADE["a-cmommt"], 2, 60).coverage_mean
+    honest = evaluate(scenario(), CONTROLLERS["a-cmommt"], 2, 60).coverage_mean
     assert row["references"]["a-cmommt"] == pytest.approx(honest, abs=1e-3)
     assert report["paper_coverage"] is None
     assert not (tmp_path / "policies").exists()  # the network is a reference, not a policy file

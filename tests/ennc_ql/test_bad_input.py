@@ -131,7 +131,7 @@ ROWS: list[tuple[list[str], str]] = [
     (["ablate", "ennc-ql-collab-option2", "--set", "budget.phase2.alpha=2"], "alpha must lie in (0, 1], got 2.0"),
     (
         ["ablate", "ennc-ql-collab-option2", "--set", "featurizer=raw"],
-        "ennc-ql ablate: error: featurizer: unknown 'raw'; known: local2d,",
+        "ennc-ql ablate: error: unknown featurizer 'raw'; known: local2d,",
     ),
     (["ablate", "ennc-ql-collab-option2", "--out", "/proc/x"], "error: --out /proc/x: cannot write in /proc"),
     # bench: one subcommand per benchmark, each with its own flags.

@@ -12,7 +12,7 @@ from algorithm.discretization import Discretization
 from algorithm.policy import Policy
 from algorithm.policy_file import save_policy
 from ennc_ql.cli import main
-from sim import scenario
+from sim import Formulation, scenario
 
 
 @pytest.fixture(params=[("collab6d", "eq2", 6), ("shared8d", "difference", 8)], ids=["paper", "shared-difference"])
@@ -23,7 +23,7 @@ def policy_file(tmp_path: Path, request: pytest.FixtureRequest) -> Path:
     rng = np.random.default_rng(0)
     disc = Discretization.from_per_action([rng.uniform(-150, 150, (size, dim)) for size in (3, 5, 2, 7, 1, 4, 6, 2)])
     tables = np.zeros((cfg.n_robots, disc.size), np.float32)
-    policy = Policy(featurizer, disc, tables, np.arange(cfg.n_robots), reward=reward)
+    policy = Policy(Formulation.of(featurizer, reward, "compass"), disc, tables, np.arange(cfg.n_robots))
     return save_policy(policy, cfg, tmp_path / "policy.npz")
 
 

@@ -15,7 +15,8 @@ import pytest
 
 from ennc_ql.cli import build_parser
 from sim import FEATURIZERS
-from sim.features import FORMULATIONS, REWARD_NAMES
+from sim.actions import ACTION_SETS
+from sim.formulation import FORMULATIONS, REWARD_NAMES, TRIAL_RULES
 
 ENNC_QL = Path(sys.executable).with_name("ennc-ql")
 
@@ -84,6 +85,8 @@ def test_every_flag_has_help_text_and_its_default(prog: str) -> None:
         ("ennc-ql actor", "--featurizer", FEATURIZERS),
         ("ennc-ql actor", "--reward", REWARD_NAMES),
         ("ennc-ql chaos", "--formulation", FORMULATIONS),
+        ("ennc-ql actor", "--trial-rules", TRIAL_RULES),
+        ("ennc-ql up", "--actor-trial-rules", TRIAL_RULES),
     ],
 )
 def test_registry_values_are_offered_as_choices(prog: str, flag: str, names: object) -> None:
@@ -91,6 +94,17 @@ def test_registry_values_are_offered_as_choices(prog: str, flag: str, names: obj
     assert isinstance(action.metavar, str)
     offered = action.metavar.removesuffix("|none").strip("{}").split(",")
     assert offered == list(names)  # type: ignore[call-overload]
+
+
+def test_ablate_names_every_registered_formulation_part() -> None:
+    text = PARSERS["ennc-ql ablate"]._option_string_actions["--set"].help or ""
+    for part, names in (
+        ("featurizer", FEATURIZERS),
+        ("reward", REWARD_NAMES),
+        ("actions", ACTION_SETS),
+        ("trial_rules", TRIAL_RULES),
+    ):
+        assert f"{part} {{{', '.join(names)}}}" in text
 
 
 def test_a_flag_says_its_table_once() -> None:

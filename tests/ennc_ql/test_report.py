@@ -18,13 +18,14 @@ from ennc_ql.cluster import UP_PRESETS, UpConfig, child_configs, write_configs
 from ennc_ql.config import ConfigError, load_config
 from ennc_ql.report import learning_curve_figure, terminal_summary, write_run_report
 from learner.config import LearnerConfig
-from sim.features import DEFAULT_FORMULATION, FORMULATIONS
+from sim.formulation import DEFAULT_FORMULATION, FORMULATIONS
 
 # Levels no constant holds: the charts and tables must take them from the report.
 CURVE_REFERENCES = {
     "random": 16.5,
     "local": 55.25,
     "a-cmommt": 66.75,
+    "a-cmommt-public": 64.25,
     "a-cmommt-oracle": 71.5,
     "force-6d": 63.0,
     "force-6d-shared": 67.5,
@@ -33,9 +34,26 @@ FINAL_REFERENCES = {
     "random": 16.75,
     "local": 57.0,
     "a-cmommt": 72.25,
+    "a-cmommt-public": 69.5,
     "a-cmommt-oracle": 74.5,
     "force-6d": 69.75,
     "force-6d-shared": 71.0,
+}
+SPREAD = {"only_shared_pct": 40.25, "none_in_view_pct": 12.5, "robots_per_covered_target": 1.375}
+FINAL_COMPARISON = {
+    "learned": {"coverage": 61.234, **SPREAD},
+    **{
+        name: {"coverage": value, **SPREAD, "learned_minus": 61.234 - value, "learned_minus_se": 0.625}
+        for name, value in FINAL_REFERENCES.items()
+    },
+    "a-cmommt": {
+        "coverage": 72.25,
+        "only_shared_pct": 5.5,
+        "none_in_view_pct": 30.0,
+        "robots_per_covered_target": 1.0625,
+        "learned_minus": -11.016,
+        "learned_minus_se": 0.5,
+    },
 }
 
 
@@ -67,6 +85,7 @@ def run_report(run_dir: Path) -> dict[str, Any]:
         "coverage_curve": [[95.2, 48.5], [215.7, 57.125], [337.9, 60.4], [480.3, 61.234]],
         "reference_coverage": CURVE_REFERENCES,
         "final_reference_coverage": FINAL_REFERENCES,
+        "final_comparison": FINAL_COMPARISON,
         "policy_file": str(run_dir / "policy.npz"),
         "checkpoint": str(run_dir / "checkpoint.npz"),
         "seconds": 480.31,
@@ -91,17 +110,25 @@ def test_markdown_report_opens_with_the_result_beside_its_references(tmp_path: P
     lines = markdown_path.read_text().splitlines()
     assert lines[:3] == ["# ennc-ql run 20260101-120000", "", "## Result"]
     assert lines[4].startswith("The learned policy observes **61.23 %** of the targets on 50 seeded test trials")
-    table = lines[lines.index("| policy | what it is | % of targets observed (50 trials) |") :][2:9]
+    table = lines[lines.index("| policy | what it is | % of targets observed (50 trials) |") :][2:10]
     assert table == [
         "| **learned policy** | version 37, formulation shared-difference | **61.23** |",
-        "| A-CMOMMT | hand-made; reads only what its robots sense or are told | 72.25 |",
-        "| A-CMOMMT oracle (true positions) | hand-made; reads true target positions that no robot senses | 74.50 |",
+        "| A-CMOMMT | hand-made, tuned on training trials; reads only what its robots sense or are told | 72.25 |",
         "| force law, 6-D state + shared flags | A-CMOMMT's force law fed the 6-D state and the shared-observation "
-        "flags | 71.00 |",
+        "flags, tuned | 71.00 |",
+        "| A-CMOMMT, public untuned parameters | hand-made; the public code's untuned parameters (teammate-observed "
+        "weight 0.25) | 69.50 |",
         "| force law on the 6-D state | A-CMOMMT's force law fed the paper's 6-D state | 69.75 |",
         "| local | hand-made; attraction to the targets in view, no cooperation | 57.00 |",
         "| random | a random compass move every 5 steps | 16.75 |",
+        "| A-CMOMMT oracle (true positions) | oracle, not a rival: reads true target positions that no robot senses "
+        "| 74.50 |",
     ]
+    # Why one covers more: each team's spread over the targets, the learned policy's paired difference from each.
+    spread = lines[lines.index(next(line for line in lines if line.startswith("| policy | % observed"))) :][2:10]
+    assert spread[0] == "| **learned policy** | 61.23 |  | 40.2 | 12.5 | 1.38 |"
+    assert spread[1] == "| A-CMOMMT | 72.25 | -11.02 ± 0.50 points | 5.5 | 30.0 | 1.06 |"
+    assert spread[-1].startswith("| A-CMOMMT oracle (true positions) | 74.50 | -13.27 ± 0.62 points |")
     assert "![the learning curve beside the hand-made controllers' levels](learning_curve.png)" in lines
 
 
@@ -112,7 +139,7 @@ def test_markdown_report_carries_the_figures_and_ends_with_the_next_commands(tmp
     assert "| tuples received | 2,457,600 |" in text and "| final coverage | 61.23 % |" in text
     for row in ("| 95 | 48.50 |", "| 216 | 57.12 |", "| 338 | 60.40 |", "| 480 | 61.23 |"):
         assert row in text
-    assert "The hand-made controllers on the same 10 trials: A-CMOMMT 66.75 %, A-CMOMMT oracle" in text
+    assert "The hand-made controllers on the same 10 trials: A-CMOMMT 66.75 %, force law, 6-D state" in text
     assert "| actor-0 | 1,228,800 | 50.0 % |" in text
     assert "5,120 tuples/s" in text and "2,057,600 overwritten" in text
     assert "| duplicate batches | 3 |" in text and "| sequence gaps (never filled) | 1 |" in text
@@ -138,9 +165,11 @@ def test_terminal_summary_opens_with_the_result_and_ends_with_what_comes_next(tm
         "shared-difference)"
     )
     assert lines[1] == (
-        "on the same trials: A-CMOMMT 72.25 %, A-CMOMMT oracle (true positions) 74.50 %, force law, 6-D state + "
-        "shared flags 71.00 %, force law on the 6-D state 69.75 %, local 57.00 %, random 16.75 %"
+        "on the same trials: A-CMOMMT 72.25 %, force law, 6-D state + shared flags 71.00 %, A-CMOMMT, public "
+        "untuned parameters 69.50 %, force law on the 6-D state 69.75 %, local 57.00 %, random 16.75 %, A-CMOMMT "
+        "oracle (true positions) 74.50 %"
     )
+    assert lines[2] == "learned - A-CMOMMT: -11.02 ± 0.50 points (paired, 50 trials)"
     assert "coverage curve         95s: 48.5%, 216s: 57.1%, 338s: 60.4%, 480s: 61.2%" in lines
     assert "duplicates / gaps      3 / 1" in lines
     assert any(line.startswith(f"report: {tmp_path / 'report.md'}") for line in lines)
@@ -232,8 +261,7 @@ def test_up_writes_every_process_configuration_and_they_load_back(tmp_path: Path
     # the paper's; up.toml says it once, and every table of it says the same.
     chosen = FORMULATIONS[DEFAULT_FORMULATION]
     assert UpConfig().formulation == LearnerConfig().formulation == ActorConfig().formulation == DEFAULT_FORMULATION
-    assert learner.resolved == chosen and {a.resolved.featurizer for a in actors} == {chosen.featurizer}
-    assert {(a.resolved.reward, a.resolved.actions) for a in actors} == {(chosen.reward, chosen.actions)}
+    assert learner.resolved == chosen and {a.resolved.names for a in actors} == {chosen.names}
     toml = tomllib.loads((tmp_path / "up.toml").read_text())
     assert toml["formulation"] == DEFAULT_FORMULATION
     # What up sets in every process itself is said once, at the top, never again in a table that up would override.
@@ -247,7 +275,7 @@ def test_up_writes_every_process_configuration_and_they_load_back(tmp_path: Path
     paper = load_config(UpConfig, args=build_parser().parse_args(["up", "--formulation", "paper"]), defaults=UP_PRESETS)
     learner, actors = child_configs(paper)
     assert {p.formulation for p in (paper.learner, paper.actor, learner, *actors)} == {"paper"}
-    assert {(p.resolved.featurizer, p.resolved.reward) for p in (learner, *actors)} == {("collab6d", "eq2")}
+    assert {p.resolved.names[:2] for p in (learner, *actors)} == {("collab6d", "eq2")}
     assert learner.resolved.act_every is None
     (tmp_path / "mixed.toml").write_text('formulation = "paper"\n[learner]\nreward = "difference"\n')
     with pytest.raises(ConfigError, match=r"learner.reward: up gives every process the formulation it names"):

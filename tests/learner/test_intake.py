@@ -7,7 +7,7 @@ import numpy as np
 
 from learner.intake import ExperienceIntake
 from protocol import ExperienceBatch, InMemoryBus, InMemoryTransport, InvalidValues, Reject, encode
-from sim.features import FORMULATIONS
+from sim.formulation import FORMULATIONS
 
 PAPER = FORMULATIONS["paper"]  # collab6d: d = 6
 
@@ -19,9 +19,9 @@ def batch(seq: int, dim: int = 6, actor: str = "a") -> ExperienceBatch:
         incarnation=7,
         seq=seq,
         policy_version=0,
-        featurizer=PAPER.featurizer,
-        reward_function=PAPER.reward,
-        action_set=PAPER.actions,
+        featurizer=PAPER.featurizer.name,
+        reward_function=PAPER.reward.name,
+        action_set=PAPER.actions.name,
         robot=np.zeros(n, np.int16),
         state=np.zeros((n, dim), np.float32),
         action=np.zeros(n, np.uint8),

@@ -58,8 +58,7 @@ def test_the_report_lists_only_valid_actors_and_counts_the_refused_token(tmp_pat
         stopped = threading.Event()
         stopped.set()
         report = service.run(stopped)
-        for handle in reversed(handles):
-            handle.close()
+        handles.close()  # the ExitStack connect returned: every handle, in reverse order
     written = json.loads((tmp_path / "report.json").read_text())
     assert report.actors == written["actors"] == ["actor-0"] and written["live_actors"] == ["actor-0"]
     assert report.refused_tokens == written["refused_tokens"] == 1

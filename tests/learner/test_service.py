@@ -19,7 +19,7 @@ from learner.policy_state import PolicyState
 from learner.service import LearnerService
 from learner.wiring import connect as connect_learner
 from protocol import ExperienceBatch, InMemoryBus, InMemoryTransport, PolicyUpdate, QTableIncrement, Reject
-from sim.features import DEFAULT_FORMULATION, FEATURIZERS, FORMULATIONS
+from sim.formulation import DEFAULT_FORMULATION, FORMULATIONS
 from tests.fakes import run_until
 
 FAST = LearnerConfig(
@@ -44,7 +44,7 @@ def test_serial_learner_and_actor_exchange_experience_and_policies(tmp_path: Pat
         actor = RobotActor(
             at, ActorConfig(actor_id="a0", arenas=16, learn=(0, 1, 2), batch_size=256, flush_timeout=0.5)
         )
-        handles += connect_actor(actor, at)
+        handles.enter_context(connect_actor(actor, at))
         stop = threading.Event()
         result: list[ActorStatus] = []
         thread = threading.Thread(target=lambda: result.append(actor.run(stop)))
@@ -52,8 +52,7 @@ def test_serial_learner_and_actor_exchange_experience_and_policies(tmp_path: Pat
         report = run_until(service, lambda: service.state.increments >= 3 and len(versions) >= 2)
         stop.set()
         thread.join()
-        for handle in reversed(handles):
-            handle.close()
+        handles.close()  # the ExitStack connect returned: every handle, in reverse order
     status = result[0]
     assert versions == sorted(set(versions)) and len(versions) >= 2  # strictly increasing broadcasts
     assert report.policy_version == versions[-1]
@@ -68,8 +67,9 @@ def test_serial_learner_and_actor_exchange_experience_and_policies(tmp_path: Pat
     assert (moved[[0, 1, 2]] > 0).all() and (moved[3:] == 0).all()
 
 
-DIM = FEATURIZERS[FORMULATIONS[DEFAULT_FORMULATION].featurizer]
+DIM = FORMULATIONS[DEFAULT_FORMULATION].dim
 """State dimension of the default formulation, FAST's."""
+PAPER = FORMULATIONS["paper"]
 
 
 def one_cell_per_action(dim: int = 6) -> Discretization:
@@ -108,7 +108,7 @@ def test_merge_adds_the_visit_weighted_mean_of_the_actors_changes(tmp_path: Path
 
 
 def test_increments_over_an_old_discretization_are_dropped() -> None:
-    state = PolicyState(n_robots=10, featurizer="collab6d", scenario="cmommt-v1", action_steps=5, method="m")
+    state = PolicyState(n_robots=10, formulation=PAPER, scenario="cmommt-v1", action_steps=5, method="m")
     state.adopt(one_cell_per_action())
     state.publish()  # version 1 over the first discretization
     state.adopt(one_cell_per_action())  # a refit: version 1's cells mean something else now
@@ -121,13 +121,14 @@ def test_increments_over_an_old_discretization_are_dropped() -> None:
 
 
 def test_the_evaluated_policy_decides_every_act_every_steps_while_the_broadcast_keeps_the_actors_hold() -> None:
-    kw: dict[str, Any] = {"n_robots": 10, "featurizer": "collab6d", "scenario": "cmommt-v1", "method": "m"}
-    state = PolicyState(action_steps=5, reward="difference", act_every=1, **kw)
+    kw: dict[str, Any] = {"n_robots": 10, "scenario": "cmommt-v1", "method": "m"}
+    every_step = PAPER.replace(reward="difference", act_every=1)
+    state = PolicyState(formulation=every_step, action_steps=5, **kw)
     state.adopt(one_cell_per_action())
     assert state.publish().action_steps == 5
     policy = state.policy()
-    assert policy is not None and (policy.action_steps, policy.reward) == (1, "difference")
-    plain = PolicyState(action_steps=5, **kw)
+    assert policy is not None and (policy.action_steps, policy.formulation) == (1, every_step)
+    plain = PolicyState(formulation=PAPER, action_steps=5, **kw)
     plain.adopt(one_cell_per_action())
     assert plain.policy() is not None and plain.policy().action_steps == 5  # type: ignore[union-attr]
 
@@ -135,15 +136,15 @@ def test_the_evaluated_policy_decides_every_act_every_steps_while_the_broadcast_
 DEFAULT = FORMULATIONS[DEFAULT_FORMULATION]
 
 
-def experience(seq: int, dim: int = DIM, reward_function: str = DEFAULT.reward, n: int = 3) -> ExperienceBatch:
+def experience(seq: int, dim: int = DIM, reward_function: str = DEFAULT.reward.name, n: int = 3) -> ExperienceBatch:
     return ExperienceBatch(
         actor_id="a",
         incarnation=1,
         seq=seq,
         policy_version=0,
-        featurizer=DEFAULT.featurizer,
+        featurizer=DEFAULT.featurizer.name,
         reward_function=reward_function,
-        action_set=DEFAULT.actions,
+        action_set=DEFAULT.actions.name,
         robot=np.zeros(n, np.int16),
         state=np.zeros((n, dim), np.float32),
         action=np.zeros(n, np.uint8),
@@ -165,8 +166,7 @@ def test_experience_of_another_formulation_or_dimension_is_rejected_and_counted(
         t.publish(t.keys.experience("a"), experience(seq=2, reward_function="eq2"))  # the paper's reward
         t.inject_raw(t.keys.experience("a"), b"\x93\x01garbage")
         t.publish(t.keys.experience("a"), good)  # a re-sent duplicate
-        for handle in reversed(handles):
-            handle.close()
+        handles.close()  # the ExitStack connect returned: every handle, in reverse order
     figures = service.intake.figures()
     assert figures.tuples_received == 3 and figures.store_size == 3
     assert figures.rejected_by_type == {"StateDimension": 1, "Formulation": 1, "MalformedMessage": 1}
@@ -175,7 +175,7 @@ def test_experience_of_another_formulation_or_dimension_is_rejected_and_counted(
     assert figures.duplicates == 1
     assert rejects == [
         (1, f"state dimension 2, expected {DIM}"),
-        (2, f"reward_function eq2, expected {DEFAULT.reward}"),
+        (2, f"reward_function eq2, expected {DEFAULT.reward.name}"),
     ]
 
 
@@ -205,15 +205,14 @@ def test_refits_warm_start_and_carry_q_values_over(tmp_path: Path) -> None:
         service = LearnerService(lt, config, tmp_path)
         handles = connect_learner(service, lt)
         actor = RobotActor(at, ActorConfig(actor_id="a0", arenas=16, batch_size=256, flush_timeout=0.5))
-        handles += connect_actor(actor, at)
+        handles.enter_context(connect_actor(actor, at))
         stop = threading.Event()
         thread = threading.Thread(target=actor.run, args=(stop,))
         thread.start()
         report = run_until(service, lambda: service.fitter.fits >= 2 and len(set(prototypes_seen)) >= 2)
         stop.set()
         thread.join()
-        for handle in reversed(handles):
-            handle.close()
+        handles.close()  # the ExitStack connect returned: every handle, in reverse order
     assert report.phase1_fits >= 2  # refitted as the data grew
     assert len(set(prototypes_seen)) >= 2  # broadcasts carried the new discretization
     policy = service.state.policy()
@@ -224,7 +223,7 @@ def test_refits_warm_start_and_carry_q_values_over(tmp_path: Path) -> None:
 
 def test_a_checkpoint_holds_the_pending_increments_and_the_resume_goes_above_every_version(tmp_path: Path) -> None:
     recorded: list[int] = []
-    state = PolicyState(10, "collab6d", "cmommt-v1", 5, "m", on_version=recorded.append)
+    state = PolicyState(10, PAPER, "cmommt-v1", 5, "m", on_version=recorded.append)
     state.adopt(one_cell_per_action())
     state.publish()
     assert state.add_increment(increment("a", 0, [2.0] + [0.0] * 7, [4] + [0] * 7))  # acked, not merged yet
@@ -232,7 +231,7 @@ def test_a_checkpoint_holds_the_pending_increments_and_the_resume_goes_above_eve
     state.publish()
     state.publish()  # versions 2 and 3 go out after the checkpoint; the mark knows them
     assert recorded == [1, 2, 3]
-    resumed = PolicyState(10, "collab6d", "cmommt-v1", 5, "m", on_version=recorded.append)
+    resumed = PolicyState(10, PAPER, "cmommt-v1", 5, "m", on_version=recorded.append)
     resumed.restore(arrays, meta, published=max(recorded))
     current = resumed.current
     assert current is not None and current.version == 4 and recorded[-1] == 4
@@ -244,11 +243,11 @@ def test_a_checkpoint_holds_the_pending_increments_and_the_resume_goes_above_eve
 
 
 def test_an_empty_state_checkpoints_and_restores(tmp_path: Path) -> None:
-    state = PolicyState(10, "collab6d", "cmommt-v1", 5, "m")
+    state = PolicyState(10, PAPER, "cmommt-v1", 5, "m")
     state.adopt(one_cell_per_action())
     arrays, meta = state.to_arrays()
     assert arrays["pending_change"].shape == (0, 8)
-    resumed = PolicyState(10, "collab6d", "cmommt-v1", 5, "m")
+    resumed = PolicyState(10, PAPER, "cmommt-v1", 5, "m")
     resumed.restore(arrays, meta)
     assert resumed.version == 1 and resumed.policy() is not None
 
@@ -280,8 +279,7 @@ def test_a_poisoned_message_is_rejected_by_its_seq_and_the_stream_flows_on(tmp_p
         t.publish(t.keys.experience("a"), experience(seq=3, dim=2))  # wrong state dimension: rejected by seq too
         t.publish(t.keys.experience("a"), experience(seq=3, dim=2))  # and its re-send a duplicate
         service.checkpoint()
-        for handle in reversed(handles):
-            handle.close()
+        handles.close()  # the ExitStack connect returned: every handle, in reverse order
     assert [(r.actor_id, r.seq) for r in rejects] == [("a", 1), ("a", 3)]
     assert rejects[0].reason.startswith("InvalidValues: reward")
     assert rejects[1].reason == f"state dimension 2, expected {DIM}"

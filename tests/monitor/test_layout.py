@@ -15,13 +15,14 @@ from learner.service import LearnerService
 from monitor import Sink, open_monitor, paths, style
 from monitor.layout import TITLE_MAX, rose
 from protocol import InMemoryBus, InMemoryTransport
-from sim import COMPASS, HAND_MADE, evaluate, scenario
+from sim import COMPASS, CONTROLLERS, evaluate, scenario
 from sim.actions import ACTION_SETS
 from sim.controllers import COMPASS_NAMES
 from tests.monitor.rrd import Layout, View, layout, rows
 
 ACTORS = ("actor-0", "actor-1", "actor-2")
-CONFIG = LearnerConfig(eval_trials=2, eval_steps=40)
+CONFIG = LearnerConfig(formulation="paper", eval_trials=2, eval_steps=40)
+"""The paper's formulation: its compass moves lay the prototype views out as a north-up rose."""
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +35,7 @@ def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
         InMemoryTransport(InMemoryBus()) as transport,
     ):
         service = LearnerService(transport, CONFIG, run_dir, monitor=monitor)
-        service.watch.started(CONFIG.featurizer, service.state.reward, service.evaluator.references)
+        service.watch.started(CONFIG.resolved, service.evaluator.references)
         for actor in ACTORS:
             service.members.on_join(transport.keys.alive("actor", actor))
         service._publish_status()
@@ -66,7 +67,7 @@ def test_the_viewer_opens_at_the_end_on_training_time(sent: Layout) -> None:
 def test_the_learning_curve_comes_first_with_its_reference_levels(sent: Layout) -> None:
     first = sent.views[0]
     assert (first.name, first.kind) == ("test coverage (%)", "TimeSeries")
-    references = [paths.reference(name) for name in HAND_MADE]
+    references = [paths.reference(name) for name in style.REFERENCES]
     assert first.contents == [paths.LEARNER_COVERAGE_EVAL, paths.LEARNER_COVERAGE_FINAL, *references]
     assert first.overrides[paths.LEARNER_COVERAGE_FINAL]["VisualizerInstruction:visualizer_type"] == "SeriesPoints"
     for series in (paths.LEARNER_COVERAGE_EVAL, *references):
@@ -74,16 +75,16 @@ def test_the_learning_curve_comes_first_with_its_reference_levels(sent: Layout) 
     assert first.properties["ScalarAxis"]["range"] == [0.0, 100.0]
     # Training trials (a different protocol) have a panel of their own, next to it.
     assert sent.containers["learning"] == ["test coverage (%)", "training trials"]
-    assert sent.containers["training trials"] == ["training coverage (%)", "mean trial reward"]
+    assert sent.containers["training trials"] == ["training coverage (%)", "mean trial reward", "spread over targets"]
 
 
 def test_reference_levels_are_the_hand_made_controllers_on_the_test_trials(recording: Path) -> None:
     cfg = scenario(CONFIG.scenario)
-    for name, controller in HAND_MADE.items():
+    for name, controller in CONTROLLERS.items():
         expected = evaluate(cfg, controller, CONFIG.eval_trials, CONFIG.eval_steps, seed=TEST_SEED).coverage_mean
         ((_, level),) = rows(recording, paths.reference(name), "Scalars:scalars", paths.TRAIN_TIME)
         assert level == [pytest.approx(expected)]
-    assert set(style.REFERENCES) == set(HAND_MADE)  # each level has its legend name and colour
+    assert set(style.REFERENCES) == set(CONTROLLERS)  # each level has its legend name and colour
 
 
 def test_titles_are_unique_and_short(sent: Layout) -> None:
@@ -142,8 +143,8 @@ def test_prototype_views_form_a_north_up_compass_rose(sent: Layout) -> None:
 def test_the_rose_places_every_move_where_it_points() -> None:
     # Compass: NW N NE / W key E / SW S SE. Relative: "toward" the nearest target points along the target frame's
     # +x, drawn to the right, and "left" (towards the furthest target's side, +y) at the top.
-    assert rose("compass") == (7, 0, 1, 6, None, 2, 5, 4, 3)
-    assert rose("relative") == (3, 2, 1, 4, None, 0, 5, 6, 7)
+    assert rose(ACTION_SETS["compass"]) == (7, 0, 1, 6, None, 2, 5, 4, 3)
+    assert rose(ACTION_SETS["relative"]) == (3, 2, 1, 4, None, 0, 5, 6, 7)
     assert [ACTION_SETS["relative"].moves[k] for k in (2, 0, 4)] == ["left", "toward", "away"]
 
 

@@ -14,7 +14,7 @@ from algorithm.policy import Policy
 from learner.report import LearnerStatus
 from monitor import Monitor
 from monitor.learner import LearnerWatch
-from sim import scenario
+from sim import FORMULATIONS, scenario
 
 
 class Recorder(Monitor):
@@ -40,7 +40,7 @@ class Recorder(Monitor):
 def policy(version: int) -> Policy:
     disc = Discretization.from_per_action([np.zeros((1, 6), np.float32)] * 8)
     tables = np.arange(20, dtype=np.float32).reshape(10, 2).repeat(4, axis=1)
-    return Policy("collab6d", disc, tables, np.arange(10), 5, version=version)
+    return Policy(FORMULATIONS["paper"], disc, tables, np.arange(10), 5, version=version)
 
 
 def test_status_publishes_are_learner_steps_and_a_new_actor_gets_a_layout() -> None:
@@ -49,27 +49,33 @@ def test_status_publishes_are_learner_steps_and_a_new_actor_gets_a_layout() -> N
     status = LearnerStatus(policy_version=3, live_actors=2, store_size=10, tuples_per_s=5.0, rejected=1)
     watch.status(status, actors=["a0"], lag={"a0": 1})
     watch.status(status, actors=["a0"], lag={"a0": 0})
-    watch.evaluated(policy(3), 61.5)
+    spread = {"learned": {"only_shared_pct": 40.0, "none_in_view_pct": 10.0, "robots_per_covered_target": 1.4}}
+    watch.evaluated(policy(3), 61.5, spread, trials=10)
     watch.status(status, actors=["a0", "a1"], lag={"a0": 0, "a1": 2})
-    watch.final(policy(4), 63.0, trials=50)
+    comparison = {"learned": spread["learned"], "a-cmommt": {**spread["learned"], "learned_minus": -2.0}}
+    watch.final(policy(4), 63.0, 50, comparison)
     assert [name for name in recorder.names() if name != "use_clock"] == [
         "send_blueprint",
         "learner_metrics",
         "learner_metrics",
         "eval_coverage",
+        "cooperation",
         "prototypes",
         "q_stats",
         "send_blueprint",
         "learner_metrics",
         "final_coverage",
+        "cooperation",
         "prototypes",
         "q_stats",
     ]
     calls = [kw for name, kw in recorder.calls if name != "use_clock"]
-    assert [calls[i]["learner_step"] for i in (1, 2, 3, 7, 8)] == [1, 2, 2, 3, 3]
-    assert calls[0]["args"] == (["a0"],) and calls[6]["args"] == (["a0", "a1"],)
-    assert calls[7]["lag"] == {"a0": 0, "a1": 2} and calls[7]["rejected"] == 1
-    assert calls[8]["trials"] == 50 and calls[8]["policy_version"] == 4 and calls[8]["args"] == (63.0,)
+    assert [calls[i]["learner_step"] for i in (1, 2, 3, 4, 8, 9, 10)] == [1, 2, 2, 2, 3, 3, 3]
+    assert calls[0]["args"] == (["a0"],) and calls[7]["args"] == (["a0", "a1"],)
+    assert calls[8]["lag"] == {"a0": 0, "a1": 2} and calls[8]["rejected"] == 1
+    assert calls[9]["trials"] == 50 and calls[9]["policy_version"] == 4 and calls[9]["args"] == (63.0,)
+    assert calls[4]["args"] == (spread,) and calls[4]["trials"] == 10
+    assert calls[10]["args"] == (comparison,) and calls[10]["trials"] == 50
 
 
 def test_started_names_the_curve_and_measures_the_references_once() -> None:
@@ -80,9 +86,10 @@ def test_started_names_the_curve_and_measures_the_references_once() -> None:
         measured.append(1)
         return {"random": 16.5}
 
-    LearnerWatch(recorder, scenario(), clock=lambda: 0.0).started("frame9d", "difference", references, "relative")
+    frame = FORMULATIONS["frame-difference"]
+    LearnerWatch(recorder, scenario(), clock=lambda: 0.0).started(frame, references)
     assert recorder.calls[1:] == [
-        ("formulation", {"args": ("frame9d", "difference", "relative")}),
+        ("formulation", {"args": (frame,)}),
         ("reference_levels", {"args": ({"random": 16.5},)}),
     ]
     assert measured == [1]
@@ -93,12 +100,12 @@ def test_off_it_does_nothing_not_even_the_measurements() -> None:
         raise AssertionError("measured with monitoring off")
 
     watch = LearnerWatch(Monitor(), scenario(), clock=lambda: 0.0)
-    watch.started("collab6d", "eq2", references)
+    watch.started(FORMULATIONS["paper"], references)
     watch.status(LearnerStatus(), actors=["a0"], lag={})
     broken = policy(1)
     object.__setattr__(broken, "discretization", None)  # any use of it would raise
-    watch.evaluated(broken, 50.0)
-    watch.final(broken, 50.0, trials=50)
+    watch.evaluated(broken, 50.0, {}, trials=10)
+    watch.final(broken, 50.0, 50, {})
     assert watch.step == 0
 
 

@@ -18,6 +18,7 @@ from ennc_ql.system import free_port
 from monitor import RecordingError, Sink, merge_recordings, open_monitor, paths, style, summarize_recording
 from monitor.geometry import observed_targets
 from monitor.recordings import rerun_cli
+from sim.formulation import default_formulation
 from tests.monitor.rrd import layout, rows
 
 REPO = Path(__file__).resolve().parents[2]
@@ -161,11 +162,12 @@ def test_drawings_are_mirrored_north_up(merged: Path) -> None:
 def test_training_blueprint_lays_out_every_actor_and_action(merged: Path) -> None:
     views = {view.name: (view.kind, view.origin) for view in layout(merged).views}
     spatial = {name: origin for name, (kind, origin) in views.items() if kind == "2D"}
-    # The prototype views are the compass rose of the 8 moves, whatever the recording holds.
+    # The prototype views are the rose of the 8 moves, whatever the recording holds: the run's default formulation's
+    # until a learner names its own.
     assert spatial == {
         "actor-0 arena": "actors/actor-0",
         "key": paths.KEY,
-        **{name: paths.LEARNER_PROTOTYPES for name in ("N", "NE", "E", "SE", "S", "SW", "W", "NW")},
+        **{name: paths.LEARNER_PROTOTYPES for name in default_formulation().actions.moves},
     }
     curves = {name for name, (kind, _) in views.items() if kind == "TimeSeries"}
     assert {"test coverage (%)", "training coverage (%)", "tuples/s", "policy version", "tuples stored"} <= curves

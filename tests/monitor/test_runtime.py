@@ -58,7 +58,7 @@ def test_learner_and_actors_log_into_one_recording(tmp_path: Path) -> None:
             transport = InMemoryTransport(bus)
             config = ActorConfig(actor_id=actor_id, arenas=8, seed=i, batch_size=512, flush_timeout=0.5, draw_every=2)
             actor = RobotActor(transport, config, monitor=monitor)
-            handles += connect_actor(actor, transport)
+            handles.enter_context(connect_actor(actor, transport))
             actors.append(actor)
             monitors.append(monitor)
             transports.append(transport)
@@ -70,8 +70,7 @@ def test_learner_and_actors_log_into_one_recording(tmp_path: Path) -> None:
         stop.set()
         for thread in threads:
             thread.join()
-        for handle in reversed(handles):
-            handle.close()
+        handles.close()  # the ExitStack connect returned: every handle, in reverse order
         for monitor, transport in zip(monitors, transports, strict=True):
             monitor.close()
             transport.close()

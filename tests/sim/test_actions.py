@@ -8,8 +8,12 @@ import numpy as np
 import pytest
 
 from sim import WorldState, featurize, scenario, sense
-from sim.actions import ACTION_SETS, action_set, target_frame
+from sim.actions import ACTION_SETS, target_frame
+from sim.features import FEATURIZER_REGISTRY as STATE
+from sim.formulation import Formulation
 from sim.trial import reset_trial, step_trial
+
+FRAME9D = STATE["frame9d"]
 
 SPEED = 7.5
 
@@ -46,32 +50,34 @@ def test_the_target_frame_points_at_the_nearest_target_with_the_furthest_on_its_
 
 def test_frame9d_is_the_same_state_in_a_mirror_and_under_a_rotation() -> None:
     cfg, obs = _observe(ROBOTS, TARGETS)
-    state = featurize(cfg, obs, "frame9d")[0, 0]
+    state = featurize(cfg, obs, FRAME9D)[0, 0]
     # distance 100; furthest at (50 along x, 120 along y), present; robot (0, -60), present; nearest shared.
     np.testing.assert_allclose(state, [100.0, 50.0, 120.0, 1.0, 0.0, -60.0, 1.0, 1.0, 0.0], atol=1e-4)
     # The scene seen in a mirror (x -> -x) gives the same state.
     cfg, obs = _observe([(0.0, 0.0), (-60.0, 0.0)], MIRRORED)
-    np.testing.assert_allclose(featurize(cfg, obs, "frame9d")[0, 0], state, atol=1e-4)
+    np.testing.assert_allclose(featurize(cfg, obs, FRAME9D)[0, 0], state, atol=1e-4)
     # The whole scene turned by 90° about robot 0 gives robot 0 the same state.
     turn = np.array([[0.0, -1.0], [1.0, 0.0]])
     cfg, obs = _observe([tuple(turn @ p) for p in ROBOTS], [tuple(turn @ p) for p in TARGETS])
-    np.testing.assert_allclose(featurize(cfg, obs, "frame9d")[0, 0], state, atol=1e-4)
+    np.testing.assert_allclose(featurize(cfg, obs, FRAME9D)[0, 0], state, atol=1e-4)
 
 
 def test_present10d_zeroes_absent_pairs_and_flags_them() -> None:
     cfg, obs = _observe(ROBOTS, TARGETS)
     np.testing.assert_allclose(
-        featurize(cfg, obs, "present10d")[0, 0], [0, 100, -120, 50, 1, 60, 0, 1, 1, 0], atol=1e-4
+        featurize(cfg, obs, STATE["present10d"])[0, 0], [0, 100, -120, 50, 1, 60, 0, 1, 1, 0], atol=1e-4
     )
     # One target in view and no robot: the furthest and the robot pairs are (0, 0) and flagged absent.
     cfg, obs = _observe([(0.0, 0.0), (-900.0, 0.0)], [(30.0, 40.0)])
-    np.testing.assert_allclose(featurize(cfg, obs, "present10d")[0, 0], [30, 40, 0, 0, 0, 0, 0, 0, 0, 0], atol=1e-4)
-    np.testing.assert_allclose(featurize(cfg, obs, "frame9d")[0, 0], [50, 0, 0, 0, 0, 0, 0, 0, 0], atol=1e-4)
+    np.testing.assert_allclose(
+        featurize(cfg, obs, STATE["present10d"])[0, 0], [30, 40, 0, 0, 0, 0, 0, 0, 0, 0], atol=1e-4
+    )
+    np.testing.assert_allclose(featurize(cfg, obs, FRAME9D)[0, 0], [50, 0, 0, 0, 0, 0, 0, 0, 0], atol=1e-4)
 
 
 def test_relative_moves_are_named_from_the_nearest_target_and_the_furthests_side() -> None:
     cfg, obs = _observe(ROBOTS, TARGETS)
-    moves = action_set("relative")
+    moves = ACTION_SETS["relative"]
     frame = moves.frame(obs)
     names = list(moves.moves)
     velocity = {name: moves.velocity(cfg, np.full((1, 2), names.index(name)), frame)[0, 0] for name in names}
@@ -92,11 +98,12 @@ def test_a_relative_move_is_held_in_the_frame_it_was_chosen_in(actions: str) -> 
     # robot decides. Robot 1 is far away and does not learn.
     cfg = scenario(n_robots=2, n_targets=1)
     rng = np.random.default_rng(0)
-    state = reset_trial(cfg, 1, np.array([True, False]), "frame9d", rng, "difference", actions)
+    formulation = Formulation.of("frame9d", "difference", actions)
+    state = reset_trial(cfg, 1, np.array([True, False]), formulation, rng)
     world = _world([(0.0, 0.0), (-900.0, 0.0)], [(0.0, 100.0)], vel=[(5.0, 0.0)])
     obs = sense(cfg, world)
-    frame = action_set(actions).frame(obs)
-    features = featurize(cfg, obs, "frame9d")
+    frame = formulation.actions.frame(obs)
+    features = featurize(cfg, obs, FRAME9D)
     state = dataclasses.replace(state, world=world, obs=obs, features=features, start_features=features, frame=frame)
     decide = np.ones((1, 2), bool)
     for _ in range(cfg.action_steps):
@@ -111,7 +118,7 @@ def test_frame9d_keeps_lengths_puts_the_furthest_on_the_left_and_flags_presence_
 
     cfg = scenario()
     obs = sense(cfg, reset(cfg, 200, np.random.default_rng(5)))
-    state = featurize(cfg, obs, "frame9d").astype(np.float64)
+    state = featurize(cfg, obs, FRAME9D).astype(np.float64)
     f = obs.features.astype(np.float64)
     sees, two, robot = obs.n_seen >= 1, obs.n_seen >= 2, obs.sees_robot
     np.testing.assert_allclose(state[..., 0], np.where(sees, np.linalg.norm(f[..., 0:2], axis=-1), 0.0), atol=1e-3)

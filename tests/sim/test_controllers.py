@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
-from sim import HAND_MADE, Controller, WorldState, evaluate, scenario, sense
+from sim import CONTROLLERS, HAND_MADE, Controller, WorldState, evaluate, scenario, sense
+from sim.controllers import PUBLIC_FORCE_LAW, STATE_FORCE_LAW
 
 
 @pytest.fixture(scope="module")
@@ -79,9 +82,14 @@ def test_the_state_limited_force_law_on_a_hand_built_arena() -> None:
     heading, memory = _headings(HAND_MADE["force-6d"], robots, targets)
     np.testing.assert_allclose(heading[0], np.array([1.0, 0.5 + 1.0]) / np.hypot(1.0, 1.5), atol=1e-6)
     np.testing.assert_allclose(heading[2], memory[2])  # no force: the heading is kept (inside the wall)
-    # With the shared flags both of robot 0's targets weigh 0.25, since robot 1 observes them as well.
-    shared, _ = _headings(HAND_MADE["force-6d-shared"], robots, targets)
+    # With the shared flags and the public weight both of robot 0's targets weigh 0.25, since robot 1 observes them
+    # as well; at the tuned weight 0 they do not pull at all and only robot 1 pushes robot 0 away.
+    public = dataclasses.replace(HAND_MADE["force-6d-shared"], law=PUBLIC_FORCE_LAW)
+    shared, _ = _headings(public, robots, targets)
     np.testing.assert_allclose(shared[0], np.array([0.25, 0.125 + 1.0]) / np.hypot(0.25, 1.125), atol=1e-6)
+    tuned, _ = _headings(HAND_MADE["force-6d-shared"], robots, targets)
+    assert STATE_FORCE_LAW.shared_target_weight == 0.0
+    np.testing.assert_allclose(tuned[0], [0.0, 1.0], atol=1e-6)
 
 
 def test_one_target_in_view_pulls_once_though_it_is_both_nearest_and_furthest() -> None:
@@ -107,7 +115,9 @@ def _velocities(controller: Controller, worlds: list[WorldState], n_targets: int
     hand-built snapshots of one arena, so whatever moved between them is what the robots saw move)."""
     from sim.config import ForceLawConfig
 
-    cfg = scenario(n_robots=worlds[0].robot_pos.shape[1], n_targets=n_targets, force=ForceLawConfig(**force))
+    # The public law's distances (do4 = 180), which the hand-built arenas below are laid out for.
+    controller = dataclasses.replace(controller, law=ForceLawConfig(**force))
+    cfg = scenario(n_robots=worlds[0].robot_pos.shape[1], n_targets=n_targets)
     rng = np.random.default_rng(0)
     memory = controller.init(cfg, worlds[0], rng)
     out = []
@@ -124,7 +134,7 @@ def test_an_unseen_target_in_the_predictive_band_exerts_no_force() -> None:
     honest = _velocities(HAND_MADE["a-cmommt"], [_still(robots, targets)], 1)[0]
     kept = _velocities(HAND_MADE["a-cmommt"], [_still(robots, [(-500.0, 500.0)])], 1)[0]
     np.testing.assert_allclose(honest[0], kept[0])
-    oracle = _velocities(HAND_MADE["a-cmommt-oracle"], [_still(robots, targets)], 1)[0]
+    oracle = _velocities(CONTROLLERS["a-cmommt-oracle"], [_still(robots, targets)], 1)[0]
     np.testing.assert_allclose(oracle[0], [1.0, 0.0], atol=1e-12)
 
 
@@ -218,10 +228,10 @@ def test_the_oracle_reads_what_no_robot_senses() -> None:
     from sim import reset
 
     cfg = scenario()
-    controller = HAND_MADE["a-cmommt-oracle"]
+    controller = CONTROLLERS["a-cmommt-oracle"]
     w = reset(cfg, 64, np.random.default_rng(3))
     d = np.linalg.norm(w.target_pos[:, None] - w.robot_pos[:, :, None], axis=-1)
-    band = ((d > cfg.sensing_range) & (d <= cfg.force.do4)).any(axis=1) & (d > cfg.sensing_range).all(axis=1)
+    band = ((d > cfg.sensing_range) & (d <= controller.law.do4)).any(axis=1) & (d > cfg.sensing_range).all(axis=1)
     assert band.any()
     probe = WorldState(
         robot_pos=w.robot_pos,

@@ -16,10 +16,14 @@ from algorithm.agent import Phase2Config, TabularAgent
 from algorithm.discretization import Discretization
 from algorithm.policy import Policy
 from algorithm.trials import ExperienceSlice, SliceConfig
-from sim import ScenarioConfig, WorldState, scenario
+from sim import FORMULATIONS, Formulation, ScenarioConfig, WorldState, scenario
 from sim.envs import pettingzoo_env
 from sim.envs.gym_env import CmommtSingleRobotEnv
 from sim.envs.pettingzoo_env import CmommtParallelEnv
+from sim.formulation import default_formulation
+
+PAPER = FORMULATIONS["paper"]
+LOCAL = Formulation.of("local2d", "paper", "compass")
 
 
 def observed_share(cfg: ScenarioConfig, world: WorldState) -> float:
@@ -29,16 +33,19 @@ def observed_share(cfg: ScenarioConfig, world: WorldState) -> float:
 
 
 def test_gymnasium_env_passes_the_checker() -> None:
-    check_env(CmommtSingleRobotEnv(), skip_render_check=True)
-    check_env(CmommtSingleRobotEnv(featurizer="local2d", others="a-cmommt"), skip_render_check=True)
-    check_env(CmommtSingleRobotEnv(featurizer="shared8d", reward="difference-decision"), skip_render_check=True)
+    env = CmommtSingleRobotEnv()
+    assert env.formulation == default_formulation() and env.observation_space.shape == (default_formulation().dim,)
+    check_env(env, skip_render_check=True)
+    check_env(CmommtSingleRobotEnv(formulation=LOCAL, others="a-cmommt"), skip_render_check=True)
+    shared = Formulation.of("shared8d", "difference-decision", "compass", rules="search-on")
+    check_env(CmommtSingleRobotEnv(formulation=shared), skip_render_check=True)
 
 
 def test_the_registered_gymnasium_id_makes_the_env() -> None:
     assert sim.envs.GYM_IDS == ("cmommt/SingleRobot-v1",)
-    env = gymnasium.make("cmommt/SingleRobot-v1", featurizer="local2d")
+    env = gymnasium.make("cmommt/SingleRobot-v1", formulation=LOCAL)
     assert isinstance(env.unwrapped, CmommtSingleRobotEnv)
-    assert env.unwrapped.featurizer == "local2d"
+    assert env.unwrapped.formulation == LOCAL
     obs, _ = env.reset(seed=0)
     assert obs.shape == (2,) and env.observation_space.contains(obs)
     check_env(gymnasium.make("cmommt/SingleRobot-v1").unwrapped, skip_render_check=True)
@@ -46,13 +53,14 @@ def test_the_registered_gymnasium_id_makes_the_env() -> None:
 
 def test_pettingzoo_env_passes_the_api_and_seed_tests() -> None:
     parallel_api_test(pettingzoo_env.parallel_env(), num_cycles=300)
-    parallel_api_test(pettingzoo_env.parallel_env(featurizer="shared8d", reward="difference"), num_cycles=300)
+    shared = Formulation.of("shared8d", "difference", "compass")
+    parallel_api_test(pettingzoo_env.parallel_env(formulation=shared), num_cycles=300)
     parallel_seed_test(pettingzoo_env.parallel_env)
     api_test(pettingzoo_env.env(), num_cycles=300)
-    assert isinstance(pettingzoo_env.parallel_env(featurizer="local2d"), CmommtParallelEnv)
+    assert isinstance(pettingzoo_env.parallel_env(formulation=LOCAL), CmommtParallelEnv)
     aec = pettingzoo_env.env()
     aec.reset(seed=0)
-    assert aec.agent_selection == "robot_0" and aec.observe("robot_0").shape == (6,)
+    assert aec.agent_selection == "robot_0" and aec.observe("robot_0").shape == (default_formulation().dim,)
 
 
 def test_info_carries_the_coverage_of_metric_a() -> None:
@@ -70,7 +78,7 @@ def test_info_carries_the_coverage_of_metric_a() -> None:
 
 
 def test_gym_episode_ends_with_the_delayed_reward_or_the_lost_penalty() -> None:
-    env = CmommtSingleRobotEnv()
+    env = CmommtSingleRobotEnv(formulation=PAPER)
     cfg = env.cfg
     for seed in range(20):
         obs, info = env.reset(seed=seed)
@@ -96,7 +104,7 @@ def test_gym_episode_ends_with_the_delayed_reward_or_the_lost_penalty() -> None:
 
 
 def test_pettingzoo_robots_start_near_a_target_and_lost_robots_leave_motionless() -> None:
-    env = CmommtParallelEnv()
+    env = CmommtParallelEnv(formulation=PAPER)
     cfg = env.cfg
     _, infos = env.reset(seed=1)
     for k, agent in enumerate(env.agents):
@@ -121,11 +129,13 @@ def test_pettingzoo_robots_start_near_a_target_and_lost_robots_leave_motionless(
     assert total_steps <= cfg.learning_steps // cfg.action_steps
 
 
+@pytest.mark.parametrize("formulation", [PAPER, default_formulation()], ids=["paper", "default"])
 @pytest.mark.parametrize("seed", range(4))
-def test_the_gymnasium_env_replays_the_slice_for_the_same_seed(seed: int) -> None:
+def test_the_gymnasium_env_replays_the_slice_for_the_same_seed(seed: int, formulation: Formulation) -> None:
     cfg = scenario()
-    batch = ExperienceSlice(cfg, SliceConfig(n_arenas=1, learning_robots=(0,)), seed=seed).run_trial()
-    env = CmommtSingleRobotEnv()  # robot 0 learns, the others explore: the slice with learning_robots=(0,)
+    batch = ExperienceSlice(cfg, SliceConfig(formulation, n_arenas=1, learning_robots=(0,)), seed=seed).run_trial()
+    # Robot 0 learns, the others explore: the slice with learning_robots=(0,).
+    env = CmommtSingleRobotEnv(formulation=formulation)
     obs, _ = env.reset(seed=seed)
     for k in range(len(batch)):
         np.testing.assert_array_equal(obs, batch.state[k])
@@ -140,7 +150,7 @@ def greedy_agent(cfg: ScenarioConfig) -> TabularAgent:
     rng = np.random.default_rng(42)
     disc = Discretization.from_per_action([rng.uniform(-150.0, 150.0, (4, 6)) for _ in range(8)])
     tables = rng.normal(0.0, 1.0, (cfg.n_robots, disc.size)).astype(np.float32)
-    policy = Policy("collab6d", disc, tables, np.arange(cfg.n_robots))
+    policy = Policy(PAPER, disc, tables, np.arange(cfg.n_robots))
     return TabularAgent(policy, Phase2Config(epsilon=0.0))
 
 
@@ -148,8 +158,8 @@ def greedy_agent(cfg: ScenarioConfig) -> TabularAgent:
 def test_the_pettingzoo_env_replays_the_slice_for_the_same_seed(seed: int) -> None:
     cfg = scenario()
     agent = greedy_agent(cfg)
-    batch = ExperienceSlice(cfg, SliceConfig(n_arenas=1), seed=seed).run_trial(agent)
-    env = CmommtParallelEnv()  # every robot learns: the slice with learning_robots=None
+    batch = ExperienceSlice(cfg, SliceConfig(PAPER, n_arenas=1), seed=seed).run_trial(agent)
+    env = CmommtParallelEnv(formulation=PAPER)  # every robot learns: the slice with learning_robots=None
     obs, _ = env.reset(seed=seed)
     rows: list[tuple[int, np.ndarray, int, float, np.ndarray, bool]] = []
     while env.agents:
@@ -185,7 +195,7 @@ def one_torch_thread() -> Iterator[None]:
 def test_stable_baselines3_dqn_learns_and_acts_on_the_registered_env() -> None:
     from stable_baselines3 import DQN
 
-    env = gymnasium.make("cmommt/SingleRobot-v1")
+    env = gymnasium.make("cmommt/SingleRobot-v1", formulation=PAPER)
     cfg = env.unwrapped.cfg
     model = DQN(
         "MlpPolicy",

@@ -1,23 +1,18 @@
-"""The featurizer and reward registries on hand-built arenas whose values are known by hand."""
+"""The featurizer and reward registries on hand-built arenas whose values are known by hand, and the formulation
+that resolves their names."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from sim import TrialStep, WorldState, featurize, scenario, sense, step_trial
-from sim.features import (
-    DEFAULT_FORMULATION,
-    FEATURIZER_REGISTRY,
-    FEATURIZERS,
-    REWARDS,
-    Formulation,
-    resolve_formulation,
-    resolve_reward,
-    reward_value,
-    trial_reward,
-)
+from sim import TrialStep, WorldState, featurize, reset, scenario, sense, step_trial
+from sim.actions import ACTION_SETS
+from sim.features import FEATURIZER_REGISTRY, FEATURIZERS, REWARDS, trial_reward
+from sim.formulation import DEFAULT_FORMULATION, FORMULATIONS, TRIAL_RULES, Formulation, resolve_formulation
 from tests.fakes import situation
+
+STATE = FEATURIZER_REGISTRY
 
 MASK = 1000.0
 N, W = 0, 6  # compass action indices
@@ -40,22 +35,45 @@ def test_the_shared_state_flags_the_targets_another_robot_observes() -> None:
     # Robot 0: its nearest target (0) is also robot 1's, its furthest (1) is its own alone.
     np.testing.assert_array_equal(obs.shared[0], [[True, False], [True, True], [False, False]])
     np.testing.assert_array_equal(obs.n_only[0], [1, 0, 0])
-    state = featurize(cfg, obs, "shared8d")[0]
+    state = featurize(cfg, obs, STATE["shared8d"])[0]
     np.testing.assert_allclose(state[0], [0, 50, -60, -80, 120, 0, 1, 0])
     np.testing.assert_allclose(state[1], [-120, 50, -120, 50, -120, 0, 1, 1])
     np.testing.assert_allclose(state[2], [MASK] * 6 + [0, 0])
-    np.testing.assert_array_equal(state[:, :6], featurize(cfg, obs, "collab6d")[0])
+    np.testing.assert_array_equal(state[:, :6], featurize(cfg, obs, STATE["collab6d"])[0])
     assert FEATURIZERS["shared8d"] == len(FEATURIZER_REGISTRY["shared8d"].state) == 8
+
+
+@pytest.mark.parametrize("name", list(FEATURIZER_REGISTRY))
+def test_every_featurizer_tells_from_its_state_alone_that_no_target_is_in_view(name: str) -> None:
+    cfg = scenario()
+    obs = sense(cfg, reset(cfg, 300, np.random.default_rng(2)))
+    featurizer = FEATURIZER_REGISTRY[name]
+    none = featurizer.sees_none(cfg, featurizer.compute(cfg, obs))
+    np.testing.assert_array_equal(none, obs.n_seen == 0)
+    assert none.any() and not none.all()
 
 
 def test_the_difference_reward_counts_the_targets_only_this_robot_observes() -> None:
     cfg = scenario(n_robots=3, n_targets=3)
     obs = sense(cfg, arena())
     # D_i = G(z) − G(z without i): without robot 0 target 1 goes unobserved; without robot 1 nothing changes.
-    np.testing.assert_allclose(reward_value(cfg, obs, "difference")[0], [1, 0, 0])
-    np.testing.assert_allclose(trial_reward(cfg, obs, "difference")[0], [1, 0, cfg.lost_reward])
+    difference = REWARDS["difference"]
+    np.testing.assert_allclose(difference.value(cfg, obs)[0], [1, 0, 0])
+    np.testing.assert_allclose(trial_reward(cfg, obs, difference)[0], [1, 0, cfg.lost_reward])
     covered_without = [sense(cfg.replace(n_robots=2), _without(arena(), i)).covered[0] for i in range(cfg.n_robots)]
-    np.testing.assert_allclose(reward_value(cfg, obs, "difference")[0], obs.covered[0] - np.array(covered_without))
+    np.testing.assert_allclose(difference.value(cfg, obs)[0], obs.covered[0] - np.array(covered_without))
+
+
+def test_the_redundancy_reward_charges_a_robot_that_sees_only_teammate_watched_targets() -> None:
+    # Robot 0 observes target 1 alone (+1); robot 1 sees only target 0, which robot 0 sees too (redundant: −penalty);
+    # robot 2 sees nothing (0: searching is not charged).
+    for penalty in (0.5, 1.25):
+        cfg = scenario(n_robots=3, n_targets=3, redundancy_penalty=penalty)
+        value = REWARDS["difference-redundancy"].value(cfg, sense(cfg, arena()))
+        np.testing.assert_allclose(value[0], [1.0, -penalty, 0.0])
+    assert REWARDS["difference-redundancy"].per_decision
+    with pytest.raises(ValueError, match="redundancy_penalty"):
+        scenario(redundancy_penalty=float("nan"))
 
 
 def _without(world: WorldState, robot: int) -> WorldState:
@@ -64,23 +82,43 @@ def _without(world: WorldState, robot: int) -> WorldState:
 
 
 def test_paper_names_each_featurizers_own_reward_and_unknown_names_are_refused() -> None:
-    assert resolve_reward("local2d", "paper") == "observed"
-    assert resolve_reward("collab6d", "paper") == resolve_reward("shared8d", "paper") == "eq2"
-    assert resolve_reward("collab6d", "difference") == "difference"
-    with pytest.raises(ValueError, match="unknown reward 'nope'"):
-        resolve_reward("collab6d", "nope")
-    with pytest.raises(ValueError, match="unknown featurizer 'pixels'"):
-        featurize(scenario(), sense(scenario(), arena()), "pixels")
-    assert {name for name, r in REWARDS.items() if r.per_decision} == {"difference-decision"}
+    assert Formulation.of("local2d", "paper", "compass").reward is REWARDS["observed"]
+    assert Formulation.of("collab6d", "paper", "compass").reward is REWARDS["eq2"]
+    assert Formulation.of("shared8d", "paper", "compass").reward is REWARDS["eq2"]
+    assert Formulation.of("collab6d", "difference", "compass").reward is REWARDS["difference"]
+    for names, error in [
+        (("collab6d", "nope", "compass"), "unknown reward 'nope'; known: paper, observed, eq2"),
+        (("pixels", "paper", "compass"), "unknown featurizer 'pixels'; known: local2d, collab6d"),
+        (("collab6d", "eq2", "joystick"), "unknown action set 'joystick'; known: compass, relative"),
+    ]:
+        with pytest.raises(ValueError, match=error):
+            Formulation.of(*names)
+    with pytest.raises(ValueError, match="unknown trial rules 'lenient'; known: paper, search-on"):
+        Formulation.of("collab6d", "eq2", "compass", rules="lenient")
+    assert {name for name, r in REWARDS.items() if r.per_decision} == {"difference-decision", "difference-redundancy"}
 
 
 def test_a_formulation_is_resolved_by_name_with_explicit_parts_over_it() -> None:
     assert DEFAULT_FORMULATION == "frame-difference"
-    assert resolve_formulation(DEFAULT_FORMULATION) == Formulation("frame9d", "difference-decision", 1, "relative")
-    assert resolve_formulation("shared-difference") == Formulation("shared8d", "difference", 1, "compass")
-    assert resolve_formulation("paper", featurizer="local2d") == Formulation("local2d", "eq2")
-    assert resolve_formulation("paper", featurizer="local2d", reward="paper") == Formulation("local2d", "observed")
+    default = resolve_formulation(DEFAULT_FORMULATION)
+    assert default == Formulation.of("frame9d", "difference-decision", "relative", act_every=1)
+    assert (default.featurizer, default.reward, default.actions, default.rules) == (
+        FEATURIZER_REGISTRY["frame9d"],
+        REWARDS["difference-decision"],
+        ACTION_SETS["relative"],
+        TRIAL_RULES["paper"],
+    )
+    assert default.names == ("frame9d", "difference-decision", "relative") and default.dim == 9
+    assert resolve_formulation("shared-difference") == Formulation.of("shared8d", "difference", "compass", act_every=1)
+    assert resolve_formulation("paper", featurizer="local2d") == Formulation.of("local2d", "eq2", "compass")
+    assert resolve_formulation("paper", featurizer="local2d", reward="paper").reward is REWARDS["observed"]
     assert resolve_formulation("shared-difference", act_every=5).act_every == 5
+    search = resolve_formulation("paper", rules="search-on")
+    assert search != resolve_formulation("paper") and not search.rules.lost_ends_trial
+    assert "search-on trial rules" in search.describe()
+    assert resolve_formulation("paper").describe() == (
+        "collab6d state, eq2 reward, compass moves, deciding every action in tests"
+    )
     for kwargs, error in [
         ({"name": "pixels-first"}, "unknown formulation 'pixels-first'; known: paper, shared-difference"),
         ({"name": "paper", "featurizer": "pixels"}, "unknown featurizer 'pixels'"),
@@ -89,8 +127,6 @@ def test_a_formulation_is_resolved_by_name_with_explicit_parts_over_it() -> None
     ]:
         with pytest.raises(ValueError, match=error):
             resolve_formulation(**kwargs)
-    with pytest.raises(ValueError, match="unknown action set 'joystick'; known: compass"):
-        Formulation("collab6d", "eq2", actions="joystick")
 
 
 def _two_robots(reward: str, steps: int, hold: int | None = None) -> list[TrialStep]:
@@ -99,7 +135,7 @@ def _two_robots(reward: str, steps: int, hold: int | None = None) -> list[TrialS
     for steps 1–6 and only A from step 7 (at 147.5), so A is shared from then on."""
     cfg = scenario(n_robots=2, n_targets=3, learning_steps=10, action_steps=5)
     robots, targets = [(0.0, 0.0), (200.0, 30.0)], [(0.0, 30.0), (-100.0, 0.0), (300.0, 30.0)]
-    state = situation(cfg, robots, targets, [True, True], reward=reward)
+    state = situation(cfg, robots, targets, [True, True], formulation=Formulation.of("collab6d", reward, "compass"))
     rng = np.random.default_rng(0)
     action, decide = np.array([[N, W]]), np.ones((1, 2), bool)
     outs = []
@@ -131,3 +167,16 @@ def test_a_trial_end_difference_reward_is_paid_once_at_the_end() -> None:
     outs = _two_robots("difference", 10)
     np.testing.assert_allclose(outs[-1].reward[0], [1.0, 0.0])
     np.testing.assert_allclose(np.sum([out.reward[0] for out in outs], axis=0), [1.0, 0.0])
+
+
+def test_every_part_of_every_formulation_pickles_into_a_worker_process() -> None:
+    # ablate --jobs and the SLURM array send their setups to worker processes by pickle.
+    import pickle
+
+    for formulation in FORMULATIONS.values():
+        again = pickle.loads(pickle.dumps(formulation))
+        assert again.names == formulation.names
+    states = np.zeros((2, FEATURIZER_REGISTRY["frame9d"].dim), np.float32)
+    states[1, 0] = 40.0
+    sees_none = pickle.loads(pickle.dumps(FEATURIZER_REGISTRY["frame9d"])).sees_none
+    assert sees_none(scenario(), states).tolist() == [True, False]

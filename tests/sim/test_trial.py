@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
-from sim import ScenarioConfig, reset_trial, scenario, step_trial
-from sim.features import resolve_reward, trial_reward
+from sim import FORMULATIONS, Formulation, ScenarioConfig, reset_trial, scenario, step_trial
+from sim.features import trial_reward
 from tests.fakes import situation
+
+PAPER = FORMULATIONS["paper"]
 
 N, E, W = 0, 2, 6  # compass action indices
 MASK = 1000.0
@@ -63,12 +67,51 @@ def test_a_learner_that_loses_every_target_is_done_with_the_lost_reward_then_sta
     assert state.obs.n_seen[0, 0] == 1
 
 
+def test_under_search_on_rules_a_lost_learner_searches_and_goes_on_learning() -> None:
+    cfg = small(1, 1)
+    # As in the test above, robot 0 loses its target at step 2; searching on, it keeps its heading north.
+    search_on = PAPER.replace(rules="search-on")
+    state = situation(cfg, [(140.0, 0.0)], [(0.0, 0.0)], [True], target_vel=[(1.0, 0.0)], heading=[(0.0, 1.0)])
+    state = dataclasses.replace(state, formulation=search_on)
+    rng = np.random.default_rng(0)
+    decide = np.ones((1, 1), bool)
+    outs = []
+    for _ in range(cfg.learning_steps):
+        state, out = step_trial(cfg, state, np.full((1, 1), E), decide, rng)
+        outs.append(out)
+        decide = out.decide
+    assert not any(o.done[0, 0] for o in outs[:-1])  # losing every target ends nothing
+    np.testing.assert_allclose(state.world.robot_pos[0, 0], (155.0, 7 * SPEED), atol=1e-9)  # searched north
+    assert [bool(o.transition[0, 0]) for o in outs] == [False, False, True, False, False, True, False, False, True]
+    assert outs[2].reward[0, 0] == 0.0  # a trial-end reward is paid only at the end, lost or not
+    # Eq. 2's time-out stays terminal (it is paid at the end), and a robot lost at the end is paid lost_reward.
+    assert outs[-1].done[0, 0] and outs[-1].reward[0, 0] == cfg.lost_reward
+
+
+@pytest.mark.parametrize(("rules", "terminal"), [("paper", True), ("search-on", False)])
+def test_a_per_decision_rewards_time_out_is_terminal_or_bootstraps_by_the_rules(rules: str, terminal: bool) -> None:
+    cfg = small(1, 1)
+    formulation = Formulation.of("collab6d", "difference-decision", "compass", rules=rules)
+    state = situation(cfg, [(0.0, 0.0)], [(0.0, 0.0)], [True], formulation=formulation)
+    rng = np.random.default_rng(0)
+    decide = np.ones((1, 1), bool)
+    while True:
+        state, out = step_trial(cfg, state, np.full((1, 1), N), decide, rng)
+        decide = out.decide
+        if out.trial_over:
+            break
+        assert not out.done.any() and not out.truncated.any()
+    assert (bool(out.done[0, 0]), bool(out.truncated[0, 0])) == (terminal, not terminal)
+    assert out.transition[0, 0] and out.reward[0, 0] == 1.0 and not state.active[0, 0]
+
+
 @pytest.mark.parametrize(("featurizer", "expected"), [("collab6d", [1.0, 1.0, 2.0]), ("local2d", [3.0, 3.0, 2.0])])
 def test_the_reward_is_zero_before_the_end_and_eq2_at_the_end(featurizer: str, expected: list[float]) -> None:
     cfg = small(3, 5)
     # Robots 0 and 1 keep three targets and each other in view (Eq. 2: 3 − k = 3 − 2); robot 2, alone, two.
     targets = [(0.0, 0.0), (10.0, 0.0), (0.0, -10.0), (-600.0, 0.0), (-600.0, 20.0)]
-    state = situation(cfg, [(0.0, 5.0), (0.0, -5.0), (-600.0, 10.0)], targets, [True] * 3, featurizer=featurizer)
+    formulation = Formulation.of(featurizer, "paper", "compass")
+    state = situation(cfg, [(0.0, 5.0), (0.0, -5.0), (-600.0, 10.0)], targets, [True] * 3, formulation=formulation)
     rng = np.random.default_rng(0)
     action = np.array([[N, E, W]])
     decide = np.ones((1, 3), bool)
@@ -80,7 +123,7 @@ def test_the_reward_is_zero_before_the_end_and_eq2_at_the_end(featurizer: str, e
             np.testing.assert_array_equal(out.reward, 0.0)
     assert out.trial_over and out.done.all() and out.transition.all()
     np.testing.assert_array_equal(out.reward[0], expected)
-    np.testing.assert_array_equal(out.reward, trial_reward(cfg, state.obs, resolve_reward(featurizer, "paper")))
+    np.testing.assert_array_equal(out.reward, trial_reward(cfg, state.obs, formulation.reward))
     np.testing.assert_array_equal(state.obs.n_seen[0], [3, 3, 2])
     with pytest.raises(ValueError, match="trial is over"):
         step_trial(cfg, state, action, decide, rng)
@@ -89,14 +132,14 @@ def test_the_reward_is_zero_before_the_end_and_eq2_at_the_end(featurizer: str, e
 def test_learners_start_within_sensing_range_of_a_target() -> None:
     cfg = scenario()
     learners = np.arange(cfg.n_robots) % 3 == 0
-    state = reset_trial(cfg, 200, learners, "collab6d", np.random.default_rng(3))
+    state = reset_trial(cfg, 200, learners, PAPER, np.random.default_rng(3))
     gap = np.linalg.norm(state.world.robot_pos[:, :, None] - state.world.target_pos[:, None], axis=-1).min(axis=2)
     assert (gap[:, learners] <= cfg.sensing_range).all()
     assert (state.obs.n_seen[:, learners] >= 1).all()
     assert (state.obs.n_seen[:, ~learners] == 0).any()  # the others start anywhere in the disk
     np.testing.assert_array_equal(state.active, np.broadcast_to(learners, (200, cfg.n_robots)))
     np.testing.assert_allclose(np.linalg.norm(state.heading, axis=-1), 1.0)
-    again = reset_trial(cfg, 200, learners, "collab6d", np.random.default_rng(3))
+    again = reset_trial(cfg, 200, learners, PAPER, np.random.default_rng(3))
     np.testing.assert_array_equal(again.world.robot_pos, state.world.robot_pos)
 
 

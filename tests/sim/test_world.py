@@ -20,6 +20,7 @@ from sim import (
     step,
     trial_reward,
 )
+from sim.features import FEATURIZER_REGISTRY, REWARDS
 from sim.world import place_near_targets
 
 MASK = 1000.0
@@ -57,9 +58,9 @@ def test_nearest_furthest_and_robot_features_on_a_hand_built_arena() -> None:
     np.testing.assert_array_equal(obs.n_seen[0], [2, 1, 0])
     np.testing.assert_array_equal(obs.sees_robot[0], [True, True, False])
     assert obs.covered[0] == 2
-    local = featurize(cfg, obs, "local2d")[0]
+    local = featurize(cfg, obs, FEATURIZER_REGISTRY["local2d"])[0]
     np.testing.assert_allclose(local, [[-60, -80], [-120, 50], [MASK, MASK]])
-    nearest = featurize(cfg.replace(local_target="nearest"), obs, "local2d")[0]
+    nearest = featurize(cfg.replace(local_target="nearest"), obs, FEATURIZER_REGISTRY["local2d"])[0]
     np.testing.assert_allclose(nearest, [[0, 50], [-120, 50], [MASK, MASK]])
 
 
@@ -79,11 +80,11 @@ def test_rewards_follow_equation_2_and_the_lost_rule() -> None:
     )
     obs = sense(cfg, w)
     # r_i(T) = Σ_j b_ij(T) − k(T), k = 2 when another robot is in view [paper Eq. 2]; lost robots get −1.
-    np.testing.assert_allclose(trial_reward(cfg, obs, "eq2")[0], [2 - 2, 1 - 2, -1])
-    np.testing.assert_allclose(trial_reward(cfg, obs, "observed")[0], [2, 1, -1])
+    np.testing.assert_allclose(trial_reward(cfg, obs, REWARDS["eq2"])[0], [2 - 2, 1 - 2, -1])
+    np.testing.assert_allclose(trial_reward(cfg, obs, REWARDS["observed"])[0], [2, 1, -1])
     np.testing.assert_array_equal(lost(obs)[0], [False, False, True])
     custom = cfg.replace(lost_reward=-5.0, robot_in_view_penalty=0.5)
-    np.testing.assert_allclose(trial_reward(custom, obs, "eq2")[0], [1.5, 0.5, -5])
+    np.testing.assert_allclose(trial_reward(custom, obs, REWARDS["eq2"])[0], [1.5, 0.5, -5])
 
 
 def brute_force_coverage(cfg, w: WorldState) -> np.ndarray:
@@ -171,7 +172,7 @@ def test_targets_reflect_specularly_off_the_wall() -> None:
 
 def test_force_law_attracts_repels_and_cooperates() -> None:
     cfg = small_cfg(2, 1)
-    a_cmommt = HAND_MADE["a-cmommt"]
+    a_cmommt = HAND_MADE["a-cmommt-public"]  # the public parameters the distances below are laid out for
     rng = np.random.default_rng(0)
 
     def heading(robots, targets, controller=a_cmommt):
