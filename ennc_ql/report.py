@@ -13,6 +13,7 @@ commands that come next. Usage::
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -286,6 +287,14 @@ def _integrity(report: Mapping[str, Any]) -> list[str]:
     return ["## Duplicates, gaps, rejected", "", *_table(("figure", "value"), rows)]
 
 
+def _move_names(report: Mapping[str, Any]) -> tuple[str, ...]:
+    """The names of the policy's own moves: its formulation's action set (relative moves are no compass points)."""
+    formulation = _formulation(report)
+    if formulation in FORMULATIONS:
+        return tuple(FORMULATIONS[formulation].actions.moves)
+    return COMPASS_NAMES
+
+
 def _policy(report: Mapping[str, Any]) -> list[str]:
     sizes: list[int] = report["prototypes_per_action"]
     lines = [
@@ -298,7 +307,7 @@ def _policy(report: Mapping[str, Any]) -> list[str]:
     if sizes:
         lines.append(f"Prototypes per action (mean {sum(sizes) / len(sizes):.1f}):")
         lines.append("")
-        lines += _table(tuple(COMPASS_NAMES[: len(sizes)]), [tuple(sizes)])
+        lines += _table(_move_names(report)[: len(sizes)], [tuple(sizes)])
     if report.get("policy_figure"):
         name = Path(str(report["policy_figure"])).name
         lines += [f"![a test arena under the policy, and its prototypes per action coloured by Q]({name})", ""]
@@ -361,27 +370,32 @@ def learning_curve_figure(report: Mapping[str, Any]) -> Figure:
     finals = dict(report.get("final_reference_coverage") or {})
     fig = Figure(figsize=(10, 4.8))
     ax = fig.subplots()
-    for name, level in _references(report.get("reference_coverage") or {}):
+    xmax = max([float(duration), end, *(t for t, _ in curve)])
+    # The final figures side by side just past the curve's end, the learned policy's first: at one x they hid each
+    # other wherever they lie within a point of each other.
+    step = 0.03 * xmax
+    references = _references(report.get("reference_coverage") or {})
+    at = {name: end + step * (k + 2) for k, name in enumerate(n for n, _ in references if n in finals)}
+    for name, level in references:
         label = f"{_label(name)}: {level:.1f} %"
         if name in finals:
             label += f", {finals[name]:.1f} % ◆"
-            ax.plot([end], [finals[name]], "D", ms=6, color=_colour(name), label="_nolegend_")
+            ax.plot([at[name]], [finals[name]], "D", ms=6, color=_colour(name), label="_nolegend_")
         ax.axhline(level, ls="--", lw=1.2, color=_colour(name), label=label)
     if curve:
         ax.plot([t for t, _ in curve], [c for _, c in curve], "o-", color=LEARNED_COLOUR, label="learned policy")
     if final is not None:
         label = f"final policy: {final:.2f} % ({final_trials} trials)"
-        ax.plot([end], [final], "*", ms=15, color=LEARNED_COLOUR, label=label)
-    else:
+        ax.plot([end + step], [final], "*", ms=15, color=LEARNED_COLOUR, label=label)
+    elif not curve:
         ax.text(0.5, 0.5, "no evaluation: no policy was learned", transform=ax.transAxes, ha="center")
-    ax.set_xlim(0, max([float(duration), end, *(t for t, _ in curve)]) * 1.03)
-    ax.set_ylim(0, 100)
+    ax.set_xlim(0, (max([xmax, *at.values()]) + step) * 1.02)
+    ax.set_ylim(*_y_range([c for _, c in curve] + [v for _, v in references] + list(finals.values()), final))
     ax.set_xlabel("training time (s)")
     ax.set_ylabel("% of targets observed")
     formulation = _formulation(report)
     what = f"formulation {formulation}" if formulation else f"run {report.get('run_id') or _run_dir(report).name}"
-    result = "no policy learned" if final is None else f"the learned policy observes {final:.1f} % of the targets"
-    ax.set_title(f"{result} ({what})", fontsize="medium")
+    ax.set_title(f"{_curve_result(final, finals)}\n{what}", fontsize="medium")
     if ax.get_legend_handles_labels()[0]:
         ax.legend(
             loc="upper left",
@@ -393,6 +407,25 @@ def learning_curve_figure(report: Mapping[str, Any]) -> Figure:
     ax.grid(alpha=0.3)
     fig.tight_layout()
     return fig
+
+
+def _y_range(values: list[float], final: float | None) -> tuple[float, float]:
+    """An axis that fits the figures drawn, in steps of 5 points within 0-100: differences of a few points show."""
+    shown = [v for v in [*values, *([] if final is None else [final])] if v is not None]
+    if not shown:
+        return 0.0, 100.0
+    return max(0.0, 5.0 * math.floor((min(shown) - 3.0) / 5.0)), min(100.0, 5.0 * math.ceil((max(shown) + 3.0) / 5.0))
+
+
+def _curve_result(final: float | None, finals: Mapping[str, float]) -> str:
+    """The chart's title: the final figure and its gap to the hand-made controller, on the same trials."""
+    if final is None:
+        return "no final figure (the run was stopped, or learned no policy)"
+    result = f"the learned policy observes {final:.1f} % of the targets"
+    if "a-cmommt" in finals:
+        gap = final - float(finals["a-cmommt"])
+        result += f", {abs(gap):.1f} points {'below' if gap < 0 else 'above'} A-CMOMMT ({finals['a-cmommt']:.1f} %)"
+    return result
 
 
 def learning_curve_png(report: Mapping[str, Any], path: Path) -> Path:
