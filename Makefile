@@ -6,7 +6,16 @@ STAMP  := $(VENV)/.installed
 PYTHON ?= python3
 LIBS   := sim algorithm learner actors protocol monitor ennc_ql
 
-.PHONY: run test lint typecheck clean image-test
+.PHONY: help run test lint typecheck clean image-test
+
+# The first target, so a bare `make` says what there is to make and creates nothing.
+help:
+	@echo "make run              set everything up, then train: ennc-ql up (480 s of training, about 8 min in all)"
+	@echo "make test             set everything up, then lint, type check and the whole test suite"
+	@echo "make $(STAMP)  only create $(VENV) and install ennc-ql into it (make run and make test do it first)"
+	@echo "make lint, typecheck  ruff check and ruff format --check; mypy over the library packages"
+	@echo "make image-test       build the Docker image with podman and train in its containers (root)"
+	@echo "make clean            remove $(VENV) and the tools' caches"
 
 $(PY):
 	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 11))' || \

@@ -81,6 +81,14 @@ METHODS: dict[str, MethodSpec] = {
 }
 
 
+UNUSED_BUDGET: dict[str, tuple[str, ...]] = {
+    "fqi": ("phase1", "phase2", "codebook_patterns", "refits", "refit_tuples", "refit_seed_prototypes"),
+    "vqql": ("phase1", "refits", "refit_tuples", "refit_seed_prototypes", "fqi"),
+    "enncql": ("codebook_patterns", "fqi"),
+}
+"""The fields of :class:`Budget` that a method's algorithm never reads (a sweep of one would change nothing)."""
+
+
 @dataclass(frozen=True, slots=True)
 class Budget:
     """How much experience and computation one learning process gets."""

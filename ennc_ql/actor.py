@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 from typing import Any
 
 from actors.actor import RobotActor
@@ -56,6 +57,17 @@ def cmd_actor(args: argparse.Namespace) -> int:
         actor = RobotActor(transport, config, monitor=monitor)
         with connect(actor, transport):
             status = actor.run(stop)
-    line = f"actor {config.actor_id}: {status.tuples_sent} tuples sent, policy version {status.policy_version}"
+    line = (
+        f"actor {config.actor_id}: {status.tuples_sent} tuples sent, {status.tuples_acked} acknowledged, policy "
+        f"version {status.policy_version}"
+    )
     emit(dataclasses.asdict(status), args.json, line)
+    if status.tuples_sent and not status.tuples_acked and not status.policy_version:
+        # Publishing never fails on a network: without a learner every message goes nowhere, unanswered.
+        print(
+            f"ennc-ql actor: warning: no learner answered: nothing was acknowledged and no policy came (--connect "
+            f"{', '.join(args.connect) or 'none'}, --namespace {args.namespace or 'none'}); is a learner running "
+            "there, with the same --namespace?",
+            file=sys.stderr,
+        )
     return 0

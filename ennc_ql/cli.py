@@ -8,7 +8,10 @@ starts (:mod:`ennc_ql.parser`).
 from __future__ import annotations
 
 import argparse
+import io
 import logging
+import os
+import signal
 import sys
 from collections.abc import Sequence
 from importlib.metadata import PackageNotFoundError, version
@@ -17,6 +20,7 @@ from ennc_ql.allocator import keep_freed_memory
 from ennc_ql.command import check_recording
 from ennc_ql.parser import PROG, CommandParser, add_commands, wrap
 from ennc_ql.router import add_router_parser
+from ennc_ql.system import die_with_parent
 
 DESCRIPTION = """\
 ENNC-QL reinforcement learning for cooperative multi-robot target observation (CMOMMT), as a distributed
@@ -78,6 +82,25 @@ def build_parser(router_only: bool = False) -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    die_with_parent()  # a child of ``up``: gone with it, whatever kills it
+    for stream in (sys.stdout, sys.stderr):
+        # Where the terminal's encoding lacks a character of ours (PYTHONIOENCODING=ascii, a C locale): a '?' in its
+        # place, never a traceback.
+        if isinstance(stream, io.TextIOWrapper):
+            stream.reconfigure(errors="replace")
+    try:
+        try:
+            return _main(argv)
+        finally:
+            sys.stdout.flush()  # here, where a closed pipe can still be answered, not at the interpreter's exit
+    except BrokenPipeError:
+        # The reader is gone (ennc-ql eval ... | head -1): nothing more to say to it. The shell's status of a
+        # process ended by SIGPIPE, and nothing left for the interpreter to flush at exit.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 128 + signal.SIGPIPE
+
+
+def _main(argv: Sequence[str] | None) -> int:
     words = list(sys.argv[1:] if argv is None else argv)
     # The command is the first word that is not a flag: the only options before it (-v, -h) take no value.
     command = next((w for w in words if not w.startswith("-")), None)
@@ -95,6 +118,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        raise
     except Exception as exc:
         if args.verbose:
             raise

@@ -5,6 +5,7 @@ process command. Everything here is light to import: the router's process loads 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import re
@@ -17,7 +18,9 @@ from typing import Any, NoReturn
 import zenoh
 
 from ennc_ql.config import ConfigError, add_config_flags, load_config
+from ennc_ql.config_fields import UnknownKey, nested_fields
 from monitor import Sink, add_rerun_args
+from monitor.sinks import spawn_problem
 from protocol import ZenohTransport, add_connection_args, config_from_args, keys_from_args
 
 _RUST_SOURCE = re.compile(r"\s+at /\S+\.rs:\d+\.?")
@@ -42,10 +45,53 @@ def configure(cls: type[Any], args: argparse.Namespace, command: str, defaults: 
     """The command's configuration from its ``--config`` file and flags, or a one-line error naming what is wrong."""
     try:
         return load_config(cls, file=args.config, args=args, defaults=defaults)
+    except UnknownKey as exc:
+        fail(command, wrong_role(cls, Path(args.config), exc))
     except ConfigError as exc:
         fail(command, str(exc))
     except OSError as exc:
         fail(command, f"--config {args.config}: {exc.strerror or exc}")
+
+
+def _roles() -> dict[str, tuple[type[Any], str]]:
+    """Each process's configuration class, with where its settings go."""
+    # Imported here: the router's process never loads the simulator, which these configurations import.
+    from actors.config import ActorConfig
+    from ennc_ql.cluster import UpConfig
+    from learner.config import LearnerConfig
+
+    return {
+        "up": (UpConfig, "ennc-ql up --config and slurm train --config take it"),
+        "learner": (LearnerConfig, "ennc-ql learner --config takes it; in up's file it is the [learner] table"),
+        "actor": (ActorConfig, "ennc-ql actor --config takes it; in up's file it is the [actor] table"),
+    }
+
+
+_OWNER = {"up": "up's", "learner": "a learner's", "actor": "an actor's"}
+
+
+def wrong_role(cls: type[Any], file: Path, exc: UnknownKey) -> str:
+    """The message for a key of ``file`` that ``cls`` lacks: the file is another process's configuration, or the key
+    is another process's setting; else the error as it is."""
+    roles = _roles()
+    mine = next((role for role, (klass, _) in roles.items() if klass is cls), None)
+    if mine is None:
+        return str(exc)
+    for role, (klass, where) in roles.items():
+        if klass is cls:
+            continue
+        try:
+            load_config(klass, file=file)
+        except ConfigError:
+            continue
+        return f"{file} is {_OWNER[role]} configuration file ({where}), not {_OWNER[mine]}"
+    top = exc.path.split(".")[0]
+    for role, (klass, _) in roles.items():
+        if klass is not cls and role != "up" and top in {f.name for f in dataclasses.fields(klass)}:
+            table = f"[{role}.{top}]" if top in nested_fields(klass) else f"{role}.{top} in [{role}]"
+            owners = f"{_OWNER[role]} setting, not {_OWNER[mine]}"
+            return f"{file}: unknown key {exc.path!r}: {top} is {owners} (in up's configuration: {table})"
+    return str(exc)
 
 
 def check_folder(path: Path, command: str, flag: str, *, empty: bool = False) -> None:
@@ -83,7 +129,12 @@ def writable_dir(path: Path, command: str, flag: str) -> Path:
 
 
 def check_recording(sink: Sink | None, command: str) -> None:
-    """A ``--rerun save PATH`` whose file cannot be written fails now, not when the first process opens it."""
+    """A ``--rerun save PATH`` whose file cannot be written, or a ``--rerun spawn`` without a viewer or a display,
+    fails now, not once the processes started."""
+    if sink is not None and sink.kind == "spawn":
+        problem = spawn_problem()
+        if problem:
+            fail(command, f"--rerun spawn: {problem}")
     if sink is None or sink.kind != "save":
         return
     target = Path(str(sink.target))

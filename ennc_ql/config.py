@@ -40,6 +40,7 @@ Flags store under the field path (``args.store_capacity``, ``getattr(args, "fit.
 
 import argparse
 import dataclasses
+import math
 import typing
 from collections.abc import Callable, Collection, Iterable, Mapping
 from pathlib import Path
@@ -83,20 +84,31 @@ class _AddsArguments(Protocol):  # an ArgumentParser or an argument group
     def add_argument(self, *args: Any, **kwargs: Any) -> Any: ...
 
 
+def folder(text: str) -> Path:
+    """The argparse ``type`` of a folder: an empty value is an error, not the current folder (which ``Path("")`` is).
+
+    >>> folder("runs/x")
+    PosixPath('runs/x')
+    """
+    if not text.strip():
+        raise argparse.ArgumentTypeError("expected a folder, got an empty value")
+    return Path(text)
+
+
 def positive(kind: type[N]) -> Callable[[str], N]:
     """The argparse ``type`` of a positive number: ``positive(int)`` or ``positive(float)``.
 
     >>> positive(int)("3"), positive(float)("0.5")
     (3, 0.5)
     """
-    noun = "integer" if kind is int else "number"
+    noun = "integer" if kind is int else "finite number"
 
     def parse(text: str) -> N:
         try:
             value = kind(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected a positive {noun}, got {text!r}") from None
-        if not value > 0:  # also rejects nan
+        if not 0 < value < math.inf:  # also rejects nan
             raise argparse.ArgumentTypeError(f"expected a positive {noun}, got {text!r}")
         return value
 
@@ -110,14 +122,14 @@ def non_negative(kind: type[N]) -> Callable[[str], N]:
     >>> non_negative(int)("0")
     0
     """
-    noun = "integer" if kind is int else "number"
+    noun = "integer" if kind is int else "finite number"
 
     def parse(text: str) -> N:
         try:
             value = kind(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected an {noun} of 0 or more, got {text!r}") from None
-        if not value >= 0:
+        if not 0 <= value < math.inf:
             raise argparse.ArgumentTypeError(f"expected an {noun} of 0 or more, got {text!r}")
         return value
 
@@ -212,9 +224,10 @@ def replace_setting(config: T, path: str, value: Any) -> T:
     return typing.cast(T, value)
 
 
-def dump_config(config: Any) -> str:
-    """``config`` as TOML, nested dataclasses as tables; ``load_config(type(config), file=...)`` gives it back.
+def dump_config(config: Any, exclude: Collection[str] = ()) -> str:
+    """``config`` as TOML, nested dataclasses as tables, without the field paths in ``exclude``;
+    ``load_config(type(config), file=...)`` gives it back.
 
     A None is left out where the default is None too, and written ``"none"`` otherwise (TOML has no null).
     """
-    return tomli_w.dumps(toml_table(config, config_leaves(type(config)), ""))
+    return tomli_w.dumps(toml_table(config, config_leaves(type(config)), "", exclude))

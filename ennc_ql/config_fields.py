@@ -7,6 +7,7 @@ import dataclasses
 import difflib
 import inspect
 import itertools
+import math
 import textwrap
 import tomllib
 import types
@@ -20,6 +21,15 @@ from ennc_ql.parser import plain
 
 class ConfigError(ValueError):
     """A configuration that cannot be built; the message is one line, fit to print after the command's name."""
+
+
+class UnknownKey(ConfigError):
+    """A file's key that its configuration has no field for: ``path`` (``phase2.alpha``), for a hint naming the
+    configuration that has it."""
+
+    def __init__(self, message: str, path: str) -> None:
+        super().__init__(message)
+        self.path = path
 
 
 class Mismatch(Exception):
@@ -134,7 +144,7 @@ def suggest(key: str, known: Iterable[str], prefix: str = "") -> str:
 
 def describe(kind: Any) -> str:
     """What a value of ``kind`` looks like, for messages; TypeError for an unsupported type."""
-    names = {int: "an integer", float: "a number", str: "a string", bool: "true or false", Path: "a path"}
+    names = {int: "an integer", float: "a finite number", str: "a string", bool: "true or false", Path: "a path"}
     if kind in names:
         return names[kind]
     if typing.get_origin(kind) is Literal:
@@ -154,7 +164,8 @@ def convert(kind: Any, value: Any) -> Any:
     elif kind is int:
         ok = isinstance(value, int) and not isinstance(value, bool)
     elif kind is float:
-        ok = isinstance(value, int | float) and not isinstance(value, bool)
+        # inf and nan parse as numbers, and a duration of inf would train for ever
+        ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
         value = float(value) if ok else value
     elif kind is str:
         ok = isinstance(value, str)
@@ -202,10 +213,15 @@ def coerce(leaf: Leaf, value: Any, where: str) -> Any:
 
 def read_file(cls: type, leaves: Mapping[str, Leaf], file: Path) -> dict[str, Any]:
     try:
-        with file.open("rb") as fh:
-            data = tomllib.load(fh)
+        raw = file.read_bytes()
     except OSError as exc:
         raise ConfigError(f"cannot read config file {str(file)!r}: {exc.strerror}") from None
+    if raw.startswith(b"PK\x03\x04"):
+        raise ConfigError(f"{file}: an .npz archive (a policy file or a checkpoint), not a TOML configuration file")
+    try:
+        data = tomllib.loads(raw.decode("utf-8-sig"))  # a byte-order mark, as some Windows editors write, is fine
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{file}: not a TOML configuration file (not UTF-8 text: byte {exc.start})") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{file}: {exc}") from None
     values: dict[str, Any] = {}
@@ -215,7 +231,7 @@ def read_file(cls: type, leaves: Mapping[str, Leaf], file: Path) -> dict[str, An
         for key, value in table.items():
             path = prefix + key
             if key not in names:
-                raise ConfigError(f"{file}: unknown key {path!r}{suggest(key, names, prefix)}")
+                raise UnknownKey(f"{file}: unknown key {path!r}{suggest(key, names, prefix)}", path)
             if key in nested:
                 if not isinstance(value, dict):
                     raise ConfigError(f"{file}: key {path!r} must be a table ([{path}]), got {value!r}")
@@ -291,9 +307,12 @@ def flag_type(leaf: Leaf, choices: Collection[str] | None = None) -> Callable[[s
                 raise argparse.ArgumentTypeError(f"expected {len(items)} comma-separated values, got {text!r}")
             return tuple(parse_item(item, part) for item, part in zip(items, parts, strict=True))
         try:
-            return kind(text)
+            value = kind(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected {describe(kind)}, got {text!r}") from None
+        if kind is float and not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"expected {describe(kind)}, got {text!r}")
+        return value
 
     def parse(text: str) -> Any:
         if leaf.optional and text.lower() == "none":
@@ -359,15 +378,15 @@ def to_toml(leaf: Leaf, value: Any) -> Any:
     return leaf.metadata.get("format", str)(value)
 
 
-def toml_table(config: Any, leaves: list[Leaf], prefix: str) -> dict[str, Any]:
+def toml_table(config: Any, leaves: list[Leaf], prefix: str, exclude: Collection[str] = ()) -> dict[str, Any]:
     by_path = {leaf.path: leaf for leaf in leaves}
     nested, table = nested_fields(type(config)), dict[str, Any]()
     for f in dataclasses.fields(config):
-        if not f.init:
-            continue
         value, path = getattr(config, f.name), prefix + f.name
+        if not f.init or path in exclude:
+            continue
         if f.name in nested:
-            inner = toml_table(value, leaves, path + ".")
+            inner = toml_table(value, leaves, path + ".", exclude)
             if inner:
                 table[f.name] = inner
         elif value is None:

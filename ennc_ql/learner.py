@@ -28,6 +28,7 @@ from ennc_ql.command import (
     open_transport,
     registry_choices,
 )
+from ennc_ql.config import folder
 from ennc_ql.parser import CommandHelp, add_command
 from ennc_ql.system import stop_on_signals
 from learner.checkpoint import Checkpointer, CheckpointError
@@ -57,7 +58,7 @@ HELP = CommandHelp(
 def add_learner_parser(sub: Any) -> None:
     p = add_command(sub, HELP)
     p.add_argument(
-        "--run-dir", type=Path, required=True, help="folder for checkpoint, policy file and report (required)"
+        "--run-dir", type=folder, required=True, help="folder for checkpoint, policy file and report (required)"
     )
     p.add_argument(
         "--resume",

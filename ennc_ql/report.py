@@ -13,6 +13,7 @@ commands that come next. Usage::
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -68,9 +69,28 @@ def _run_dir(report: Mapping[str, Any]) -> Path:
     return Path(str(report.get("run_dir") or Path(str(report["checkpoint"])).parent))
 
 
+def interruption(report: Mapping[str, Any]) -> str | None:
+    """How a run that was stopped by a signal ended, in one line; None for a run that ran its course."""
+    stop = report.get("interrupted")
+    if not stop:
+        return None
+    how = (
+        "the learner checkpointed and wrote its report"
+        if stop.get("learner") == "finished"
+        else "the learner was killed: the figures are those of its last checkpoint"
+    )
+    return f"interrupted by {stop['signal']} at {stop['at_s']:.0f}/{stop['duration_s']:g} s of training; {how}"
+
+
 def headline(report: Mapping[str, Any]) -> list[str]:
     """The result in two lines: the final figure, and its references on the same trials."""
     final = report.get("final_coverage_mean")
+    if final is None and report.get("interrupted") and report.get("policy_version"):
+        curve = report.get("coverage_curve") or []
+        last = f"; its last evaluation: {curve[-1][1]:.2f} % at {curve[-1][0]:.0f} s" if curve else ""
+        return [f"result so far: policy version {report['policy_version']}, not scored at the end (stopped){last}"]
+    if final is None and report.get("interrupted"):
+        return ["result so far: no policy yet (stopped before the first fit, which waits for --learner-min-tuples)"]
     if final is None:
         return ["result: no policy was learned (the first fit waits for --learner-min-tuples tuples)"]
     formulation = _formulation(report)
@@ -94,6 +114,10 @@ def next_commands(report: Mapping[str, Any]) -> list[tuple[str, str]]:
     """What a user runs next, as (command line, why): score the policy, open the recording, repeat or go on."""
     run_dir = _run_dir(report)
     commands: list[tuple[str, str]] = []
+    stop = report.get("interrupted")
+    if stop:
+        left = float(stop["duration_s"]) - float(stop["at_s"])
+        commands.append((str(stop["resume"]), f"continue the run from its checkpoint ({left:.0f} s of training left)"))
     if report.get("policy_file"):
         trials = report.get("final_eval_trials", 200)
         commands.append(
@@ -105,8 +129,14 @@ def next_commands(report: Mapping[str, Any]) -> list[tuple[str, str]]:
     recording = (report.get("recording") or {}).get("path")
     if recording:
         commands.append((f"rerun {recording}", "open the recording in the Rerun viewer"))
-    if report.get("command"):
-        duration = (report.get("config") or {}).get("duration")
+    duration = (report.get("config") or {}).get("duration")
+    if str(report.get("command", "")).startswith("sbatch "):
+        # Submitting a job script again continues its run; another run is another folder, from the same settings.
+        again = f"ennc-ql slurm train --config {run_dir / 'up.toml'} --run-id NEW-ID --submit"
+        commands.append((again, "repeat the run as a new job"))
+        if duration:
+            commands.append((f"{again} --duration {2 * float(duration):g}", "train twice as long, as a new job"))
+    elif report.get("command"):
         commands.append((str(report["command"]), "repeat the run exactly"))
         if duration:
             commands.append((f"{report['command']} --duration {2 * float(duration):g}", "train twice as long"))
@@ -147,7 +177,8 @@ def results_table(report: Mapping[str, Any]) -> str:
 
 def terminal_summary(report: Mapping[str, Any]) -> str:
     """What ``ennc-ql up`` prints at the end of a run: the result, the figures, where the report is, and next."""
-    lines = [*headline(report), "", results_table(report), ""]
+    stop = interruption(report)
+    lines = [*([stop, ""] if stop else []), *headline(report), "", results_table(report), ""]
     if report.get("report_md"):
         lines += [f"report: {report['report_md']} (learning curve {report.get('learning_curve', '–')})", ""]
     commands = next_commands(report)
@@ -256,6 +287,14 @@ def _integrity(report: Mapping[str, Any]) -> list[str]:
     return ["## Duplicates, gaps, rejected", "", *_table(("figure", "value"), rows)]
 
 
+def _move_names(report: Mapping[str, Any]) -> tuple[str, ...]:
+    """The names of the policy's own moves: its formulation's action set (relative moves are no compass points)."""
+    formulation = _formulation(report)
+    if formulation in FORMULATIONS:
+        return tuple(FORMULATIONS[formulation].actions.moves)
+    return COMPASS_NAMES
+
+
 def _policy(report: Mapping[str, Any]) -> list[str]:
     sizes: list[int] = report["prototypes_per_action"]
     lines = [
@@ -268,7 +307,7 @@ def _policy(report: Mapping[str, Any]) -> list[str]:
     if sizes:
         lines.append(f"Prototypes per action (mean {sum(sizes) / len(sizes):.1f}):")
         lines.append("")
-        lines += _table(tuple(COMPASS_NAMES[: len(sizes)]), [tuple(sizes)])
+        lines += _table(_move_names(report)[: len(sizes)], [tuple(sizes)])
     if report.get("policy_figure"):
         name = Path(str(report["policy_figure"])).name
         lines += [f"![a test arena under the policy, and its prototypes per action coloured by Q]({name})", ""]
@@ -298,7 +337,9 @@ def markdown_report(report: Mapping[str, Any], curve_png: str = LEARNING_CURVE_P
     throughput, integrity and policy, and the commands that come next."""
     config: dict[str, Any] = report.get("config") or {}
     title = report.get("run_id") or _run_dir(report).name
-    lines = [f"# ennc-ql run {title}", "", *_result(report, curve_png)]
+    stop = interruption(report)
+    lines = [f"# ennc-ql run {title}", "", *([f"**{stop[0].upper() + stop[1:]}.**", ""] if stop else [])]
+    lines += _result(report, curve_png)
     if "command" in report:
         lines += ["```", str(report["command"]), "```", ""]
     took = f"{report['seconds']:.0f} s of training"
@@ -329,27 +370,32 @@ def learning_curve_figure(report: Mapping[str, Any]) -> Figure:
     finals = dict(report.get("final_reference_coverage") or {})
     fig = Figure(figsize=(10, 4.8))
     ax = fig.subplots()
-    for name, level in _references(report.get("reference_coverage") or {}):
+    xmax = max([float(duration), end, *(t for t, _ in curve)])
+    # The final figures side by side just past the curve's end, the learned policy's first: at one x they hid each
+    # other wherever they lie within a point of each other.
+    step = 0.03 * xmax
+    references = _references(report.get("reference_coverage") or {})
+    at = {name: end + step * (k + 2) for k, name in enumerate(n for n, _ in references if n in finals)}
+    for name, level in references:
         label = f"{_label(name)}: {level:.1f} %"
         if name in finals:
             label += f", {finals[name]:.1f} % ◆"
-            ax.plot([end], [finals[name]], "D", ms=6, color=_colour(name), label="_nolegend_")
+            ax.plot([at[name]], [finals[name]], "D", ms=6, color=_colour(name), label="_nolegend_")
         ax.axhline(level, ls="--", lw=1.2, color=_colour(name), label=label)
     if curve:
         ax.plot([t for t, _ in curve], [c for _, c in curve], "o-", color=LEARNED_COLOUR, label="learned policy")
     if final is not None:
         label = f"final policy: {final:.2f} % ({final_trials} trials)"
-        ax.plot([end], [final], "*", ms=15, color=LEARNED_COLOUR, label=label)
-    else:
+        ax.plot([end + step], [final], "*", ms=15, color=LEARNED_COLOUR, label=label)
+    elif not curve:
         ax.text(0.5, 0.5, "no evaluation: no policy was learned", transform=ax.transAxes, ha="center")
-    ax.set_xlim(0, max([float(duration), end, *(t for t, _ in curve)]) * 1.03)
-    ax.set_ylim(0, 100)
+    ax.set_xlim(0, (max([xmax, *at.values()]) + step) * 1.02)
+    ax.set_ylim(*_y_range([c for _, c in curve] + [v for _, v in references] + list(finals.values()), final))
     ax.set_xlabel("training time (s)")
     ax.set_ylabel("% of targets observed")
     formulation = _formulation(report)
     what = f"formulation {formulation}" if formulation else f"run {report.get('run_id') or _run_dir(report).name}"
-    result = "no policy learned" if final is None else f"the learned policy observes {final:.1f} % of the targets"
-    ax.set_title(f"{result} ({what})", fontsize="medium")
+    ax.set_title(f"{_curve_result(final, finals)}\n{what}", fontsize="medium")
     if ax.get_legend_handles_labels()[0]:
         ax.legend(
             loc="upper left",
@@ -361,6 +407,25 @@ def learning_curve_figure(report: Mapping[str, Any]) -> Figure:
     ax.grid(alpha=0.3)
     fig.tight_layout()
     return fig
+
+
+def _y_range(values: list[float], final: float | None) -> tuple[float, float]:
+    """An axis that fits the figures drawn, in steps of 5 points within 0-100: differences of a few points show."""
+    shown = [v for v in [*values, *([] if final is None else [final])] if v is not None]
+    if not shown:
+        return 0.0, 100.0
+    return max(0.0, 5.0 * math.floor((min(shown) - 3.0) / 5.0)), min(100.0, 5.0 * math.ceil((max(shown) + 3.0) / 5.0))
+
+
+def _curve_result(final: float | None, finals: Mapping[str, float]) -> str:
+    """The chart's title: the final figure and its gap to the hand-made controller, on the same trials."""
+    if final is None:
+        return "no final figure (the run was stopped, or learned no policy)"
+    result = f"the learned policy observes {final:.1f} % of the targets"
+    if "a-cmommt" in finals:
+        gap = final - float(finals["a-cmommt"])
+        result += f", {abs(gap):.1f} points {'below' if gap < 0 else 'above'} A-CMOMMT ({finals['a-cmommt']:.1f} %)"
+    return result
 
 
 def learning_curve_png(report: Mapping[str, Any], path: Path) -> Path:

@@ -28,6 +28,7 @@ from ennc_ql.command import fail, zenoh_conf, zenoh_message
 from ennc_ql.parser import CommandHelp, add_command
 from ennc_ql.system import stop_on_signals
 from protocol import add_connection_args
+from protocol.security import ROUTER
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +64,14 @@ def cmd_router(args: argparse.Namespace) -> int:
     if not args.listen and not args.zenoh_config:
         args.listen = [DEFAULT_LISTEN]
     conf = zenoh_conf(args, "router")
+    user = json.loads(conf.get_json("transport/auth/usrpwd/user"))
+    if user is not None and user != ROUTER:
+        # Access control would then treat the router as that process, and that process's own file is no router's.
+        fail(
+            "router",
+            f"--zenoh-config {args.zenoh_config}: authenticates as {user!r}, not as the router; give the router's own "
+            f"file ({ROUTER}.json5 of ennc-ql secure init)",
+        )
     try:
         run_router(conf, stop_on_signals())
     except zenoh.ZError as exc:

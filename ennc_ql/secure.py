@@ -38,7 +38,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from ennc_ql.command import check_folder, fail
-from ennc_ql.config import positive
+from ennc_ql.config import folder, positive
 from ennc_ql.parser import CommandHelp, add_command, add_commands
 from protocol import check_id
 from protocol.keys import KeySpace
@@ -297,7 +297,7 @@ INIT = CommandHelp(
 def add_secure_parser(sub: Any) -> None:
     p = add_command(sub, SECURE)
     init = add_command(add_commands(p, dest="secure_command"), INIT)
-    init.add_argument("dir", type=Path, metavar="DIR", help="folder to write into (created 0700)")
+    init.add_argument("dir", type=folder, metavar="DIR", help="folder to write into (created 0700)")
     init.add_argument("--actors", type=positive(int), default=2, help="actor identities actor-0, actor-1, ...")
     init.add_argument(
         "--host",

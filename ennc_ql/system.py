@@ -1,14 +1,27 @@
-"""Process plumbing shared by every command: the one signal handler and the one free-port helper."""
+"""Process plumbing shared by every command: the signal handlers (a process's own, and a launcher's that counts its
+interrupts), a child's death with its launcher, and the one free-port helper."""
 
 from __future__ import annotations
 
+import ctypes
 import logging
+import os
 import signal
 import socket
+import sys
 import threading
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from types import FrameType
 
 log = logging.getLogger(__name__)
+
+PARENT_PID_ENV = "ENNC_QL_PARENT_PID"
+"""Set by a launcher that owns its children (``up``) to its own pid: the child then dies with it."""
+_PR_SET_PDEATHSIG = 1
+INTERRUPTS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+"""What stops a launcher: Ctrl-C, what job runners, ``timeout`` and systemd send, and a closed terminal."""
 
 
 def stop_on_signals() -> threading.Event:
@@ -36,3 +49,72 @@ def free_port(host: str = "127.0.0.1") -> int:
                 continue
             return port
     raise RuntimeError(f"no free TCP port in 20000-32000 on {host}")
+
+
+def die_with_parent() -> None:
+    """In a child of a launcher that owns its children: Linux sends this process SIGTERM (its own clean stop) when the
+    launcher dies, however it dies; and if the launcher is gone already, this process exits now. Nothing elsewhere."""
+    parent = os.environ.pop(PARENT_PID_ENV, None)  # not passed on to this process's own children
+    if not parent or not parent.isdigit() or not sys.platform.startswith("linux"):
+        return
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0) != 0:
+        log.warning("could not ask for a parent-death signal: %s", os.strerror(ctypes.get_errno()))
+    if os.getppid() != int(parent):  # the launcher died before the request: nobody would ever stop this process
+        raise SystemExit(f"ennc-ql: the process that started this one ({parent}) is gone; not starting")
+
+
+class Interrupts:
+    """A launcher's Ctrl-C, SIGTERM and SIGHUP, counted: the first sets :attr:`stop` (the run winds down cleanly),
+    each further one runs the next escalation step (kill the actors, then the learner); the launcher always waits
+    for its children. Usage::
+
+        interrupts = Interrupts(say=lambda line: os.write(2, line.encode()))
+        with interrupts.installed():
+            interrupts.escalate(kill_actors, kill_learner)      # once the children exist
+            run(stop=interrupts.stop)
+        interrupts.first                                        # signal.SIGTERM, or None
+        interrupts.exit_code                                    # 128 + its number (130, 143, 129), or 0
+    """
+
+    def __init__(self, say: Callable[[str], None] | None = None) -> None:
+        self.stop = threading.Event()
+        self.received: list[signal.Signals] = []
+        self._say = say or (lambda line: log.warning("%s", line))
+        self._steps: list[Callable[[], str]] = []
+
+    @property
+    def first(self) -> signal.Signals | None:
+        return self.received[0] if self.received else None
+
+    @property
+    def exit_code(self) -> int:
+        """The shell's status of a process ended by the first signal: 128 + its number."""
+        return 0 if self.first is None else 128 + int(self.first)
+
+    def escalate(self, *steps: Callable[[], str]) -> None:
+        """What the second, third, ... signal does; each step returns the line that says what it did."""
+        self._steps = list(steps)
+
+    def handle(self, signum: int, _frame: FrameType | None = None) -> None:
+        sig = signal.Signals(signum)
+        self.received.append(sig)
+        n = len(self.received)
+        if n == 1:
+            self.stop.set()
+            self._say(
+                f"{sig.name}: winding down cleanly (the learner checkpoints and scores its policy); again to "
+                "stop sooner"
+            )
+        elif n - 2 < len(self._steps):
+            self._say(f"{sig.name} again: {self._steps[n - 2]()}")
+
+    @contextmanager
+    def installed(self) -> Iterator[Interrupts]:
+        """:meth:`handle` for :data:`INTERRUPTS` while the block runs, the previous handlers after it."""
+        previous = {sig: signal.signal(sig, self.handle) for sig in INTERRUPTS}
+        try:
+            yield self
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)

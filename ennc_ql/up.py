@@ -16,9 +16,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
+import os
+import sys
 import time
+import zipfile
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from actors.config import ActorConfig
 from algorithm.policy_file import load_policy, scenario_from_header
@@ -35,14 +41,20 @@ from ennc_ql.cluster import (
     write_configs,
 )
 from ennc_ql.command import check_device, check_folder, configure, emit, fail, make_folder, registry_choices
-from ennc_ql.config import add_config_flags
+from ennc_ql.config import ConfigError, add_config_flags, folder, load_config
+from ennc_ql.config_fields import config_leaves, flag_name
 from ennc_ql.figures import policy_figure
 from ennc_ql.parser import CommandHelp, add_command
 from ennc_ql.report import terminal_summary, write_run_report
+from ennc_ql.system import Interrupts
+from learner.checkpoint import Checkpointer, CheckpointError
 from learner.config import LearnerConfig
 from learner.report import LearnerReport
+from learner.service import LearnerService
 from monitor import Sink, add_rerun_args, paths
-from protocol import check_id
+from protocol import InMemoryBus, InMemoryTransport, check_id
+
+log = logging.getLogger(__name__)
 
 HELP = CommandHelp(
     "up",
@@ -55,11 +67,16 @@ HELP = CommandHelp(
     "writes runs/<id>/: the policy file (policy.npz), the checkpoint, report.md and report.json, "
     "learning_curve.png, policy.png, the Rerun recording of every process (recording.rrd) and one log per process; "
     "up.toml repeats the run exactly. --serial runs the same objects in this one process (for a debugger or a "
-    "profiler); --secure joins them through a router with mutual TLS, a password per process and access control.",
+    "profiler); --secure joins them through a router with mutual TLS, a password per process and access control. "
+    "Ctrl-C, SIGTERM or SIGHUP winds the run down cleanly (the learner checkpoints and scores its policy), writes the "
+    "report of the run so far and prints the command that continues it (--resume); a second one kills the actors, a "
+    "third the learner, and up always waits for them. Exit status: 0 done, 1 a failure, 2 bad input, 130 Ctrl-C, "
+    "143 SIGTERM, 129 SIGHUP.",
     (
         ("ennc-ql up", "the main job, as make run: 2 actors, 480 s of training"),
         ("ennc-ql up --duration 120 --rerun spawn", "a 2-minute run, watched live in the Rerun viewer"),
         ("ennc-ql up --config runs/<id>/up.toml", "repeat a run exactly"),
+        ("ennc-ql up --resume runs/<id>", "continue a run that was stopped (Ctrl-C, SIGTERM) from its checkpoint"),
     ),
     "--duration (480 s) plus start-up, the final evaluation and the report: about 8 min in all with the defaults",
 )
@@ -76,7 +93,14 @@ def add_up_parser(sub: Any) -> None:
         action="store_true",
         help="through a router with mutual TLS, a password per process and access control (files in runs/<id>/secure)",
     )
-    p.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR", help="parent folder of the run folder")
+    p.add_argument(
+        "--resume",
+        type=folder,
+        metavar="RUN",
+        help="continue the stopped run in folder RUN (runs/<id>) from its checkpoint, with its own configuration "
+        "(default: a new run)",
+    )
+    p.add_argument("--runs", type=folder, metavar="DIR", help="parent folder of the run folder (default: runs)")
     p.add_argument("--run-id", metavar="ID", help="run folder name (default: the start time, YYYYMMDD-HHMMSS)")
     p.add_argument("--json", action="store_true", help="print the learner's report as one JSON object")
     add_config_flags(
@@ -93,45 +117,37 @@ def add_up_parser(sub: Any) -> None:
 def cmd_up(args: argparse.Namespace) -> int:
     # Everything is checked here, before any process starts or any folder is made: a bad value is one line naming
     # it, and nothing is left behind.
+    if args.resume is not None:
+        return _run(args, *check_resume(args), resume=True)
     config: UpConfig = configure(UpConfig, args, "up", defaults=UP_PRESETS)
     if args.serial and args.secure:
         fail("up", "--serial runs on the in-memory bus, which has no network to secure; drop one of them")
-    run_id = args.run_id or time.strftime("%Y%m%d-%H%M%S")
+    run_id = args.run_id if args.run_id is not None else time.strftime("%Y%m%d-%H%M%S")
     try:
         check_id(run_id, "--run-id")
     except ValueError as exc:
         fail("up", str(exc))
-    check_folder(args.runs / run_id, "up", "--runs", empty=True)
+    runs = args.runs or Path("runs")
+    check_folder(runs / run_id, "up", "--runs", empty=True)
     check_device(config.learner.phase1.device, "up", "--learner-phase1-device")
-    run_dir = make_folder(args.runs / run_id, "up", "--runs")
+    run_dir = make_folder(runs / run_id, "up", "--runs")
     learner, actors = child_configs(config)
     write_configs(config, learner, actors, run_dir)
+    return _run(args, run_dir, config, resume=False)
+
+
+def _run(args: argparse.Namespace, run_dir: Path, config: UpConfig, *, resume: bool) -> int:
+    """The run, fresh or resumed, to its report: the exit status (128 + the signal that stopped it, or 0)."""
     started = time.monotonic()
-    supervision: dict[str, Any] = {}
-    recording: dict[str, Any] | None = None
     if args.serial:
+        learner, actors = child_configs(config)
         report = run_serial(learner, actors, run_dir)
-    else:
-        report, run, recording = _processes(args, config, learner, actors, run_id)
-        supervision = run.report_extra(report)
-    extra = {
-        "run_id": run_id,
-        "run_dir": str(run_dir),
-        "command": f"ennc-ql up --config {run_dir / 'up.toml'}",
-        "config": {
-            "actors": config.actors,
-            "duration": config.duration,
-            "seed": config.seed,
-            "formulation": config.formulation,
-            "serial": args.serial,
-            "secure": args.secure,
-        },
-        **supervision,
-        "wall_seconds": round(time.monotonic() - started, 1),
-        "recording": recording,
-    }
-    emit_run_report(report, run_dir, extra, args.json)
-    return 0
+        emit_run_report(report, run_dir, _extra(args, config, run_dir, started, None, secure=False), args.json)
+        return 0
+    interrupts = Interrupts(say=_say)
+    # Installed until the report is written: a signal then still counts, and never cuts the report short.
+    with interrupts.installed():
+        return _processes_and_report(args, config, run_dir, resume, interrupts, started)
 
 
 def emit_run_report(report: LearnerReport, run_dir: Path, extra: dict[str, Any], as_json: bool) -> None:
@@ -144,13 +160,94 @@ def emit_run_report(report: LearnerReport, run_dir: Path, extra: dict[str, Any],
     emit(out, as_json, terminal_summary(out))
 
 
+def _processes_and_report(
+    args: argparse.Namespace,
+    config: UpConfig,
+    run_dir: Path,
+    resume: bool,
+    interrupts: Interrupts,
+    started: float,
+) -> int:
+    """The run as OS processes, then its report from what the learner saved, however it ended."""
+    learner, actors = child_configs(config)
+    report, run, recording = _processes(args, config, learner, actors, run_dir, resume, interrupts)
+    signum = interrupts.first
+    if report is None:  # stopped before the learner saved anything
+        assert signum is not None
+        print(
+            f"ennc-ql up: interrupted by {signum.name} before the learner saved anything: nothing to report or "
+            f"continue; start again with: ennc-ql up --config {run_dir / 'up.toml'}",
+            file=sys.stderr,
+        )
+        return interrupts.exit_code
+    extra = _extra(args, config, run_dir, started, recording, secure=_secure(args, run_dir))
+    extra.update(run.report_extra(report))
+    if signum is not None:
+        extra["interrupted"] = {
+            "signal": signum.name,
+            "signals": len(interrupts.received),
+            "at_s": round(report.seconds, 1),
+            "duration_s": config.duration,
+            "learner": "finished" if report.extra.get("saved_by") != "up" else "killed",
+            "resume": f"ennc-ql up --resume {run_dir}",
+        }
+    emit_run_report(report, run_dir, extra, args.json)
+    return interrupts.exit_code
+
+
+def _say(line: str) -> None:
+    # From a signal handler: one unbuffered write, never a print that could interrupt another print.
+    os.write(2, f"\nennc-ql up: {line}\n".encode())
+
+
+def _secure(args: argparse.Namespace, run_dir: Path) -> bool:
+    return bool(args.secure) or (args.resume is not None and (run_dir / "secure").is_dir())
+
+
+def _extra(
+    args: argparse.Namespace,
+    config: UpConfig,
+    run_dir: Path,
+    started: float,
+    recording: dict[str, Any] | None,
+    secure: bool,
+) -> dict[str, Any]:
+    return {
+        "run_id": run_dir.name,
+        "run_dir": str(run_dir),
+        "command": f"ennc-ql up --config {run_dir / 'up.toml'}",
+        "config": {
+            "actors": config.actors,
+            "duration": config.duration,
+            "seed": config.seed,
+            "formulation": config.formulation,
+            "serial": args.serial,
+            "secure": secure,
+        },
+        "wall_seconds": round(time.monotonic() - started, 1),
+        "recording": recording,
+    }
+
+
 def _processes(
-    args: argparse.Namespace, config: UpConfig, learner: LearnerConfig, actors: list[ActorConfig], run_id: str
-) -> tuple[LearnerReport, ProcessRun, dict[str, Any] | None]:
-    """The run as OS processes: the learner's report from the run folder, what its supervision saw and the summary
-    of the merged recording."""
-    run_dir = args.runs / run_id
-    monitoring = Monitoring(args.rerun or Sink("save", str(run_dir / paths.RECORDING_FILE)), run_id, run_dir)
+    args: argparse.Namespace,
+    config: UpConfig,
+    learner: LearnerConfig,
+    actors: list[ActorConfig],
+    run_dir: Path,
+    resume: bool,
+    interrupts: Interrupts,
+) -> tuple[LearnerReport | None, ProcessRun, dict[str, Any] | None]:
+    """The run as OS processes: the learner's report (its own, or built from its checkpoint if it was killed; None
+    if it saved nothing), what its supervision saw and the summary of the merged recording."""
+    run_id = run_dir.name
+    sink = args.rerun or Sink("save", str(run_dir / paths.RECORDING_FILE))
+    if resume and sink.kind == "save" and Path(str(sink.target)).exists():
+        # The recording so far is merged with the resumed processes' parts at the end, into one.
+        paths.part_file(run_dir, "earlier").parent.mkdir(exist_ok=True)
+        Path(str(sink.target)).replace(paths.part_file(run_dir, "earlier"))
+    monitoring = Monitoring(sink, run_id, run_dir)
+    begun = time.time()
     try:
         run = run_processes(
             learner,
@@ -158,18 +255,92 @@ def _processes(
             run_dir,
             monitoring,
             namespace=f"run-{run_id}",
-            secure=args.secure,
+            secure=_secure(args, run_dir),
+            resume=resume,
             max_restarts=config.max_restarts,
+            interrupts=interrupts,
         )
     except LaunchError as exc:
         fail("up", str(exc))
     finally:
         recording = monitoring.finish()
     report_path = run_dir / "report.json"
-    if not report_path.exists():
+    if report_path.exists() and report_path.stat().st_mtime >= begun:
+        return LearnerReport.from_dict(json.loads(report_path.read_text())), run, recording
+    saved = saved_report(learner, run_dir)
+    if saved is None and interrupts.first is None:
         fail("up", f"the learner wrote no report; see {run_dir / 'learner.log'}")
-    report = LearnerReport.from_dict(json.loads(report_path.read_text()))
-    return report, run, recording
+    return saved, run, recording
+
+
+def saved_report(learner: LearnerConfig, run_dir: Path) -> LearnerReport | None:
+    """The report of what the learner's checkpoint in ``run_dir`` holds (its policy file written from it), for a
+    learner killed before it wrote its own; None without a checkpoint."""
+    if not Checkpointer(run_dir).path.exists():
+        return None
+    with InMemoryTransport(InMemoryBus()) as transport:
+        try:
+            service = LearnerService(transport, learner, run_dir, resume=True)
+        except CheckpointError as exc:
+            log.error("%s", exc)
+            return None
+        return service.saved_report().with_extra(saved_by="up")
+
+
+def check_resume(args: argparse.Namespace) -> tuple[Path, UpConfig]:
+    """The run folder of ``--resume`` and its configuration, or a one-line error: no flag may change the
+    configuration, and there must be a checkpoint with training time left."""
+    run_dir: Path = args.resume
+    toml = run_dir / "up.toml"
+    changes = [flag_name(leaf.path) for leaf in config_leaves(UpConfig) if hasattr(args, leaf.path)]
+    changes += [flag for flag, given in _RUN_FLAGS.items() if getattr(args, given)]
+    if changes:
+        fail(
+            "up",
+            f"--resume continues {run_dir} with its own configuration ({toml}); {', '.join(changes)} would change it "
+            f"(to train differently, start a new run with them: ennc-ql up --config {toml} ...)",
+        )
+    if not run_dir.is_dir():
+        fail("up", f"--resume {run_dir}: no such run folder (give the folder up printed, runs/<id>)")
+    if not toml.is_file():
+        fail("up", f"--resume {run_dir}: not a run folder of ennc-ql up (no up.toml in it)")
+    try:
+        config: UpConfig = load_config(UpConfig, file=toml)
+    except ConfigError as exc:
+        fail("up", f"--resume {run_dir}: {exc}")
+    checkpoint = Checkpointer(run_dir).path
+    if not checkpoint.is_file():
+        fail(
+            "up",
+            f"--resume {run_dir}: no checkpoint, the run was stopped before its learner saved one; start it again: "
+            f"ennc-ql up --config {toml}",
+        )
+    elapsed = checkpoint_elapsed(checkpoint)
+    if elapsed is None:
+        fail("up", f"--resume {run_dir}: {checkpoint} is not a checkpoint (not an .npz archive with its figures)")
+    if elapsed >= config.duration:
+        fail(
+            "up",
+            f"--resume {run_dir}: the run trained its whole {config.duration:g} s already; to train longer, start a "
+            f"new run: ennc-ql up --config {toml} --duration {2 * config.duration:g}",
+        )
+    check_folder(run_dir, "up", "--resume")
+    check_device(config.learner.phase1.device, "up", "--learner-phase1-device")
+    return run_dir, config
+
+
+_RUN_FLAGS = {"--config": "config", "--serial": "serial", "--secure": "secure", "--runs": "runs", "--run-id": "run_id"}
+"""up's flags that choose a run rather than watch it: ``--resume`` takes them from the run folder."""
+
+
+def checkpoint_elapsed(path: Path) -> float | None:
+    """The training seconds a checkpoint holds, read without loading its arrays; None if it is not one."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            meta = json.loads(data["meta"].tobytes().decode())
+        return float(meta["elapsed"])
+    except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile):
+        return None
 
 
 def _policy_figure(report: LearnerReport, run_dir: Path) -> dict[str, str]:

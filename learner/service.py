@@ -205,6 +205,16 @@ class LearnerService:
 
     def _restore(self) -> None:
         arrays, meta = self.checkpointer.load()
+        saved: dict[str, Any] = meta["config"] if isinstance(meta.get("config"), dict) else {}
+        for name in ("formulation", "featurizer", "reward", "act_every"):
+            theirs, mine = saved.get(name), getattr(self.config, name)
+            if theirs is not None and theirs != mine:
+                # Its tables and prototypes are of another state and action set: name both, not their dimensions.
+                raise CheckpointError(
+                    f"--resume: {self.checkpointer.path} holds a run of {name} {theirs}, and this learner's {name} "
+                    f"is {mine}; resume it with --{name.replace('_', '-')} {theirs}, or start a new run in another "
+                    "--run-dir"
+                )
         try:
             self.intake.restore(arrays)
             self.state.restore(arrays, meta, published=self.version_mark.load())
@@ -233,12 +243,22 @@ class LearnerService:
             final = self.evaluator.final(policy)
             self.watch.final(policy, final, self.config.final_eval_trials, self.evaluator.comparison())
             log.info("final policy version %d: %.2f%% of targets observed", policy.version, final)
-        checkpoint = self.checkpoint()
+        report = self._report(final, self.checkpoint(), self.elapsed())
+        (self.run_dir / "report.json").write_text(json.dumps(report.to_dict(), indent=2))
+        return report
+
+    def saved_report(self) -> LearnerReport:
+        """The report of what a resumed learner's checkpoint holds, with its policy file, without training or
+        scoring: for a launcher whose learner was killed before it wrote its own report (``report.json`` is left to
+        the launcher)."""
+        return self._report(None, self.checkpointer.path, self._elapsed_before)
+
+    def _report(self, final: float | None, checkpoint: Path, elapsed: float) -> LearnerReport:
         policy = self.state.policy()
         policy_file = None if policy is None else save_policy(policy, self.scenario, self.run_dir / "policy.npz")
         figures = self.intake.figures()
-        status = LearnerStatus.of(figures, self.state, self.members, self.evaluator, self.fitter.fits, self.elapsed())
-        report = LearnerReport.of(
+        status = LearnerStatus.of(figures, self.state, self.members, self.evaluator, self.fitter.fits, elapsed)
+        return LearnerReport.of(
             self.config,
             status,
             figures,
@@ -250,5 +270,3 @@ class LearnerService:
             checkpoint,
             resumes=self.resumes,
         )
-        (self.run_dir / "report.json").write_text(json.dumps(report.to_dict(), indent=2))
-        return report

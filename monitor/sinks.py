@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
+import shutil
+import socket
+import sys
 import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -20,6 +24,34 @@ SinkKind = Literal["off", "save", "spawn", "connect", "serve"]
 SINK_KINDS: tuple[str, ...] = get_args(SinkKind)
 _NEEDS_TARGET = {"save": "a path to an .rrd file", "connect": "a URL like rerun+http://127.0.0.1:9876/proxy"}
 _URL_SCHEMES = ("rerun", "rerun+http", "rerun+https")
+
+
+VIEWER_PORT = 9876
+"""Where a viewer that ``spawn`` starts (or finds running) takes recordings."""
+
+
+def viewer_executable() -> str | None:
+    """The Rerun viewer to spawn: the one rerun-sdk installed beside this interpreter (a venv's ``bin/rerun``,
+    found without the venv on PATH, and of the SDK's own version), else ``rerun`` on PATH; None if neither."""
+    beside = Path(sys.executable).parent / "rerun"
+    return str(beside) if beside.is_file() else shutil.which("rerun")
+
+
+def spawn_problem(port: int = VIEWER_PORT) -> str | None:
+    """Why ``--rerun spawn`` cannot show a viewer here, or None: checked before anything starts."""
+    with socket.socket() as probe:
+        probe.settimeout(0.5)
+        if probe.connect_ex(("127.0.0.1", port)) == 0:
+            return None  # a viewer (or a rerun --serve-web) runs already: spawn streams to it
+    if viewer_executable() is None:
+        return "no Rerun viewer here (rerun-sdk installs `rerun` beside python; pip install rerun-sdk)"
+    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        return (
+            "no display for the viewer's window here (DISPLAY and WAYLAND_DISPLAY are unset); record instead "
+            "(--rerun save FILE.rrd, ennc-ql up's default) and open it with rerun FILE.rrd where there is a screen, "
+            "or serve it to a browser: rerun --serve-web FILE.rrd"
+        )
+    return None
 
 
 def _check(kind: str, target: str | None) -> None:
@@ -139,7 +171,7 @@ def open_monitor(
         rec.save(path)
         log.info("%s: saving the Rerun recording to %s", process, path)
     elif sink.kind == "spawn":
-        rec.spawn()
+        rr.spawn(port=VIEWER_PORT, executable_path=viewer_executable(), recording=rec)
         log.info("%s: streaming to a local Rerun viewer (spawned, or the one already on port 9876)", process)
     elif sink.kind == "connect":
         rec.connect_grpc(sink.target)

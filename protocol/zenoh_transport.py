@@ -128,8 +128,20 @@ def add_connection_args(parser: argparse.ArgumentParser) -> None:
         help="discover peers by UDP multicast (default: off, or as in --zenoh-config)",
     )
     group.add_argument(
-        "--namespace", default="", help="key prefix isolating this run from others on the same network (default: none)"
+        "--namespace",
+        default="",
+        type=_namespace,
+        help="key prefix isolating this run from others on the same network (default: none)",
     )
+
+
+def _namespace(text: str) -> str:
+    """``--namespace`` checked as it is parsed, so that every process (the router too) refuses the same ones."""
+    try:
+        KeySpace(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc).replace("namespace chunk: ", "")) from None
+    return text
 
 
 def config_from_args(args: argparse.Namespace) -> zenoh.Config:

@@ -28,6 +28,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -50,18 +51,29 @@ def start_xvfb(size: str) -> subprocess.Popen[bytes]:
     if shutil.which("Xvfb") is None:
         sys.exit("DISPLAY is unset and Xvfb is missing: apt-get install -y xvfb mesa-vulkan-drivers")
     width, height = (int(n) for n in size.split("x"))
-    xvfb = subprocess.Popen(["Xvfb", DISPLAY, "-screen", "0", f"{2 * width + 20}x{2 * height + 20}x24"])
+    xvfb = subprocess.Popen(
+        ["Xvfb", DISPLAY, "-screen", "0", f"{2 * width + 20}x{2 * height + 20}x24"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     os.environ["DISPLAY"] = DISPLAY
     time.sleep(1.0)
     return xvfb
 
 
-def connect_when_loaded(viewer: subprocess.Popen[bytes], url: str) -> ViewerClient:
+def tail(log: Path, lines: int = 15) -> str:
+    return "\n".join(log.read_text(errors="replace").splitlines()[-lines:])
+
+
+def connect_when_loaded(viewer: subprocess.Popen[bytes], url: str, log: Path) -> ViewerClient:
     """A client of ``viewer`` (at ``url``) once it has the whole file: a recording with timelines, nothing loading."""
     deadline = time.monotonic() + TIMEOUT_S
     while time.monotonic() < deadline:
         if viewer.poll() is not None:
-            sys.exit(f"the viewer exited with status {viewer.returncode} (no X display or no Vulkan driver?)")
+            sys.exit(
+                f"the viewer exited with status {viewer.returncode} (no X display or no Vulkan driver?); the end of "
+                f"its log {log}:\n{tail(log)}"
+            )
         try:  # the viewer takes a few seconds to start listening, then to load the file
             client = ViewerClient.connect(url)
             state = client.get_state()
@@ -71,7 +83,7 @@ def connect_when_loaded(viewer: subprocess.Popen[bytes], url: str) -> ViewerClie
         if state.recordings and state.recordings[0].timelines and not state.loading:
             return client
         time.sleep(1.0)
-    sys.exit(f"the viewer did not load the recording within {TIMEOUT_S:.0f} s")
+    sys.exit(f"the viewer did not load the recording within {TIMEOUT_S:.0f} s; the end of its log {log}:\n{tail(log)}")
 
 
 def report(client: ViewerClient) -> None:
@@ -93,22 +105,27 @@ def main() -> None:
     args = parser.parse_args()
     xvfb = start_xvfb(args.size) if not os.environ.get("DISPLAY") else None
     port = free_port()
-    viewer = subprocess.Popen(
-        [
-            *rerun_cli(),
-            "--renderer",
-            "vulkan",
-            "--port",
-            str(port),
-            "--window-size",
-            args.size,
-            "--hide-welcome-screen",
-            str(args.recording.resolve()),
-        ],
-        start_new_session=True,  # the CLI is a wrapper around the viewer binary: stop both through their group
-    )
+    # The viewer's own logs (pages of them, from its Rust side) go to a file: this script prints its summary.
+    log = Path(tempfile.gettempdir()) / f"screenshot-viewer-{os.getpid()}.log"
+    with open(log, "wb") as out:
+        viewer = subprocess.Popen(
+            [
+                *rerun_cli(),
+                "--renderer",
+                "vulkan",
+                "--port",
+                str(port),
+                "--window-size",
+                args.size,
+                "--hide-welcome-screen",
+                str(args.recording.resolve()),
+            ],
+            stdout=out,
+            stderr=out,
+            start_new_session=True,  # the CLI is a wrapper around the viewer binary: stop both through their group
+        )
     try:
-        client = connect_when_loaded(viewer, f"rerun+http://127.0.0.1:{port}/proxy")
+        client = connect_when_loaded(viewer, f"rerun+http://127.0.0.1:{port}/proxy", log)
         time.sleep(SETTLE_S)
         args.png.parent.mkdir(parents=True, exist_ok=True)
         client.save_screenshot(str(args.png.resolve()))  # the viewer writes it: an absolute path on this host
@@ -116,7 +133,7 @@ def main() -> None:
         with Image.open(args.png) as shot:
             compact = shot.convert("RGB").quantize(256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
         compact.save(args.png, optimize=True)
-        print(f"saved {args.png}")
+        print(f"saved {args.png} (the viewer's log: {log})")
     finally:
         os.killpg(viewer.pid, signal.SIGTERM)
         viewer.wait(timeout=30)

@@ -29,7 +29,7 @@ from ennc_ql.chaos.options import (
 from ennc_ql.chaos.run import Chaos
 from ennc_ql.cluster import SET_BY_UP, UP_PRESETS, UpConfig
 from ennc_ql.command import configure, fail, registry_choices, writable_dir
-from ennc_ql.config import add_config_flags, positive
+from ennc_ql.config import add_config_flags, folder, positive
 from ennc_ql.parser import CommandHelp, add_command
 from protocol import check_id
 
@@ -48,7 +48,7 @@ def cmd_chaos(args: argparse.Namespace) -> int:
     options, skipped = without_unavailable_network(options)
     config: UpConfig = configure(UpConfig, args, "chaos", defaults=UP_PRESETS)
     config = dataclasses.replace(config, duration=options.duration + LEARNER_EXTRA_S)
-    run_id = args.run_id or time.strftime("chaos-%Y%m%d-%H%M%S")
+    run_id = args.run_id if args.run_id is not None else time.strftime("chaos-%Y%m%d-%H%M%S")
     try:
         check_id(run_id, "--run-id")
         namespace = check_id(f"chaos-{run_id}", "--run-id (in the namespace chaos-<id>)")
@@ -58,6 +58,9 @@ def cmd_chaos(args: argparse.Namespace) -> int:
         # A report or checkpoint left there by another run would be taken for this one's.
         fail("chaos", f"--run-id {run_id}: {args.runs / run_id} is not empty; choose another run id")
     run_dir = writable_dir(args.runs / run_id, "chaos", "--runs")
+    # Only now that every argument is checked: a notice never comes before an error.
+    if skipped:
+        print(f"ennc-ql chaos: skipping {', '.join(skipped)}: {next(iter(skipped.values()))}", file=sys.stderr)
     signal.signal(signal.SIGTERM, _interrupted)
     try:
         out = Chaos(options, config, run_dir, run_id, namespace, skipped).run()
@@ -73,8 +76,8 @@ def cmd_chaos(args: argparse.Namespace) -> int:
 
 
 def without_unavailable_network(options: ChaosOptions) -> tuple[ChaosOptions, dict[str, str]]:
-    """The options without the network faults if namespaces cannot be made here, and each one skipped with why; a
-    one-line error if nothing else was asked for."""
+    """The options without the network faults if namespaces cannot be made here, and each one skipped with why (the
+    caller says so once every argument is checked); a one-line error if nothing else was asked for."""
     wanted = [f for f in options.faults if f in NETWORK_FAULTS]
     reason = unavailable() if wanted else None
     if reason is None:
@@ -82,7 +85,6 @@ def without_unavailable_network(options: ChaosOptions) -> tuple[ChaosOptions, di
     rest = tuple(f for f in options.faults if f not in NETWORK_FAULTS)
     if not rest:
         fail("chaos", f"--faults: network namespaces are needed for {', '.join(wanted)}: {reason}")
-    print(f"ennc-ql chaos: skipping {', '.join(wanted)}: {reason}", file=sys.stderr)
     return dataclasses.replace(options, faults=rest), dict.fromkeys(wanted, reason)
 
 
@@ -143,7 +145,7 @@ def add_chaos_parser(sub: Any) -> None:
         help="seconds between RSS samples "
         f"(default: {DEFAULT_RSS_INTERVAL_S:.0f}, {SOAK_RSS_INTERVAL_S:.0f} with --soak)",
     )
-    p.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR", help="parent folder of the run folder")
+    p.add_argument("--runs", type=folder, default=Path("runs"), metavar="DIR", help="parent folder of the run folder")
     p.add_argument("--run-id", metavar="ID", help="run folder name (default: chaos-<start time>)")
     p.add_argument(
         "--config",

@@ -10,6 +10,11 @@ Each child's stderr is appended to ``DIR/<name>.log``; with ``keep_stdout`` each
     children.stop("actor-0", grace=10.0)     # SIGTERM, SIGKILL past the grace; its exit status
     children.close()                         # whatever happened: every child stopped and reaped
 
+With ``own_group`` the children run in one process group of their own (a Ctrl-C at the terminal reaches only the
+launcher, which decides what each child gets) and die with the launcher, whatever kills it: each is told the
+launcher's pid (:data:`ennc_ql.system.PARENT_PID_ENV`) and asks Linux for SIGTERM when it dies
+(:func:`ennc_ql.system.die_with_parent`).
+
 :class:`Supervisor` restarts the children that may die under ``up`` (the learner, the actors, the router).
 """
 
@@ -25,7 +30,9 @@ import time
 from collections.abc import Container
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
+from ennc_ql.system import PARENT_PID_ENV
 from protocol.security import ROUTER
 
 log = logging.getLogger(__name__)
@@ -54,6 +61,7 @@ class Children:
         keep_stdout: bool | Container[str] = False,
         grace: float = 10.0,
         stop_signal: int = signal.SIGTERM,
+        own_group: bool = False,
     ) -> None:
         self.log_dir = log_dir
         self.keep_stdout = keep_stdout
@@ -68,6 +76,9 @@ class Children:
         """The current incarnation of each name."""
         self.started: dict[str, float] = {}
         """Monotonic start time of each name's current incarnation."""
+        self.own_group = own_group
+        self.group: int | None = None
+        """The children's process group (``own_group``), once the first has started."""
         self._incarnations: dict[str, int] = {}
         self._lock = threading.Lock()  # an RSS sampler may read the processes from its own thread
 
@@ -78,9 +89,9 @@ class Children:
         with open(self.log_dir / f"{name}.log", "a") as err:
             if self.keep_stdout is True or (self.keep_stdout and name in self.keep_stdout):
                 with open(self.stdout(name, k), "w") as out:
-                    proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=out, stderr=err)
+                    proc = self._popen(argv, out, err)
             else:
-                proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err)
+                proc = self._popen(argv, subprocess.DEVNULL, err)
         if nice:
             # From here rather than a preexec_fn, which is unsafe once this process has threads (restarts happen then).
             os.setpriority(os.PRIO_PROCESS, proc.pid, nice)
@@ -89,6 +100,31 @@ class Children:
             self._incarnations[name] = k
             self.started[name] = time.monotonic()
         return proc
+
+    def _popen(self, argv: list[str], out: Any, err: Any) -> subprocess.Popen[bytes]:
+        if not self.own_group:
+            return subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=out, stderr=err)
+        env = {**os.environ, PARENT_PID_ENV: str(os.getpid())}
+        if self.group is not None:
+            try:
+                return subprocess.Popen(
+                    argv, stdin=subprocess.DEVNULL, stdout=out, stderr=err, env=env, process_group=self.group
+                )
+            except PermissionError:  # every member of the group has exited: the group is gone, start a new one
+                pass
+        proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=out, stderr=err, env=env, process_group=0)
+        self.group = proc.pid
+        return proc
+
+    def kill_now(self, names: Container[str]) -> list[str]:
+        """SIGKILL every running child among ``names``, without waiting (whoever waits for them sees them end); the
+        names killed."""
+        killed = []
+        for name, proc in list(self.procs.items()):
+            if name in names and proc.poll() is None:
+                proc.kill()
+                killed.append(name)
+        return killed
 
     def stdout(self, name: str, k: int | None = None) -> Path:
         """The stdout file of ``name``'s incarnation ``k`` (default: the current one), with ``keep_stdout``."""

@@ -59,9 +59,28 @@ class UpConfig:
         ]
         if parts:
             raise ValueError(f"{', '.join(parts)}: up gives every process the formulation it names (--formulation)")
+        self._check_set_by_up()
         # The learner's and the actors' own formulation is up's, so that up.toml says one thing once.
         for role in ("learner", "actor"):
             object.__setattr__(self, role, dataclasses.replace(getattr(self, role), formulation=self.formulation))
+
+    def _check_set_by_up(self) -> None:
+        """A field of the learner's or the actors' that up sets itself, given otherwise in a file, is an error: up
+        would override it without a word. Its default (what up.toml files of earlier versions hold) is fine."""
+        ours = {"duration": self.duration, "seed": self.seed, "formulation": self.formulation, "actor_id": None}
+        source = {"duration": "duration", "seed": "seed", "formulation": "formulation", "actor_id": "actors"}
+        for role in ("learner", "actor"):
+            process = getattr(self, role)
+            for f in dataclasses.fields(process):
+                if f"{role}.{f.name}" not in SET_BY_UP or f.name not in ours:
+                    continue
+                value = getattr(process, f.name)
+                mine = None if (role, f.name) == ("actor", "duration") else ours[f.name]
+                if value != f.default and value != mine:
+                    raise ValueError(
+                        f"{role}.{f.name} = {value!r}: up sets every {role}'s {f.name} itself, from "
+                        f"{source[f.name]}; leave {role}.{f.name} out (give {source[f.name]} instead)"
+                    )
 
 
 UP_PRESETS: dict[str, Any] = {
@@ -103,7 +122,7 @@ def child_configs(config: UpConfig) -> tuple[LearnerConfig, list[ActorConfig]]:
 
 def write_configs(config: UpConfig, learner: LearnerConfig, actors: list[ActorConfig], run_dir: Path) -> None:
     """Every process's resolved configuration in the run folder: the run can be repeated exactly from them."""
-    (run_dir / "up.toml").write_text(dump_config(config))
+    (run_dir / "up.toml").write_text(dump_config(config, exclude=SET_BY_UP))
     (run_dir / "learner.toml").write_text(dump_config(learner))
     for actor in actors:
         (run_dir / f"{actor.actor_id}.toml").write_text(dump_config(actor))

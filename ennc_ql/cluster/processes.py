@@ -30,6 +30,7 @@ from ennc_ql.cluster.children import ACTOR_NICENESS, Children, Restart, Supervis
 from ennc_ql.cluster.endpoints import LOOPBACK, Endpoints, make_endpoints
 from ennc_ql.cluster.recording import Monitoring
 from ennc_ql.progress import ProgressBar
+from ennc_ql.system import Interrupts
 from learner.config import LearnerConfig
 from learner.report import LearnerReport, LearnerStatus
 from protocol import KeySpace, PolicyUpdate, Status, ZenohTransport
@@ -59,6 +60,8 @@ class Placement:
     """Other names of ``host`` (the router's certificate holds them)."""
     stop_signal: int = signal.SIGTERM
     """What asks a child to wind down."""
+    owns_children: bool = True
+    """The children are this process's own: in a process group of their own, and they die with it."""
 
     def command(self, name: str, argv: list[str]) -> list[str]:
         """The command line that runs child ``name``'s ``argv`` where it belongs."""
@@ -125,12 +128,15 @@ def run_processes(
     resume: bool = False,
     max_restarts: int = 3,
     stop: threading.Event | None = None,
+    interrupts: Interrupts | None = None,
 ) -> ProcessRun:
     """Spawn the learner and the actors (and, ``secure``, the router they all authenticate to) with their
     configuration files, show progress until the learner is done (or ``stop`` is set: then the children are stopped,
     the learner with time for its checkpoint and report), supervising every child, then stop the others.
     ``resume``: the learner's first start already resumes from a checkpoint if there is one (a requeued job).
-    Raises :class:`LaunchError` if the learner is given up."""
+    ``interrupts``: the launcher's signals; the first stops the run (as ``stop``), the second kills the actors, the
+    third the learner and the router; the children are waited for whatever comes. Raises :class:`LaunchError` if
+    the learner is given up."""
     where = placement or Placement()
     ids = [a.actor_id for a in actors]
     ends = make_endpoints(
@@ -138,8 +144,14 @@ def run_processes(
     )
     log.info("learner + %d actors on %s, %.0f s", len(actors), ends.endpoint, learner.duration or 0.0)
     # The actors' stdout: what each incarnation sent, printed as it ends (--json).
-    children = Children(run_dir, keep_stdout=set(ids), stop_signal=where.stop_signal)
+    children = Children(run_dir, keep_stdout=set(ids), stop_signal=where.stop_signal, own_group=where.owns_children)
     supervisor = Supervisor(children, max_restarts=max_restarts)
+    if interrupts is not None:
+        stop = interrupts.stop
+        interrupts.escalate(
+            lambda: f"killed {', '.join(children.kill_now(ids)) or 'no actor'}; again to kill the learner too",
+            lambda: f"killed {', '.join(children.kill_now({LEARNER, ROUTER})) or 'nothing'}",
+        )
     actor_stop_s = max((a.flush_timeout for a in actors), default=0.0) + ACTOR_STOP_EXTRA_S
     started = time.time()
     policies = _Policies()

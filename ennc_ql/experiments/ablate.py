@@ -18,6 +18,7 @@ paper's figure for the method, so a result is read beside what the hand-made con
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import itertools
 import time
 from collections.abc import Sequence
@@ -27,13 +28,21 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from algorithm.experiments import METHODS, Budget, Outcome
+from algorithm.experiments import METHODS, UNUSED_BUDGET, Budget, Outcome
 from algorithm.policy import LostBehaviour
 from ennc_ql.command import check_folder, emit, fail
-from ennc_ql.config import ConfigError, add_config_flags, load_config, parse_setting, positive, replace_setting
+from ennc_ql.config import (
+    ConfigError,
+    add_config_flags,
+    folder,
+    load_config,
+    parse_setting,
+    positive,
+    replace_setting,
+)
 from ennc_ql.experiments.jobs import Job, JobsBar, run_jobs
 from ennc_ql.experiments.reproduce import PAPER
-from ennc_ql.experiments.results import write_results
+from ennc_ql.experiments.results import check_unused, write_results
 from ennc_ql.parser import CommandHelp, add_command
 from ennc_ql.progress import ProgressBar
 from ennc_ql.slurm.array import ArrayConfig, learn_on_slurm
@@ -101,6 +110,20 @@ def parse_sets(texts: Sequence[str]) -> Sweep:
             raise ConfigError(f"--set {key}: given twice (list every value in one --set)")
         sweep.append((key, [parse_setting(Setup, key, v.strip()) for v in values.split(",")]))
     return sweep
+
+
+def check_used(method: str, sweep: Sweep) -> None:
+    """ConfigError for a swept key that ``method`` never reads: its variants would all be the same."""
+    algorithm = METHODS[method].algorithm
+    unused = UNUSED_BUDGET.get(algorithm, ())
+    for key, _ in sweep:
+        part = key.split(".")
+        if part[0] == "budget" and len(part) > 1 and part[1] in unused:
+            used = ", ".join(f"budget.{f.name}" for f in dataclasses.fields(Budget) if f.name not in unused)
+            raise ConfigError(
+                f"--set {key}: {method} never reads budget.{part[1]} (a {algorithm} method), so every variant "
+                f"would be the same; it reads {used}"
+            )
 
 
 def variants(base: Setup, sweep: Sweep) -> list[tuple[dict[str, Any], Setup]]:
@@ -314,7 +337,8 @@ def add_ablate_parser(sub: Any) -> None:
     p.add_argument("--processes", type=positive(int), default=3, help="learning processes per variant")
     p.add_argument("--jobs", type=positive(int), default=1, help="learning processes run at once")
     p.add_argument("--quick", action="store_true", help="reproduce's reduced budget as the base")
-    p.add_argument("--out", type=Path, metavar="DIR", help="output folder (default: runs/ablate-METHOD)")
+    p.add_argument("--out", type=folder, metavar="DIR", help="output folder (default: runs/ablate-METHOD)")
+    p.add_argument("--force", action="store_true", help="replace the results already in --out")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     add_config_flags(p.add_argument_group("on a SLURM cluster (ennc_ql.slurm.array.ArrayConfig)"), ArrayConfig)
     p.set_defaults(func=cmd_ablate)
@@ -324,6 +348,7 @@ def cmd_ablate(args: argparse.Namespace) -> int:
     out_dir = args.out or Path("runs") / f"ablate-{args.method}"
     try:
         sweep = parse_sets(args.set)
+        check_used(args.method, sweep)
         base = Setup(budget=Budget.quick() if args.quick else Budget())
         for _, setup in variants(base, sweep):  # every combination checked before the first process starts
             setup.formulation(args.method)
@@ -331,6 +356,7 @@ def cmd_ablate(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         fail("ablate", str(exc))
     check_folder(out_dir, "ablate", "--out")
+    check_unused(out_dir, "ablate", args.force)
     try:
         report = ablate(args.method, sweep, base, args.processes, out_dir, args.jobs, slurm if slurm.slurm else None)
     except SlurmError as exc:

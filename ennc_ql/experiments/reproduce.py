@@ -20,9 +20,9 @@ import numpy as np
 
 from algorithm.experiments import METHODS, Budget, Outcome
 from ennc_ql.command import check_folder, emit, fail
-from ennc_ql.config import ConfigError, add_config_flags, load_config, positive
+from ennc_ql.config import ConfigError, add_config_flags, folder, load_config, positive
 from ennc_ql.experiments.jobs import Job, JobsBar, run_jobs
-from ennc_ql.experiments.results import write_results
+from ennc_ql.experiments.results import check_unused, write_results
 from ennc_ql.parser import CommandHelp, add_command
 from ennc_ql.progress import ProgressBar
 from ennc_ql.slurm.array import ArrayConfig, learn_on_slurm
@@ -229,9 +229,10 @@ def add_reproduce_parser(sub: Any) -> None:
         help=f"run only these (default: all): {', '.join(names)}",
     )
     p.add_argument(
-        "--out", type=Path, metavar="DIR", help="output folder (default: runs/reproduce or runs/reproduce-quick)"
+        "--out", type=folder, metavar="DIR", help="output folder (default: runs/reproduce or runs/reproduce-quick)"
     )
     p.add_argument("--jobs", type=positive(int), default=1, help="learning processes run at once")
+    p.add_argument("--force", action="store_true", help="replace the results already in --out")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     add_config_flags(p.add_argument_group("on a SLURM cluster (ennc_ql.slurm.array.ArrayConfig)"), ArrayConfig)
     p.set_defaults(func=cmd_reproduce)
@@ -242,6 +243,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     processes = args.processes or (1 if args.quick else 5)
     out_dir = args.out or Path("runs") / ("reproduce-quick" if args.quick else "reproduce")
     check_folder(out_dir, "reproduce", "--out")
+    check_unused(out_dir, "reproduce", args.force)
     try:
         slurm: ArrayConfig = load_config(ArrayConfig, args=args)
         report = reproduce(budget, processes, out_dir, args.methods or None, args.jobs, slurm if slurm.slurm else None)

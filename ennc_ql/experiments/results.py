@@ -13,12 +13,24 @@ from typing import TYPE_CHECKING, Any
 
 from algorithm.policy import Policy
 from algorithm.policy_file import save_policy
+from ennc_ql.command import fail
 from sim import ScenarioConfig
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 CHART_DPI = 110
+RESULTS = "results.json"
+
+
+def check_unused(out_dir: Path, command: str, force: bool) -> None:
+    """A one-line error if ``out_dir`` holds results already and ``force`` was not given: a second run with the same
+    ``--out`` would replace the first's without a word."""
+    if not force and (out_dir / RESULTS).exists():
+        fail(
+            command,
+            f"--out {out_dir}: holds results already ({RESULTS}); give another --out, or --force to replace them",
+        )
 
 
 def write_results(
@@ -35,6 +47,6 @@ def write_results(
     for name, (policy, cfg) in policies.items():
         if policy is not None:
             save_policy(policy, cfg, out_dir / "policies" / f"{name}.npz")
-    (out_dir / "results.json").write_text(json.dumps(report, indent=2))
+    (out_dir / RESULTS).write_text(json.dumps(report, indent=2))
     (out_dir / "results.md").write_text(markdown)
     chart.savefig(out_dir / chart_name, dpi=CHART_DPI)

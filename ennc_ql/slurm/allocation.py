@@ -69,6 +69,8 @@ class SlurmPlacement(Placement):
     node_of: Mapping[str, str] = field(default_factory=dict)
     """Child name -> the node it runs on."""
     stop_signal: int = signal.SIGUSR1
+    owns_children: bool = False
+    """The tasks are slurmstepd's children on their nodes, and the job's end takes them all."""
 
     @classmethod
     def of(cls, allocation: Allocation, actor_ids: Sequence[str]) -> SlurmPlacement:

@@ -20,7 +20,7 @@ from typing import Any
 
 from ennc_ql.cluster import SET_BY_UP, UP_PRESETS, LaunchError, UpConfig
 from ennc_ql.command import configure, emit, fail, writable_dir
-from ennc_ql.config import ConfigError, add_config_flags, load_config
+from ennc_ql.config import ConfigError, add_config_flags, folder, load_config
 from ennc_ql.parser import CommandHelp, add_command, add_commands
 from ennc_ql.slurm.array import run_task
 from ennc_ql.slurm.job import JOB_SCRIPT, SlurmJob, run_training_job, write_training_job
@@ -39,7 +39,7 @@ SLURM = CommandHelp(
     "See each subcommand's help, and docs/slurm.md.",
     (
         ("ennc-ql slurm train --actors 4 --nodes 3 --submit", "a training job on 3 nodes"),
-        ("ennc-ql ablate --slurm ennc-ql-local vqql", "a sweep as one job array"),
+        ("ennc-ql ablate --slurm ennc-ql-local --set budget.phase2.alpha=0.1,0.3", "a sweep as one job array"),
     ),
     "under a second to write or submit; the job runs --duration plus about a minute",
 )
@@ -55,7 +55,7 @@ TRAIN = CommandHelp(
     (
         ("ennc-ql slurm train --actors 4 --nodes 3 --duration 3600 --submit", "one hour on 3 nodes, submitted"),
         ("ennc-ql slurm train --config runs/<id>/up.toml --run-id again", "a local run's configuration, as a job"),
-        ("ennc-ql slurm train --partition gpu --sbatch '--mem=8G'", "the job's own sbatch options"),
+        ("ennc-ql slurm train --partition gpu --sbatch=--mem=8G", "the job's own sbatch options"),
     ),
     "under a second (sbatch with --submit); the job itself: --duration plus about a minute",
 )
@@ -95,7 +95,7 @@ def add_slurm_parser(sub: Any) -> None:
     train.add_argument(
         "--config", metavar="FILE", help="TOML file of the run's configuration, e.g. a run's up.toml (default: none)"
     )
-    train.add_argument("--runs", type=Path, default=Path("runs"), help="parent folder of the run folder")
+    train.add_argument("--runs", type=folder, default=Path("runs"), help="parent folder of the run folder")
     train.add_argument("--run-id", help="run folder name (default: a timestamp)")
     train.add_argument("--submit", action="store_true", help="submit the job script with sbatch")
     train.add_argument("--json", action="store_true", help="print the result as one JSON object")
@@ -109,12 +109,12 @@ def add_slurm_parser(sub: Any) -> None:
     train.set_defaults(func=cmd_train)
 
     run = add_command(inner, RUN)
-    run.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="the run folder `slurm train` wrote")
+    run.add_argument("run_dir", type=folder, metavar="RUN_DIR", help="the run folder `slurm train` wrote")
     run.add_argument("--json", action="store_true", help="print the report as one JSON object")
     run.set_defaults(func=cmd_run)
 
     task = add_command(inner, TASK)
-    task.add_argument("folder", type=Path, metavar="FOLDER", help="the sweep's slurm folder")
+    task.add_argument("folder", type=folder, metavar="FOLDER", help="the sweep's slurm folder")
     task.add_argument("--task", type=int, help="the task (default: $SLURM_ARRAY_TASK_ID)")
     task.set_defaults(func=cmd_task)
 
@@ -123,9 +123,10 @@ def cmd_train(args: argparse.Namespace) -> int:
     config: UpConfig = configure(UpConfig, args, "slurm train", defaults=UP_PRESETS)
     try:
         job = load_config(SlurmJob, args=args)  # flags only: --config is the run's configuration
-    except ConfigError as exc:
+        job.check_actors(config.actors)
+    except (ConfigError, ValueError) as exc:
         fail("slurm train", str(exc))
-    run_id = args.run_id or time.strftime("%Y%m%d-%H%M%S")
+    run_id = args.run_id if args.run_id is not None else time.strftime("%Y%m%d-%H%M%S")
     try:
         check_id(run_id, "--run-id")
     except ValueError as exc:
@@ -191,6 +192,9 @@ def cmd_task(args: argparse.Namespace) -> int:
     task = args.task if args.task is not None else os.environ.get("SLURM_ARRAY_TASK_ID")
     if task is None:
         fail("slurm task", "no --task and no SLURM_ARRAY_TASK_ID: this runs inside an array job")
+    if not str(task).isdigit():
+        source = "--task" if args.task is not None else "SLURM_ARRAY_TASK_ID"
+        fail("slurm task", f"{source}={task!r}: expected a task number (0 or more), as SLURM sets it in an array job")
     try:
         outcome = run_task(args.folder.resolve(), int(task))
     except (ConfigError, OSError) as exc:

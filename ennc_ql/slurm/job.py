@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import shlex
 import sys
 import threading
@@ -57,9 +58,29 @@ class SlurmJob:
     def __post_init__(self) -> None:
         if self.nodes < 0:
             raise ValueError(f"nodes must be 0 (one per actor, plus one) or more, got {self.nodes}")
+        if self.time_limit is not None and not _SLURM_TIME.fullmatch(self.time_limit.strip()):
+            raise ValueError(
+                f"--time-limit {self.time_limit}: not a SLURM time (sbatch would refuse the job); give minutes "
+                "(120), hours:minutes:seconds (2:00:00), days-hours (1-12) or days-hours:minutes:seconds (1-00:00:00)"
+            )
 
     def node_count(self, actors: int) -> int:
         return self.nodes or actors + 1
+
+    def check_actors(self, actors: int) -> None:
+        """ValueError if some of the job's nodes would get nothing to run: the first runs the learner and the
+        router, every other node at least one actor."""
+        if self.nodes > actors + 1:
+            raise ValueError(
+                f"--nodes {self.nodes} for --actors {actors}: the first node runs the learner and each other node "
+                f"at least one actor, so {actors + 1} nodes at most ({self.nodes - actors - 1} would sit idle); give "
+                f"--nodes {actors + 1}, or --actors {self.nodes - 1}"
+            )
+
+
+_SLURM_TIME = re.compile(r"(?i:unlimited|infinite)|\d+(:\d+){0,2}|\d+-\d+(:\d+){0,2}")
+"""sbatch --time's formats: minutes, minutes:seconds, hours:minutes:seconds, days-hours, days-hours:minutes and
+days-hours:minutes:seconds."""
 
 
 def job_script(run_dir: Path, job: SlurmJob, actors: int) -> str:

@@ -24,7 +24,8 @@ from types import TracebackType
 from typing import Self
 
 import psutil
-import pytest
+
+from tests import system
 
 DAEMONS = ("mungekey", "munged", "slurmctld", "slurmd")
 CLIENTS = ("sbatch", "srun", "scontrol", "squeue", "scancel")
@@ -32,7 +33,7 @@ NODES = ("n1", "n2", "n3")
 SBIN = "/usr/sbin:/sbin"
 STOP_S = 10.0
 """Seconds a daemon gets to stop on SIGTERM before SIGKILL."""
-REQUIRE = "ENNC_QL_REQUIRE_SLURM"
+REQUIRE = system.variable(system.SLURM)
 """Set to 1 where the SLURM tests must run (CI): a missing package is then a failure, not a skip."""
 
 
@@ -48,11 +49,7 @@ def require_slurm() -> None:
         )
     if os.geteuid() != 0:
         reasons.append("slurmd runs job steps as root here: run as root")
-    if reasons:
-        message = "no local SLURM: " + "; ".join(reasons)
-        if os.environ.get(REQUIRE) == "1":
-            pytest.fail(f"{message}, but {REQUIRE}=1 requires the SLURM tests to run")
-        pytest.skip(message)
+    system.require(system.SLURM, "no local SLURM: " + "; ".join(reasons) if reasons else None)
 
 
 def _free_ports(count: int) -> int:

@@ -28,6 +28,7 @@ from algorithm.policy_file import load_policy
 from ennc_ql.chaos import FAULTS
 from ennc_ql.chaos.network import PREFIX, unavailable
 from ennc_ql.chaos.options import NETWORK_FAULTS
+from tests import system
 from tests.e2e import ennc_ql
 
 pytestmark = pytest.mark.slow
@@ -202,6 +203,8 @@ def assert_network_faults_held(out: dict[str, Any], report: dict[str, Any], faul
 
 
 def test_chaos_applies_every_fault_and_the_contract_holds(tmp_path: Path) -> None:
+    # Where the network faults must run (CI installs iptables), their absence is a failure, not a skipped fault.
+    assert not (system.required(system.NETNS) and NETWORK), f"{NETWORK}, but {system.variable(system.NETNS)}=1"
     out, run_dir, log = run_chaos(tmp_path)
     faults: Faults = {name: [f for f in out["faults"] if f["name"] == name] for name in FAULTS}
     expected = [name for name in FAULTS if NETWORK is None or name not in NETWORK_FAULTS]

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pytest
 
+from tests import system
 from tests.e2e import ACTOR_BUDGET, LEARNER_BUDGET, Processes, ennc_ql
 
 pytestmark = pytest.mark.slow
@@ -82,7 +83,7 @@ class Network:
 @pytest.fixture
 def network() -> Iterator[Network]:
     if shutil.which("ip") is None:
-        pytest.skip("iproute2 is not installed (no `ip` command): cannot create network namespaces")
+        system.require(system.NETNS, "iproute2 is not installed (no `ip` command): cannot create network namespaces")
     delete_stale_namespaces()
     net = Network()
     try:
@@ -91,7 +92,8 @@ def network() -> Iterator[Network]:
         except subprocess.CalledProcessError as exc:
             if net.created:
                 raise  # namespaces can be made here, so this is a failure, not a missing privilege
-            pytest.skip(f"cannot create network namespaces (needs root or CAP_SYS_ADMIN): {exc.stderr.strip()}")
+            why = f"cannot create network namespaces (needs root or CAP_SYS_ADMIN): {exc.stderr.strip()}"
+            system.require(system.NETNS, why)
         yield net
     finally:
         net.delete()

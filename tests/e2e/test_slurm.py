@@ -141,7 +141,8 @@ def test_a_sweep_as_a_job_array_gives_the_local_results(slurm: LocalSlurm, tmp_p
         with slurm:
             first = slurm.run(*ennc_ql(*sweep, "--slurm", f"--out={array}", "--json"))
             submitted = json.loads((array / "slurm" / "array.json").read_text())
-            again = slurm.run(*ennc_ql(*sweep, "--slurm", f"--out={array}", "--json"))
+            # Its results are there now: another run replaces them only when asked to (--force).
+            again = slurm.run(*ennc_ql(*sweep, "--slurm", f"--out={array}", "--force", "--json"))
         local_out, local_err = local.communicate(timeout=300)
     finally:
         if local.poll() is None:

@@ -18,6 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ennc_ql.config import dump_config
+
 ENNC_QL = Path(sys.executable).with_name("ennc-ql")
 TIMEOUT_S = 90.0
 """A row that started something it should not have is stopped here (and fails): none takes a second to answer."""
@@ -142,6 +144,43 @@ ROWS: list[tuple[list[str], str]] = [
     (["bench", "ennc", "--patterns", "0"], "ennc-ql bench ennc: error: --patterns: expected a positive integer"),
     (["bench", "broadcast", "--prototypes"], "ennc-ql bench broadcast: error: --prototypes: expected at least"),
     (["bench", "sim", "--rerun", "save", "/proc/x.rrd"], "ennc-ql bench sim: error: --rerun save /proc: cannot"),
+    # The edges (issue 23): values no command should take, files of the wrong kind or role, odd ids and namespaces.
+    (["up", "--duration", "inf"], "ennc-ql up: error: --duration: expected a finite number, got 'inf'"),
+    (["up", "--duration", "nan"], "ennc-ql up: error: --duration: expected a finite number, got 'nan'"),
+    (["up", "--config", "infinite.toml"], "infinite.toml: key 'duration' must be a finite number, got inf"),
+    (["chaos", "--duration", "inf"], "ennc-ql chaos: error: --duration: expected a positive finite number"),
+    (["learner", "--run-dir", ""], "ennc-ql learner: error: --run-dir: expected a folder, got an empty value"),
+    (["up", "--runs", ""], "ennc-ql up: error: --runs: expected a folder, got an empty value"),
+    (["up", "--run-id", ""], "ennc-ql up: error: --run-id: '' is not"),
+    (["router", "--namespace", "a b"], "ennc-ql router: error: --namespace: 'a b' is not 1-64 characters"),
+    (["actor", "--namespace", "a//b"], "ennc-ql actor: error: --namespace: '' is not 1-64 characters"),
+    (["learner", "--run-dir", "r", "--namespace", "a b"], "ennc-ql learner: error: --namespace: 'a b' is not"),
+    (["router", "--zenoh-config", "alice.json5"], "authenticates as 'alice', not as the router; give the router's"),
+    (["slurm", "train", "--time-limit", "2h"], "ennc-ql slurm train: error: --time-limit 2h: not a SLURM time"),
+    (["slurm", "train", "--nodes", "5", "--actors", "2"], "--nodes 5 for --actors 2: the first node runs the learner"),
+    (["slurm", "task", "empty", "--task", "-1"], "ennc-ql slurm task: error: --task=-1: expected a task number"),
+    (["ablate", "fqi-mlp", "--set", "budget.phase2.alpha=0.1,0.2"], "fqi-mlp never reads budget.phase2"),
+    (["reproduce", "--quick", "--out", "done"], "ennc-ql reproduce: error: --out done: holds results already"),
+    (["ablate", "fqi-mlp", "--out", "done"], "ennc-ql ablate: error: --out done: holds results already"),
+    # A configuration file of the wrong kind or of another process.
+    (["up", "--config", "pickled.npy"], "ennc-ql up: error: pickled.npy: not a TOML configuration file (not UTF-8"),
+    (["up", "--config", "run/checkpoint.npz"], "run/checkpoint.npz: an .npz archive (a policy file or a checkpoint)"),
+    (["up", "--config", "bom.toml"], "ennc-ql up: error: bom.toml: unknown key 'duraton' (did you mean"),
+    (["up", "--config", "learner.toml"], "ennc-ql up: error: learner.toml is a learner's configuration file"),
+    (["up", "--config", "actor.toml"], "ennc-ql up: error: actor.toml is an actor's configuration file"),
+    (["learner", "--run-dir", "r", "--config", "up.toml"], "error: up.toml is up's configuration file (ennc-ql up"),
+    (["learner", "--run-dir", "r", "--config", "phase2.toml"], "phase2 is an actor's setting, not a learner's"),
+    (["up", "--config", "seeded.toml"], "ennc-ql up: error: learner.seed = 5: up sets every learner's seed itself"),
+    (["actor", "--config", "learner.toml"], "ennc-ql actor: error: learner.toml is a learner's configuration file"),
+    # up --resume: a stopped run's own folder, with its own configuration, and time left.
+    (["up", "--resume"], "ennc-ql up: error: --resume: needs a value"),
+    (["up", "--resume", "nothing"], "ennc-ql up: error: --resume nothing: no such run folder"),
+    (["up", "--resume", "run"], "ennc-ql up: error: --resume run: not a run folder of ennc-ql up (no up.toml"),
+    (["up", "--resume", "stopped", "--duration", "5"], "--resume continues stopped with its own configuration"),
+    (["up", "--resume", "stopped", "--run-id", "x"], "--run-id would change it"),
+    (["up", "--resume", "unsaved"], "ennc-ql up: error: --resume unsaved: no checkpoint, the run was stopped before"),
+    (["up", "--resume", "finished"], "ennc-ql up: error: --resume finished: the run trained its whole 10 s already"),
+    (["learner", "--run-dir", "paper", "--resume"], "holds a run of formulation paper, and this learner's formulation"),
 ]
 
 
@@ -162,10 +201,40 @@ def fixtures(folder: Path) -> None:
     (folder / "unknown.toml").write_text("duraton = 5\n")
     auth = {"transport": {"auth": {"usrpwd": {"user": "alice", "password": "secret"}}}}
     (folder / "alice.json5").write_text(json.dumps(auth))
+    edge_fixtures(folder)
+
+
+def edge_fixtures(folder: Path) -> None:
+    """Files of the edges: another process's configuration, a byte-order mark, stopped and finished runs."""
+    from actors.config import ActorConfig
+    from ennc_ql.cluster import UP_PRESETS, UpConfig, child_configs, write_configs
+    from ennc_ql.config import load_config
+
+    (folder / "infinite.toml").write_text("duration = inf\n")
+    (folder / "bom.toml").write_bytes("\ufeffduraton = 5\n".encode())
+    (folder / "phase2.toml").write_text("min_tuples = 5000\n[phase2]\nalpha = 0.2\n")
+    (folder / "seeded.toml").write_text("seed = 1\n[learner]\nseed = 5\n")
+    config = load_config(UpConfig, defaults=UP_PRESETS)
+    learner, _ = child_configs(config)
+    (folder / "learner.toml").write_text(dump_config(learner))
+    (folder / "actor.toml").write_text(dump_config(ActorConfig(actor_id="actor-3")))
+    (folder / "up.toml").write_text(dump_config(config))
+    short = load_config(UpConfig, defaults={**UP_PRESETS, "duration": 10.0})
+    for name, elapsed in (("stopped", 4.0), ("unsaved", None), ("finished", 10.0)):
+        (folder / name).mkdir()
+        write_configs(short, *child_configs(short), folder / name)
+        if elapsed is not None:
+            meta = {"elapsed": elapsed, "config": {"formulation": short.formulation}}
+            np.savez(folder / name / "checkpoint.npz", meta=np.frombuffer(json.dumps(meta).encode(), np.uint8))
+    (folder / "paper").mkdir()
+    meta = {"elapsed": 3.0, "config": {"formulation": "paper"}}
+    np.savez(folder / "paper" / "checkpoint.npz", meta=np.frombuffer(json.dumps(meta).encode(), np.uint8))
+    (folder / "done").mkdir()
+    (folder / "done" / "results.json").write_text("{}\n")
 
 
 COMMAND_WORDS = {"eval", "up", "learner", "actor", "router", "secure", "init", "chaos", "reproduce", "ablate", "bench"}
-COMMAND_WORDS |= {"sim", "ennc", "transport", "broadcast", "phase1"}
+COMMAND_WORDS |= {"sim", "ennc", "transport", "broadcast", "phase1", "slurm", "train", "task"}
 
 
 def command_of(argv: list[str]) -> str:
@@ -182,8 +251,9 @@ def tree(folder: Path) -> list[str]:
     return sorted(str(p.relative_to(folder)) for p in folder.rglob("*"))
 
 
-def run(argv: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
-    """``ennc-ql argv`` in ``cwd``; past the timeout its whole process group is killed, so nothing is left."""
+def run(argv: list[str], cwd: Path, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+    """``ennc-ql argv`` in ``cwd`` (with ``env`` added to the environment); past the timeout its whole process group
+    is killed, so nothing is left."""
     proc = subprocess.Popen(
         [str(ENNC_QL), *argv],
         cwd=cwd,
@@ -191,7 +261,7 @@ def run(argv: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
         stderr=subprocess.PIPE,
         text=True,
         start_new_session=True,
-        env={**os.environ, "COLUMNS": "120"},
+        env={**os.environ, "COLUMNS": "120", **(env or {})},
     )
     try:
         out, err = proc.communicate(timeout=TIMEOUT_S)
@@ -202,11 +272,42 @@ def run(argv: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
     return subprocess.CompletedProcess(argv, proc.returncode, out, err)
 
 
-@pytest.mark.parametrize(("argv", "message"), ROWS, ids=[" ".join(argv) or "(nothing)" for argv, _ in ROWS])
+HIDDEN = ("iptables", "iptables-legacy", "iptables-nft", "ip6tables", "sbatch", "srun", "slurmd", "Xvfb", "podman")
+"""The optional system programs a machine may lack: with them hidden, every row must meet the contract just the same
+(a notice about what is missing never comes before the error)."""
+
+
+@pytest.fixture(scope="module")
+def bare_path(tmp_path_factory: pytest.TempPathFactory) -> str:
+    """A PATH of one folder linking every program on this PATH but the optional ones (:data:`HIDDEN`)."""
+    folder = tmp_path_factory.mktemp("bare-bin")
+    for directory in reversed(os.environ.get("PATH", "").split(os.pathsep)):
+        for program in Path(directory).glob("*") if directory and Path(directory).is_dir() else []:
+            if program.name not in HIDDEN and os.access(program, os.X_OK) and program.is_file():
+                (folder / program.name).unlink(missing_ok=True)
+                (folder / program.name).symlink_to(program)
+    return str(folder)
+
+
+IDS = [" ".join(argv) or "(nothing)" for argv, _ in ROWS]
+
+
+@pytest.mark.parametrize(("argv", "message"), ROWS, ids=IDS)
 def test_bad_input_is_one_line_exit_2_and_nothing_left(argv: list[str], message: str, tmp_path: Path) -> None:
+    assert_contract(argv, message, tmp_path)
+
+
+@pytest.mark.parametrize(("argv", "message"), ROWS, ids=IDS)
+def test_without_iptables_slurm_or_xvfb_every_row_meets_the_contract_too(
+    argv: list[str], message: str, tmp_path: Path, bare_path: str
+) -> None:
+    assert_contract(argv, message, tmp_path, {"PATH": bare_path})
+
+
+def assert_contract(argv: list[str], message: str, tmp_path: Path, env: dict[str, str] | None = None) -> None:
     fixtures(tmp_path)
     before = tree(tmp_path)
-    result = run(argv, tmp_path)
+    result = run(argv, tmp_path, env)
     lines = result.stderr.splitlines()
     command = command_of(argv)
     assert result.returncode == 2, result.stderr
@@ -232,3 +333,46 @@ def test_a_port_in_use_is_one_line_and_leaves_no_run_folder(tmp_path: Path) -> N
     assert line.startswith("ennc-ql learner: error: zenoh could not open a session: Can not create a new TCP listener")
     assert f"127.0.0.1:{port}" in line and "Address already in use" in line and ".rs:" not in line
     assert list(tmp_path.iterdir()) == []
+
+
+ENV_ROWS: list[tuple[dict[str, str], list[str], str]] = [
+    ({"SLURM_ARRAY_TASK_ID": "abc"}, ["slurm", "task", "empty"], "SLURM_ARRAY_TASK_ID='abc': expected a task number"),
+    ({"SLURM_ARRAY_TASK_ID": ""}, ["slurm", "task", "empty"], "SLURM_ARRAY_TASK_ID='': expected a task number"),
+    # A headless machine (no viewer runs on port 9876 during the tests): before a process starts, with the way out.
+    ({"DISPLAY": "", "WAYLAND_DISPLAY": ""}, ["up", "--rerun", "spawn"], "--rerun spawn: no display for the viewer"),
+    ({"DISPLAY": "", "WAYLAND_DISPLAY": ""}, ["eval", "--rerun", "spawn"], "rerun --serve-web FILE.rrd"),
+]
+
+
+@pytest.mark.parametrize(("env", "argv", "message"), ENV_ROWS, ids=[" ".join(a) + f" {e}" for e, a, _ in ENV_ROWS])
+def test_a_bad_environment_variable_meets_the_contract_too(
+    env: dict[str, str], argv: list[str], message: str, tmp_path: Path
+) -> None:
+    assert_contract(argv, message, tmp_path, env)
+
+
+def test_help_on_an_ascii_terminal_is_printed_not_a_traceback(tmp_path: Path) -> None:
+    result = run(["up", "--help"], tmp_path, {"PYTHONIOENCODING": "ascii"})
+    assert result.returncode == 0 and result.stderr == ""
+    assert result.stdout.startswith("usage: ennc-ql up") and "Ctrl-C" in result.stdout
+
+
+@pytest.mark.parametrize("reader", ["gone at once", "head -1"])
+def test_a_reader_that_goes_away_ends_the_command_quietly(reader: str, tmp_path: Path) -> None:
+    """``ennc-ql eval ... | head -1``: once the reader is gone the command stops with the status of SIGPIPE (or 0
+    if it had written everything already), saying nothing."""
+    proc = subprocess.Popen(
+        [str(ENNC_QL), "eval", "--trials", "3", "--steps", "20"],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env={**os.environ, "COLUMNS": "120"},
+    )
+    assert proc.stdout is not None and proc.stderr is not None
+    if reader == "head -1":
+        assert proc.stdout.readline().startswith(b"policy a-cmommt")
+    proc.stdout.close()
+    err = proc.stderr.read().decode()
+    assert proc.wait(TIMEOUT_S) in (0, 128 + signal.SIGPIPE)
+    for leak in ("Traceback", "BrokenPipe", "Exception ignored", "error"):
+        assert leak not in err, err

@@ -193,10 +193,10 @@ def test_bool_flags_both_ways(argv: list[str], expected: bool) -> None:
     [
         (["--store-capacity", "x"], "argument --store-capacity: expected an integer, got 'x'"),
         (["--store-capacity", "1.5"], "argument --store-capacity: expected an integer, got '1.5'"),
-        (["--gamma", "high"], "argument --gamma: expected a number, got 'high'"),
+        (["--gamma", "high"], "argument --gamma: expected a finite number, got 'high'"),
         (["--fit-targets", "median"], "argument --fit-targets: invalid choice: 'median' (choose from max, mean)"),
         (["--fit-n-cycles", "none"], "argument --fit-n-cycles: expected an integer, got 'none'"),
-        (["--weights", "1,a"], "argument --weights: expected a number, got 'a'"),
+        (["--weights", "1,a"], "argument --weights: expected a finite number, got 'a'"),
         (["--learn", "a-b"], "argument --learn: invalid literal for int()"),
     ],
 )
@@ -266,8 +266,8 @@ def test_unknown_file_key_is_named_with_a_suggestion(tmp_path: Path, text: str, 
     [
         ('store_capacity = "big"\n', "key 'store_capacity' must be an integer, got 'big'"),
         ("store_capacity = true\n", "key 'store_capacity' must be an integer, got True"),
-        ("duration = true\n", "key 'duration' must be a number or none, got True"),
-        ("weights = [1, 'a']\n", "key 'weights' must be an array, each a number, got [1, 'a']"),
+        ("duration = true\n", "key 'duration' must be a finite number or none, got True"),
+        ("weights = [1, 'a']\n", "key 'weights' must be an array, each a finite number, got [1, 'a']"),
         ("fit = 3\n", "key 'fit' must be a table ([fit]), got 3"),
         ('[fit]\ntargets = "median"\n', "key 'fit.targets' must be one of 'max', 'mean', got 'median'"),
         ("[fit]\nstandardize = 1\n", "key 'fit.standardize' must be true or false, got 1"),
@@ -296,7 +296,7 @@ def test_unreadable_or_invalid_file_and_bad_presets(tmp_path: Path) -> None:
         load_config(Toy, file=write(tmp_path, "store_capacity ==\n"))
     with pytest.raises(ConfigError, match="unknown preset key 'gama' \\(did you mean 'gamma'\\?\\)"):
         load_config(Toy, defaults={"gama": 0.5})
-    with pytest.raises(ConfigError, match="preset key 'gamma' must be a number"):
+    with pytest.raises(ConfigError, match="preset key 'gamma' must be a finite number"):
         load_config(Toy, defaults={"gamma": "high"})
 
 
@@ -363,9 +363,9 @@ def test_positive_int_rejects(text: str) -> None:
         positive(int)(text)
 
 
-@pytest.mark.parametrize("text", ["0", "-0.5", "x", "nan"])
+@pytest.mark.parametrize("text", ["0", "-0.5", "x", "nan", "inf"])
 def test_positive_float_rejects(text: str) -> None:
-    with pytest.raises(argparse.ArgumentTypeError, match=f"^expected a positive number, got '{text}'$"):
+    with pytest.raises(argparse.ArgumentTypeError, match=f"^expected a positive finite number, got '{text}'$"):
         positive(float)(text)
 
 

@@ -132,3 +132,25 @@ def test_version_and_top_level_help() -> None:
         "bench",
     ):
         assert re.search(rf"\n    {name} +\S", text), name
+
+
+def examples(prog: str) -> list[str]:
+    """The command lines of ``prog``'s help examples."""
+    text = PARSERS[prog].format_help()
+    if "examples:\n" not in text:
+        return []
+    lines = text.split("examples:\n")[1].split("\n\n")[0].splitlines()
+    return [line.split("  # ")[0].strip() for line in lines]
+
+
+@pytest.mark.parametrize("prog", sorted(PARSERS))
+def test_every_help_example_is_a_command_line_the_parser_takes(prog: str, capsys: pytest.CaptureFixture[str]) -> None:
+    import shlex
+
+    for example in examples(prog):
+        words = shlex.split(example)
+        assert words[0] == "ennc-ql", example
+        try:
+            build_parser().parse_args(words[1:])
+        except SystemExit as exc:  # --help and --version exit 0; bad input exits 2
+            assert exc.code == 0, f"{example}: {capsys.readouterr().err}"

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
 import signal
 import subprocess
 import sys
@@ -210,12 +212,29 @@ def test_merge_reports_bad_input(tmp_path: Path, merged: Path) -> None:
         merge_recordings([junk], tmp_path / "out.rrd")
 
 
+def stop_server(server: subprocess.Popen[bytes], grace: float = 30.0) -> None:
+    """SIGINT (the server writes what it holds and exits), then SIGKILL to its whole session past ``grace``: on
+    loaded cores it may be slow to exit, and nothing of it may outlive the test."""
+    server.send_signal(signal.SIGINT)
+    try:
+        server.wait(grace)
+    except subprocess.TimeoutExpired:
+        os.killpg(server.pid, signal.SIGKILL)
+        server.wait()
+    with contextlib.suppress(ProcessLookupError):  # anything it started, in its session
+        os.killpg(server.pid, signal.SIGKILL)
+
+
 def test_connect_streams_processes_into_one_live_recording(tmp_path: Path) -> None:
     """Two monitors connect to a listening ``rerun --save`` (a viewer would do the same) with one recording id."""
-    out, port = tmp_path / "live.rrd", free_port()
-    server = subprocess.Popen(
-        [*rerun_cli(), "--save", str(out), "--port", str(port)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
-    )
+    out, port, log = tmp_path / "live.rrd", free_port(), tmp_path / "server.log"
+    with open(log, "wb") as err:  # a file, not a pipe: a server that logs a lot never blocks on a full pipe
+        server = subprocess.Popen(
+            [*rerun_cli(), "--save", str(out), "--port", str(port)],
+            stdout=subprocess.DEVNULL,
+            stderr=err,
+            start_new_session=True,
+        )
     try:
         url = f"rerun+http://127.0.0.1:{port}/proxy"
         for process in ("learner", "actor-0"):
@@ -228,8 +247,8 @@ def test_connect_streams_processes_into_one_live_recording(tmp_path: Path) -> No
             assert time.monotonic() < deadline, "the live recording never received both processes' data"
             time.sleep(0.1)
     finally:
-        server.send_signal(signal.SIGINT)
-        _, stderr = server.communicate(timeout=30)
+        stop_server(server)
+    stderr = log.read_text(errors="replace")[-3000:]
     summary = summarize_recording(out)
     assert summary["recording_ids"] == [RECORDING_ID]
     assert summary["rows_per_entity"]["learner/ticks"] == summary["rows_per_entity"]["actor-0/ticks"] == 1, stderr

@@ -129,3 +129,28 @@ def test_processes_with_monitoring_off_never_import_rerun() -> None:
     )
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "[]"
+
+
+def test_spawn_is_checked_before_anything_starts(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    """``--rerun spawn`` finds the venv's own viewer without the venv on PATH, and says why it cannot show one: no
+    viewer, or no display (with the ways that work on a server); a viewer already listening is always fine."""
+    import socket
+    import sys
+
+    from monitor import sinks
+
+    monkeypatch.setenv("PATH", str(tmp_path))  # nothing on PATH: the viewer beside python is found all the same
+    assert sinks.viewer_executable() == str(Path(sys.executable).parent / "rerun")
+    with socket.socket() as free:
+        free.bind(("127.0.0.1", 0))
+        port = free.getsockname()[1]  # nobody listens there once closed
+    monkeypatch.setenv("DISPLAY", ":0")
+    assert sinks.spawn_problem(port) is None
+    monkeypatch.delenv("DISPLAY")
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    problem = sinks.spawn_problem(port)
+    assert problem is not None and "no display" in problem and "rerun --serve-web FILE.rrd" in problem
+    monkeypatch.setattr(sinks, "viewer_executable", lambda: None)
+    assert "no Rerun viewer here" in (sinks.spawn_problem(port) or "")
+    with socket.create_server(("127.0.0.1", 0)) as viewer:  # a viewer runs: spawn streams to it
+        assert sinks.spawn_problem(viewer.getsockname()[1]) is None
