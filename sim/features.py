@@ -35,6 +35,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -85,14 +86,11 @@ def _distance_masked(cfg: ScenarioConfig, states: np.ndarray) -> np.ndarray:
     return states[..., 0] == np.float32(cfg.mask_value)
 
 
-def _nearest_absent(nearest: slice, present: int) -> Callable[[ScenarioConfig, np.ndarray], np.ndarray]:
+def _nearest_absent(nearest: slice, present: int, cfg: ScenarioConfig, states: np.ndarray) -> np.ndarray:
     """No target in view for the presence-coded states: the nearest target's columns are 0 and so is the furthest
-    target's presence bit (a target exactly at the robot's position reads the same: a set of measure zero)."""
-
-    def sees_none(cfg: ScenarioConfig, states: np.ndarray) -> np.ndarray:
-        return (states[..., nearest] == 0).all(axis=-1) & (states[..., present] == 0)
-
-    return sees_none
+    target's presence bit (a target exactly at the robot's position reads the same: a set of measure zero). Bound
+    with :func:`functools.partial`, so that a formulation pickles (jobs run in worker processes)."""
+    return (states[..., nearest] == 0).all(axis=-1) & (states[..., present] == 0)
 
 
 def _local2d(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
@@ -173,7 +171,7 @@ FEATURIZER_REGISTRY: dict[str, Featurizer] = {
             ),
             _present10d,
             "eq2",
-            _nearest_absent(slice(0, 2), 4),
+            partial(_nearest_absent, slice(0, 2), 4),
         ),
         Featurizer(
             "frame7d",
@@ -206,7 +204,7 @@ FEATURIZER_REGISTRY: dict[str, Featurizer] = {
             ),
             _frame9d,
             "eq2",
-            _nearest_absent(slice(0, 1), 3),
+            partial(_nearest_absent, slice(0, 1), 3),
             frame="target",
         ),
     )

@@ -141,7 +141,7 @@ class Formulation:
 
     def describe(self) -> str:
         every = {None: "every action", 1: "every step"}.get(self.act_every, f"every {self.act_every} steps")
-        rules = "" if self.rules is PAPER_RULES else f", {self.rules.name} trial rules"
+        rules = "" if self.rules == PAPER_RULES else f", {self.rules.name} trial rules"
         return (
             f"{self.featurizer.name} state, {self.reward.name} reward, {self.actions.name} moves, deciding {every} "
             f"in tests{rules}"
@@ -157,7 +157,7 @@ class Formulation:
         return hash(self._key())
 
     def __repr__(self) -> str:
-        rules = "" if self.rules is PAPER_RULES else f", rules={self.rules.name!r}"
+        rules = "" if self.rules == PAPER_RULES else f", rules={self.rules.name!r}"
         return f"Formulation.of({', '.join(map(repr, self.names))}, act_every={self.act_every!r}{rules})"
 
 

@@ -3,6 +3,8 @@ that resolves their names."""
 
 from __future__ import annotations
 
+import pickle
+
 import numpy as np
 import pytest
 
@@ -84,6 +86,14 @@ def test_paper_names_each_featurizers_own_reward_and_unknown_names_are_refused()
     with pytest.raises(ValueError, match="unknown trial rules 'lenient'; known: paper, search-on"):
         Formulation.of("collab6d", "eq2", "compass", rules="lenient")
     assert {name for name, r in REWARDS.items() if r.per_decision} == {"difference-decision"}
+
+
+@pytest.mark.parametrize("featurizer", list(FEATURIZER_REGISTRY))
+def test_a_formulation_of_any_parts_pickles_for_worker_processes(featurizer: str) -> None:
+    for rules in TRIAL_RULES:
+        formulation = Formulation.of(featurizer, "difference-decision", "relative", act_every=2, rules=rules)
+        back = pickle.loads(pickle.dumps(formulation))
+        assert back == formulation and back.names == formulation.names and back.rules == formulation.rules
 
 
 def test_a_formulation_is_resolved_by_name_with_explicit_parts_over_it() -> None:
