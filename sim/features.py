@@ -71,6 +71,10 @@ class Featurizer:
     frame: str = "world"
     """The frame its offsets are given in: ``world`` (x east, y north) or ``target``
     (:func:`sim.actions.target_frame`)."""
+    view: tuple[int, int] = (0, 1)
+    """The two columns its prototypes are drawn at in the viewer and the policy figure: the nearest target's (dx, dy)
+    for the world-frame states; for the target-frame ones the furthest target's (x, y) in that frame (x towards the
+    nearest target adds no second axis of its own)."""
 
     @property
     def dim(self) -> int:
@@ -188,6 +192,7 @@ FEATURIZER_REGISTRY: dict[str, Featurizer] = {
             "eq2",
             _distance_masked,
             frame="target",
+            view=(1, 2),
         ),
         Featurizer(
             "frame9d",
@@ -206,6 +211,7 @@ FEATURIZER_REGISTRY: dict[str, Featurizer] = {
             "eq2",
             partial(_nearest_absent, slice(0, 1), 3),
             frame="target",
+            view=(1, 2),
         ),
     )
 }
