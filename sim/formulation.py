@@ -130,6 +130,26 @@ class Formulation:
         )
 
     @property
+    def text(self) -> str:
+        """Every part by name on one line, ``featurizer/reward/actions/act_every/rules`` (``act_every`` ``none`` for
+        None), e.g. ``frame9d/difference-decision/relative/1/paper``: what a job file records (:meth:`parse`)."""
+        every = "none" if self.act_every is None else str(self.act_every)
+        return "/".join((*self.names, every, self.rules.name))
+
+    @classmethod
+    def parse(cls, text: str) -> Formulation:
+        """The formulation :attr:`text` names; ValueError names what is wrong."""
+        parts = text.split("/")
+        if len(parts) != 5:
+            raise ValueError(f"expected featurizer/reward/actions/act_every/rules, got {text!r}")
+        featurizer, reward, actions, every, rules = parts
+        try:
+            act_every = None if every.lower() == "none" else int(every)
+        except ValueError:
+            raise ValueError(f"act_every must be an integer or none, got {every!r}") from None
+        return cls.of(featurizer, reward, actions, act_every=act_every, rules=rules)
+
+    @property
     def names(self) -> tuple[str, str, str]:
         """(featurizer, reward, action set) names: what the wire and the policy file carry."""
         return self.featurizer.name, self.reward.name, self.actions.name

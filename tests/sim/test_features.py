@@ -94,6 +94,20 @@ def test_a_formulation_of_any_parts_pickles_for_worker_processes(featurizer: str
         formulation = Formulation.of(featurizer, "difference-decision", "relative", act_every=2, rules=rules)
         back = pickle.loads(pickle.dumps(formulation))
         assert back == formulation and back.names == formulation.names and back.rules == formulation.rules
+        assert Formulation.parse(formulation.text) == formulation
+
+
+def test_a_formulations_text_names_every_part_and_reads_back() -> None:
+    default = resolve_formulation(DEFAULT_FORMULATION)
+    assert default.text == "frame9d/difference-decision/relative/1/paper"
+    assert Formulation.parse("collab6d/eq2/compass/none/search-on") == resolve_formulation("paper", rules="search-on")
+    for text, error in [
+        ("collab6d/eq2/compass", "expected featurizer/reward/actions/act_every/rules"),
+        ("collab6d/eq2/compass/often/paper", "act_every must be an integer or none"),
+        ("collab6d/eq2/joystick/none/paper", "unknown action set 'joystick'"),
+    ]:
+        with pytest.raises(ValueError, match=error):
+            Formulation.parse(text)
 
 
 def test_a_formulation_is_resolved_by_name_with_explicit_parts_over_it() -> None:
