@@ -133,7 +133,7 @@ def test_a_sweep_task_runs_its_job_and_its_outcome_reads_back_whole(tmp_path: Pa
     phase1 = Phase1Config(n_cycles=5, max_patterns=200)
     tiny = Budget(arenas=8, explore_trials=1, phase2_trials=1, phase1=phase1, test_trials=1, test_steps=50)
     # Task 1 learns on another formulation than the method's: the job file carries it by name.
-    other = Formulation.of("local2d", "difference-decision", "relative", act_every=2, rules="search-on")
+    other = Formulation.of("local2d", "difference-decision", "relative", act_every=2, trial_rules="search-on")
     jobs = [Job("ennc-ql-local", tiny, 0, scenario()), Job("ennc-ql-local", tiny, 1, scenario(), formulation=other)]
     assert write_tasks(jobs, tmp_path) == [0, 1]
     assert "local2d/difference-decision/relative/2/search-on" in (tmp_path / "tasks" / "1.toml").read_text()

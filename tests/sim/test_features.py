@@ -84,23 +84,25 @@ def test_paper_names_each_featurizers_own_reward_and_unknown_names_are_refused()
         with pytest.raises(ValueError, match=error):
             Formulation.of(*names)
     with pytest.raises(ValueError, match="unknown trial rules 'lenient'; known: paper, search-on"):
-        Formulation.of("collab6d", "eq2", "compass", rules="lenient")
+        Formulation.of("collab6d", "eq2", "compass", trial_rules="lenient")
     assert {name for name, r in REWARDS.items() if r.per_decision} == {"difference-decision"}
 
 
 @pytest.mark.parametrize("featurizer", list(FEATURIZER_REGISTRY))
 def test_a_formulation_of_any_parts_pickles_for_worker_processes(featurizer: str) -> None:
     for rules in TRIAL_RULES:
-        formulation = Formulation.of(featurizer, "difference-decision", "relative", act_every=2, rules=rules)
+        formulation = Formulation.of(featurizer, "difference-decision", "relative", act_every=2, trial_rules=rules)
         back = pickle.loads(pickle.dumps(formulation))
-        assert back == formulation and back.names == formulation.names and back.rules == formulation.rules
+        assert back == formulation and back.names == formulation.names and back.trial_rules == formulation.trial_rules
         assert Formulation.parse(formulation.text) == formulation
 
 
 def test_a_formulations_text_names_every_part_and_reads_back() -> None:
     default = resolve_formulation(DEFAULT_FORMULATION)
     assert default.text == "frame9d/difference-decision/relative/1/paper"
-    assert Formulation.parse("collab6d/eq2/compass/none/search-on") == resolve_formulation("paper", rules="search-on")
+    assert Formulation.parse("collab6d/eq2/compass/none/search-on") == resolve_formulation(
+        "paper", trial_rules="search-on"
+    )
     for text, error in [
         ("collab6d/eq2/compass", "expected featurizer/reward/actions/act_every/rules"),
         ("collab6d/eq2/compass/often/paper", "act_every must be an integer or none"),
@@ -114,7 +116,7 @@ def test_a_formulation_is_resolved_by_name_with_explicit_parts_over_it() -> None
     assert DEFAULT_FORMULATION == "frame-difference"
     default = resolve_formulation(DEFAULT_FORMULATION)
     assert default == Formulation.of("frame9d", "difference-decision", "relative", act_every=1)
-    assert (default.featurizer, default.reward, default.actions, default.rules) == (
+    assert (default.featurizer, default.reward, default.actions, default.trial_rules) == (
         FEATURIZER_REGISTRY["frame9d"],
         REWARDS["difference-decision"],
         ACTION_SETS["relative"],
@@ -125,8 +127,8 @@ def test_a_formulation_is_resolved_by_name_with_explicit_parts_over_it() -> None
     assert resolve_formulation("paper", featurizer="local2d") == Formulation.of("local2d", "eq2", "compass")
     assert resolve_formulation("paper", featurizer="local2d", reward="paper").reward is REWARDS["observed"]
     assert resolve_formulation("shared-difference", act_every=5).act_every == 5
-    search = resolve_formulation("paper", rules="search-on")
-    assert search != resolve_formulation("paper") and not search.rules.lost_ends_trial
+    search = resolve_formulation("paper", trial_rules="search-on")
+    assert search != resolve_formulation("paper") and not search.trial_rules.lost_ends_trial
     assert "search-on trial rules" in search.describe()
     assert resolve_formulation("paper").describe() == (
         "collab6d state, eq2 reward, compass moves, deciding every action in tests"
