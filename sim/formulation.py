@@ -12,11 +12,12 @@ Building one from names is the only place a part's name is checked; everything b
 experience slice, the policy, the wire, the monitor, the environment adapters) is handed the objects. A new state,
 reward, action set or set of rules is an entry of its registry and nothing else::
 
-    f = Formulation.of("shared8d", "difference", "compass", act_every=1)     # FORMULATIONS["shared-difference"]
-    f = resolve_formulation("paper", reward="difference", trial_rules="search-on")  # a named one, some parts over it
-    f = f.replace(actions="relative")                                         # the same with one part renamed
+    f = Formulation.of("shared8d", "difference", "compass", act_every=1)    # FORMULATIONS["shared-difference"]
+    f = resolve_formulation("paper", reward="difference", trial_rules="search-on")  # a named one, parts over it
+    f = f.replace(actions="relative")                                        # the same with one part renamed
     f.featurizer.compute(cfg, obs), f.reward.value(cfg, obs), f.actions.velocity(cfg, chosen, frame)
-    f.names                                  # ("collab6d", "difference", "relative"): the wire's and the file's
+    f.names                  # ("collab6d", "difference", "relative"): what the wire and the policy file carry
+    f.text                   # "collab6d/difference/relative/none/search-on": every part, for a job file
     f.dim, f.describe()
 """
 
