@@ -1,11 +1,11 @@
-"""The learning-scaling figure: final coverage on the 50 seeded test trials against training time.
+"""The learning-scaling figure: final coverage on the seeded test trials of the final figure against training time.
 
 Runs ``ennc-ql up --duration D --formulation F --seed S`` one after another (never two at once: each uses every
 core of a 2-core machine) for every D, F and S asked for, keeps each run's ``report.json``, and draws the final
-coverage against D beside the run-measured A-CMOMMT levels (honest and oracle, the same 50 trials). Runs already
+coverage against D beside the run-measured A-CMOMMT levels (tuned and public, the same trials). Runs already
 in ``--out`` are reused, so the grid can be grown over several sittings::
 
-    python scripts/learning_scaling.py --minutes 1 2 4 8 16 --seeds 0 1 --formulations frame-difference paper
+    python scripts/learning_scaling.py --minutes 1 2 4 8 16 --seeds 0 1 --formulations frame-cooperative paper
     python scripts/learning_scaling.py --plot-only      # redraw from the runs kept in --out
 
 Writes ``--out``/scaling.json (one row per run) and ``--figure`` (default docs/learning_scaling.png).
@@ -31,7 +31,7 @@ from monitor.style import ORANGE
 from monitor.style import REFERENCES as STYLE
 
 ENNC_QL = Path(sys.executable).with_name("ennc-ql")
-REFERENCES = ("a-cmommt", "a-cmommt-oracle")
+REFERENCES = ("a-cmommt", "a-cmommt-public")
 
 
 def run_id(formulation: str, minutes: float, seed: int) -> str:
@@ -83,11 +83,11 @@ def plot(rows: list[dict[str, Any]], figure: Path) -> None:
         if levels:
             label, rgb = STYLE[name]
             colour = tuple(c / 255 for c in rgb)
-            ax.axhline(float(np.mean(levels)), linestyle="--", color=colour, label=f"{label} (same 50 trials)")
+            ax.axhline(float(np.mean(levels)), linestyle="--", color=colour, label=f"{label} (same trials)")
     ax.set_xscale("log", base=2)
     ax.set_xticks(sorted({r["minutes"] for r in rows}), [f"{m:g}" for m in sorted({r["minutes"] for r in rows})])
     ax.set_xlabel("training time, minutes (ennc-ql up, 2 actors, 2 cores)")
-    ax.set_ylabel("final coverage, % of targets observed (50 trials)")
+    ax.set_ylabel("final coverage, % of targets observed")
     ax.set_title("ENNC-QL: final coverage against training time (x: one seed)", fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="center right")
@@ -99,7 +99,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--minutes", type=float, nargs="+", default=[1, 2, 4, 8, 16], help="training times")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1], help="seeds of every training time")
-    parser.add_argument("--formulations", nargs="+", default=["frame-difference", "paper"], help="formulations")
+    parser.add_argument("--formulations", nargs="+", default=["frame-cooperative", "paper"], help="formulations")
     parser.add_argument("--out", type=Path, default=Path("runs/scaling"), help="where the runs are kept")
     parser.add_argument("--figure", type=Path, default=Path("docs/learning_scaling.png"), help="the figure")
     parser.add_argument("--plot-only", action="store_true", help="draw from the runs already in --out")
