@@ -153,3 +153,25 @@ def test_every_actor_has_an_arena_seen_from_above_its_root(sent: Layout) -> None
     assert arenas == {
         f"{actor} arena": (f"{paths.ACTORS}/{actor}", [f"{paths.actor_arena(actor)}/**"]) for actor in ACTORS
     }
+
+
+def test_the_spread_over_the_targets_reaches_the_viewer_as_one_table_per_evaluation(tmp_path: Path) -> None:
+    path = tmp_path / "cooperation.rrd"
+    spread = {"only_shared_pct": 12.5, "none_in_view_pct": 30.25, "robots_per_covered_target": 1.125}
+    table = {
+        "learned": {"coverage": 72.5, **spread},
+        "a-cmommt": {"coverage": 78.0, **spread, "learned_minus": -5.5, "learned_minus_se": 0.5},
+        "a-cmommt-oracle": {"coverage": 74.0, **spread, "learned_minus": -1.5, "learned_minus_se": 0.5},
+    }
+    with open_monitor(Sink("save", str(path)), process="learner", recording_id="spread") as monitor:
+        monitor.cooperation(table, trials=200, policy_version=3, learner_step=1)
+        monitor.cooperation({"learned": table["learned"]}, trials=10, policy_version=4, learner_step=2)
+    ((_, first), (_, second)) = rows(path, paths.LEARNER_COOPERATION, "TextDocument:text", paths.TRAIN_TIME)
+    lines = first[0].splitlines()
+    assert lines[0].startswith("Per robot-step on 200 test trials")
+    assert lines[4:] == [
+        "| learned policy | 72.50 | 12.5 | 30.2 | 1.12 |",
+        "| A-CMOMMT | 78.00 (learned -5.50) | 12.5 | 30.2 | 1.12 |",
+        "| A-CMOMMT oracle (true positions) | 74.00 (learned -1.50) | 12.5 | 30.2 | 1.12 |",
+    ]
+    assert second[0].startswith("Per robot-step on 10 test trials") and len(second[0].splitlines()) == 5
