@@ -98,7 +98,7 @@ class ActorConfig:
         require_id("actor_id", self.actor_id)
         require_known("scenario", self.scenario, SCENARIOS)
         resolved = resolve_formulation(
-            self.formulation, featurizer=self.featurizer, reward=self.reward, rules=self.trial_rules
+            self.formulation, featurizer=self.featurizer, reward=self.reward, trial_rules=self.trial_rules
         )
         object.__setattr__(self, "resolved", resolved)
         require_at_least(

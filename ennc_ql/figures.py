@@ -17,8 +17,9 @@ import numpy as np
 
 from algorithm.policy import Policy, PolicyController
 from monitor import style
-from monitor.geometry import COLORMAP, VIEW_COLUMNS, observed_targets, project_2d, q_colors, q_range, view_subject
+from monitor.geometry import COLORMAP, observed_targets, project_2d, q_colors, q_range, view_subject
 from sim import ScenarioConfig, evaluate
+from sim.features import Featurizer
 from sim.world import Observation, WorldState
 
 SNAPSHOT_STEP = 300
@@ -56,7 +57,7 @@ def policy_figure(policy: Policy, cfg: ScenarioConfig, out: Path, seed: int = 0,
     panels: Any = fig.subfigures(1, 2, width_ratios=[1.0, 1.45])
     _arena_panel(panels[0], policy, cfg, seed, step)
     _prototype_panels(panels[1], policy, cfg)
-    fig.supxlabel(caption(policy.formulation.featurizer.name), fontsize=8, ha="left", x=0.01)
+    fig.supxlabel(caption(policy.formulation.featurizer), fontsize=8, ha="left", x=0.01)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=100)
     return out
@@ -108,10 +109,11 @@ def _prototype_panels(right: Any, policy: Policy, cfg: ScenarioConfig) -> None:
     from matplotlib.patches import Circle
 
     prototypes, q_values = policy.prototypes_by_action()
-    points = [project_2d(p, policy.formulation.featurizer.name) for p in prototypes]
+    state = policy.formulation.featurizer
+    points = [project_2d(p, state) for p in prototypes]
     colors = q_colors(q_values)
     scale = policy.discretization.scale
-    column = VIEW_COLUMNS.get(policy.formulation.featurizer.name, (0, 1))[0]
+    column = state.view[0]
     # The masked feature value (nothing in view) sits far out; clip the panels to where the targets in view lie.
     reach = cfg.sensing_range / (1.0 if scale is None else float(scale[column]))
     moves = policy.formulation.actions.moves
@@ -134,16 +136,16 @@ def _prototype_panels(right: Any, policy: Policy, cfg: ScenarioConfig) -> None:
     )
     bar.set_label("Q value of the move (mean over robots)", fontsize=8)
     bar.ax.tick_params(labelsize=7)
-    subject = view_subject(policy.formulation.featurizer.name)
+    subject = view_subject(state)
     right.suptitle(f"prototypes per move (count in the title): {subject}", fontsize=9)
 
 
-def caption(featurizer: str) -> str:
+def caption(featurizer: Featurizer) -> str:
     """The figure's caption: what the two panels show for prototypes of ``featurizer``'s state."""
     where = (
         "(x, y) of the second target in view in the robot's target frame (x towards the nearest target, the second "
         "mirrored to y >= 0; standardized units; the circle is the sensing range)"
-        if featurizer in VIEW_COLUMNS
+        if featurizer.frame == "target"
         else "(dx, dy) from the robot to the nearest target in view (standardized units, north up; the circle is the "
         "sensing range)"
     )

@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from sim.features import Featurizer
 
 COLORMAP = "viridis"
 
@@ -30,22 +34,16 @@ def circle(radius: float, segments: int = 128) -> np.ndarray:
     return radius * np.stack([np.cos(angle), np.sin(angle)], axis=-1)
 
 
-VIEW_COLUMNS: dict[str, tuple[int, int]] = {"frame7d": (1, 2), "frame9d": (1, 2)}
-"""The two state columns a featurizer's prototypes are drawn at, where they are not its first two: for the states in
-the target frame, the furthest target's (x, y) in that frame (x towards the nearest target, which adds no second
-axis of its own)."""
-
-
-def view_subject(featurizer: str | None) -> str:
+def view_subject(featurizer: Featurizer | None) -> str:
     """What :func:`project_2d` shows of ``featurizer``'s prototypes, for a caption."""
-    if featurizer in VIEW_COLUMNS:
+    if featurizer is not None and featurizer.frame == "target":
         return "where the second target in view lies, in the nearest target's frame"
     return "where the nearest target in view lies, seen from the robot"
 
 
-def project_2d(prototypes: np.ndarray, featurizer: str | None = None) -> np.ndarray:
-    """(p, 2) view coordinates of (p, d) prototypes: two of their features, the first two unless
-    :data:`VIEW_COLUMNS` names others for ``featurizer`` (d = 1 gets y = 0).
+def project_2d(prototypes: np.ndarray, featurizer: Featurizer | None = None) -> np.ndarray:
+    """(p, 2) view coordinates of (p, d) prototypes: two of their features, the featurizer's
+    :attr:`~sim.features.Featurizer.view` columns (the first two without one; d = 1 gets y = 0).
 
     Features are kept rather than a PCA because they mean something in the arena and stay the same axes from one
     policy version to the next: for ``collab6d`` they are (dx, dy) to the nearest target in view, for ``local2d``
@@ -58,7 +56,7 @@ def project_2d(prototypes: np.ndarray, featurizer: str | None = None) -> np.ndar
         raise ValueError(f"prototypes must have shape (p, d) with d >= 1, got {points.shape}")
     if points.shape[1] == 1:
         return np.concatenate([points, np.zeros_like(points)], axis=1)
-    columns = VIEW_COLUMNS.get(featurizer or "", (0, 1))
+    columns = (0, 1) if featurizer is None else featurizer.view
     return points[:, list(columns)].copy()
 
 

@@ -167,7 +167,7 @@ class RerunMonitor(Monitor):
         self._at(None, policy_version, None)
         for k, (protos, q, rgba) in enumerate(zip(prototypes, q_values, colors, strict=True)):
             q = np.asarray(q, dtype=np.float64).reshape(-1)
-            points = geometry.project_2d(protos, self._state_name)
+            points = geometry.project_2d(protos, None if self._formulation is None else self._formulation.featurizer)
             if len(points) != len(q):
                 raise ValueError(f"action {k}: {len(points)} prototypes but {len(q)} Q values")
             self._north_up(paths.prototypes_of(k))
@@ -192,10 +192,6 @@ class RerunMonitor(Monitor):
     def formulation(self, formulation: Formulation) -> None:
         self._learned = f"learned policy ({formulation.featurizer.name}, {formulation.reward.name} reward)"
         self._formulation = formulation
-
-    @property
-    def _state_name(self) -> str | None:
-        return None if self._formulation is None else self._formulation.featurizer.name
 
     @property
     def _actions(self) -> ActionSet:

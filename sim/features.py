@@ -38,6 +38,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -73,6 +74,10 @@ class Featurizer:
     frame: str = "world"
     """The frame its offsets are given in: ``world`` (x east, y north) or ``target``
     (:func:`sim.actions.target_frame`)."""
+    view: tuple[int, int] = (0, 1)
+    """The two columns its prototypes are drawn at in the viewer and the policy figure: the nearest target's (dx, dy)
+    for the world-frame states; for the target-frame ones the furthest target's (x, y) in that frame (x towards the
+    nearest target adds no second axis of its own)."""
 
     @property
     def dim(self) -> int:
@@ -88,17 +93,11 @@ def _distance_masked(cfg: ScenarioConfig, states: np.ndarray) -> np.ndarray:
     return states[..., 0] == np.float32(cfg.mask_value)
 
 
-@dataclass(frozen=True, slots=True)
-class _NearestAbsent:
+def _nearest_absent(nearest: slice, present: int, cfg: ScenarioConfig, states: np.ndarray) -> np.ndarray:
     """No target in view for the presence-coded states: the nearest target's columns are 0 and so is the furthest
-    target's presence bit (a target exactly at the robot's position reads the same: a set of measure zero). A
-    module-level class, not a closure, so that a featurizer pickles into a worker process."""
-
-    nearest: slice
-    present: int
-
-    def __call__(self, cfg: ScenarioConfig, states: np.ndarray) -> np.ndarray:
-        return (states[..., self.nearest] == 0).all(axis=-1) & (states[..., self.present] == 0)
+    target's presence bit (a target exactly at the robot's position reads the same: a set of measure zero). Bound
+    with :func:`functools.partial`, so that a formulation pickles (jobs run in worker processes)."""
+    return (states[..., nearest] == 0).all(axis=-1) & (states[..., present] == 0)
 
 
 def _local2d(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
@@ -179,7 +178,7 @@ FEATURIZER_REGISTRY: dict[str, Featurizer] = {
             ),
             _present10d,
             "eq2",
-            _NearestAbsent(slice(0, 2), 4),
+            partial(_nearest_absent, slice(0, 2), 4),
         ),
         Featurizer(
             "frame7d",
@@ -196,6 +195,7 @@ FEATURIZER_REGISTRY: dict[str, Featurizer] = {
             "eq2",
             _distance_masked,
             frame="target",
+            view=(1, 2),
         ),
         Featurizer(
             "frame9d",
@@ -212,8 +212,9 @@ FEATURIZER_REGISTRY: dict[str, Featurizer] = {
             ),
             _frame9d,
             "eq2",
-            _NearestAbsent(slice(0, 1), 3),
+            partial(_nearest_absent, slice(0, 1), 3),
             frame="target",
+            view=(1, 2),
         ),
     )
 }

@@ -12,11 +12,12 @@ Building one from names is the only place a part's name is checked; everything b
 experience slice, the policy, the wire, the monitor, the environment adapters) is handed the objects. A new state,
 reward, action set or set of rules is an entry of its registry and nothing else::
 
-    f = Formulation.of("shared8d", "difference", "compass", act_every=1)     # FORMULATIONS["shared-difference"]
-    f = resolve_formulation("paper", reward="difference", rules="search-on")  # a named one, some parts over it
-    f = f.replace(actions="relative")                                         # the same with one part renamed
+    f = Formulation.of("shared8d", "difference", "compass", act_every=1)    # FORMULATIONS["shared-difference"]
+    f = resolve_formulation("paper", reward="difference", trial_rules="search-on")  # a named one, parts over it
+    f = f.replace(actions="relative")                                        # the same with one part renamed
     f.featurizer.compute(cfg, obs), f.reward.value(cfg, obs), f.actions.velocity(cfg, chosen, frame)
-    f.names                                  # ("collab6d", "difference", "relative"): the wire's and the file's
+    f.names                  # ("collab6d", "difference", "relative"): what the wire and the policy file carry
+    f.text                   # "collab6d/difference/relative/none/search-on": every part, for a job file
     f.dim, f.describe()
 """
 
@@ -74,7 +75,7 @@ def _lookup(part: str, name: str, registry: dict[str, T], known: tuple[str, ...]
 class Formulation:
     """What a learning problem is made of besides the algorithm (module docstring), as resolved objects.
 
-    Two formulations are equal when their parts' names, ``act_every`` and rules are.
+    Two formulations are equal when their parts' names, ``act_every`` and trial rules are.
     """
 
     featurizer: Featurizer
@@ -83,7 +84,7 @@ class Formulation:
     act_every: int | None = None
     """Steps between a robot's decisions in test trials; None: ``action_steps``, as it learned [paper]. Learning
     always holds an action ``action_steps`` steps."""
-    rules: TrialRules = field(default=PAPER_RULES)
+    trial_rules: TrialRules = field(default=PAPER_RULES)
     """The learning-trial rules."""
 
     def __post_init__(self) -> None:
@@ -98,7 +99,7 @@ class Formulation:
         actions: str,
         *,
         act_every: int | None = None,
-        rules: str = "paper",
+        trial_rules: str = "paper",
     ) -> Formulation:
         """The formulation of these part names; ``reward`` ``paper`` is the featurizer's own. ValueError names an
         unknown name and the known ones."""
@@ -109,7 +110,7 @@ class Formulation:
             _lookup("reward", reward, REWARDS, REWARD_NAMES),
             _lookup("action set", actions, ACTION_SETS),
             act_every,
-            _lookup("trial rules", rules, TRIAL_RULES),
+            _lookup("trial rules", trial_rules, TRIAL_RULES),
         )
 
     def replace(
@@ -119,7 +120,7 @@ class Formulation:
         reward: str | None = None,
         actions: str | None = None,
         act_every: int | None = None,
-        rules: str | None = None,
+        trial_rules: str | None = None,
     ) -> Formulation:
         """This formulation with the parts named here over its own (None keeps a part; ``act_every`` None keeps
         this one's)."""
@@ -128,8 +129,28 @@ class Formulation:
             reward or self.reward.name,
             actions or self.actions.name,
             act_every=self.act_every if act_every is None else act_every,
-            rules=rules or self.rules.name,
+            trial_rules=trial_rules or self.trial_rules.name,
         )
+
+    @property
+    def text(self) -> str:
+        """Every part by name on one line, ``featurizer/reward/actions/act_every/rules`` (``act_every`` ``none`` for
+        None), e.g. ``frame9d/difference-decision/relative/1/paper``: what a job file records (:meth:`parse`)."""
+        every = "none" if self.act_every is None else str(self.act_every)
+        return "/".join((*self.names, every, self.trial_rules.name))
+
+    @classmethod
+    def parse(cls, text: str) -> Formulation:
+        """The formulation :attr:`text` names; ValueError names what is wrong."""
+        parts = text.split("/")
+        if len(parts) != 5:
+            raise ValueError(f"expected featurizer/reward/actions/act_every/rules, got {text!r}")
+        featurizer, reward, actions, every, trial_rules = parts
+        try:
+            act_every = None if every.lower() == "none" else int(every)
+        except ValueError:
+            raise ValueError(f"act_every must be an integer or none, got {every!r}") from None
+        return cls.of(featurizer, reward, actions, act_every=act_every, trial_rules=trial_rules)
 
     @property
     def names(self) -> tuple[str, str, str]:
@@ -143,14 +164,14 @@ class Formulation:
 
     def describe(self) -> str:
         every = {None: "every action", 1: "every step"}.get(self.act_every, f"every {self.act_every} steps")
-        rules = "" if self.rules is PAPER_RULES else f", {self.rules.name} trial rules"
+        rules = "" if self.trial_rules == PAPER_RULES else f", {self.trial_rules.name} trial rules"
         return (
             f"{self.featurizer.name} state, {self.reward.name} reward, {self.actions.name} moves, deciding {every} "
             f"in tests{rules}"
         )
 
     def _key(self) -> tuple[object, ...]:
-        return (*self.names, self.act_every, self.rules)
+        return (*self.names, self.act_every, self.trial_rules)
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, Formulation) and self._key() == other._key()
@@ -159,7 +180,7 @@ class Formulation:
         return hash(self._key())
 
     def __repr__(self) -> str:
-        rules = "" if self.rules is PAPER_RULES else f", rules={self.rules.name!r}"
+        rules = "" if self.trial_rules == PAPER_RULES else f", trial_rules={self.trial_rules.name!r}"
         return f"Formulation.of({', '.join(map(repr, self.names))}, act_every={self.act_every!r}{rules})"
 
 
@@ -171,12 +192,17 @@ FORMULATIONS: dict[str, Formulation] = {
     "paper": Formulation.of("collab6d", "eq2", "compass"),
     "shared-difference": Formulation.of("shared8d", "difference", "compass", act_every=1),
     "frame-difference": Formulation.of("frame9d", "difference-decision", "relative", act_every=1),
+    "frame-cooperative": Formulation.of(
+        "frame9d", "difference-redundancy", "relative", act_every=1, trial_rules="lost-searches"
+    ),
 }
 """Every formulation by name: ``paper`` is the paper's collaborative formulation [paper §4, Eq. 2];
 ``shared-difference`` the best with the world-frame state and compass moves that the README's ablations found;
 ``frame-difference`` the state and the moves in the frame of the nearest target, the difference reward paid per
-decision [beyond the paper, README "Learning quality"]."""
-DEFAULT_FORMULATION = "frame-difference"
+decision; ``frame-cooperative`` the same with a redundant step charged (``difference-redundancy``) and learning
+trials in which a learner that loses every target searches and goes on learning (``lost-searches``) [beyond the
+paper, docs/learning-quality.md "Learning cooperation"]."""
+DEFAULT_FORMULATION = "frame-cooperative"
 """The formulation of every process (``up``, ``learner``, ``actor``, compose's) unless another is named."""
 
 
@@ -192,12 +218,14 @@ def resolve_formulation(
     reward: str | None = None,
     actions: str | None = None,
     act_every: int | None = None,
-    rules: str | None = None,
+    trial_rules: str | None = None,
 ) -> Formulation:
     """The formulation ``name`` with the parts given explicitly over its own (:meth:`Formulation.replace`); a
     ``reward`` of ``paper`` becomes the state's own. ValueError names an unknown name."""
     base = _lookup("formulation", name, FORMULATIONS)
-    return base.replace(featurizer=featurizer, reward=reward, actions=actions, act_every=act_every, rules=rules)
+    return base.replace(
+        featurizer=featurizer, reward=reward, actions=actions, act_every=act_every, trial_rules=trial_rules
+    )
 
 
 def choices_help(part: str) -> str:

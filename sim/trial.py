@@ -204,7 +204,7 @@ def step_trial(
     if decide.shape != state.shape:
         raise ValueError(f"decide must have shape {state.shape}, got {decide.shape}")
     formulation = state.formulation
-    moves, rules = formulation.actions, formulation.rules
+    moves, rules = formulation.actions, formulation.trial_rules
     held_action, start, held, frame = state.action, state.start_features, state.held, state.frame
     if decide.any():
         held_action = np.where(decide, action, held_action)

@@ -4,7 +4,7 @@ coverage `ennc-ql eval` gives on the same policy file, trials and seed, and brea
 Three small policies cover both decision modes and both action sets: ENNC-QL option 2 on the shared8d state
 (collab6d's six numbers and the two shared flags; per-robot tables, a `scale`, `fixed` shared clock, compass moves),
 VQQL local (local2d, one table, no `scale`, `until_change` per-robot clocks), and the default formulation of `ennc-ql
-up`, frame-difference (the frame9d state and the relative moves in the target frame, deciding every step).
+up`, frame-cooperative (the frame9d state and the relative moves in the target frame, deciding every step).
 """
 
 from __future__ import annotations

@@ -92,7 +92,7 @@ class Setup:
                 self.reward or spec.reward,
                 self.actions or spec.actions,
                 act_every=self.act_every,
-                rules=self.trial_rules,
+                trial_rules=self.trial_rules,
             )
         except ValueError as exc:
             raise ConfigError(str(exc)) from None

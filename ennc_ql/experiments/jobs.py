@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import multiprocessing
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from algorithm.experiments import METHODS, Budget, Outcome, Progress, train
 from algorithm.policy import LostBehaviour
@@ -29,9 +29,12 @@ class Job:
     lost_behaviour: LostBehaviour = "wander"
     variant: int = 0
     """Which of a sweep's variants this process belongs to (``ennc-ql ablate``)."""
-    formulation: Formulation | None = None
-    """What the process learns on instead of the method's own formulation, if given; its ``act_every`` is the steps
-    between decisions in the test trials (None: ``action_steps``)."""
+    formulation: Formulation | None = field(
+        default=None, metadata={"parse": Formulation.parse, "format": lambda f: f.text, "metavar": "FORMULATION"}
+    )
+    """What the process learns on instead of the method's own formulation, if given (a job file writes it as
+    featurizer/reward/actions/act_every/rules); its act_every is the steps between decisions in the test trials
+    (none: action_steps)."""
 
     @property
     def label(self) -> str:

@@ -141,7 +141,7 @@ def test_one_check_at_either_end_names_the_first_part_of_another_formulation() -
         "reward_function eq2, expected observed"
     )
     # The trial rules and the test-time decision period are no part of what the wire carries.
-    assert formulation_mismatch(FORMULATIONS["paper"].replace(rules="search-on", act_every=1), update) == ""
+    assert formulation_mismatch(FORMULATIONS["paper"].replace(trial_rules="search-on", act_every=1), update) == ""
 
 
 def test_the_protocols_constants_are_the_simulators() -> None:

@@ -122,8 +122,8 @@ def test_a_poisoned_message_is_rejected_and_its_stream_flows_on(cluster: Cluster
             "incarnation": 99,
             "seq": seq,
             "policy_version": 0,
-            "featurizer": "frame9d",  # the learner's formulation: frame-difference, by default
-            "reward_function": "difference-decision",
+            "featurizer": "frame9d",  # the learner's formulation: frame-cooperative, by default
+            "reward_function": "difference-redundancy",
             "action_set": "relative",
             "robot": array("int16", np.zeros(n)),
             "state": array("float32", np.ones((n, 9))),

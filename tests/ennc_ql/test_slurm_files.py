@@ -22,7 +22,7 @@ from ennc_ql.slurm.allocation import Allocation, SlurmPlacement
 from ennc_ql.slurm.array import _compact, read_outcome, run_task, write_tasks
 from ennc_ql.slurm.job import SlurmJob
 from ennc_ql.slurm.sbatch import SlurmError
-from sim import scenario
+from sim import Formulation, scenario
 
 
 def test_slurm_train_writes_a_run_folder_and_a_job_script(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
@@ -132,9 +132,13 @@ def test_allocation_outside_a_job_is_an_error() -> None:
 def test_a_sweep_task_runs_its_job_and_its_outcome_reads_back_whole(tmp_path: Path) -> None:
     phase1 = Phase1Config(n_cycles=5, max_patterns=200)
     tiny = Budget(arenas=8, explore_trials=1, phase2_trials=1, phase1=phase1, test_trials=1, test_steps=50)
-    jobs = [Job("ennc-ql-local", tiny, seed, scenario()) for seed in (0, 1)]
+    # Task 1 learns on another formulation than the method's: the job file carries it by name.
+    other = Formulation.of("local2d", "difference-decision", "relative", act_every=2, trial_rules="search-on")
+    jobs = [Job("ennc-ql-local", tiny, 0, scenario()), Job("ennc-ql-local", tiny, 1, scenario(), formulation=other)]
     assert write_tasks(jobs, tmp_path) == [0, 1]
+    assert "local2d/difference-decision/relative/2/search-on" in (tmp_path / "tasks" / "1.toml").read_text()
     outcome = run_task(tmp_path, 1)
+    assert outcome.policy is not None and outcome.policy.formulation == other
     assert write_tasks(jobs, tmp_path) == [0]  # task 1 has its result now
     back = read_outcome(tmp_path, 1)
     assert (back.method, back.seed, back.tuples, back.states) == (outcome.method, 1, outcome.tuples, outcome.states)

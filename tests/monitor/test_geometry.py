@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from monitor.geometry import circle, observed_targets, project_2d, q_colors
+from sim.features import FEATURIZER_REGISTRY
 
 
 def test_observed_targets_use_the_inclusive_sensing_range() -> None:
@@ -38,8 +39,8 @@ def test_states_in_the_target_frame_are_drawn_at_the_second_target() -> None:
     # frame9d: (distance to the nearest target, the furthest target's x, y in its frame, ...); the distance alone is
     # no position, the furthest target's offset in the frame is.
     protos = np.array([[120.0, 30.0, 40.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]])
-    np.testing.assert_array_equal(project_2d(protos, "frame9d"), [[30.0, 40.0]])
-    np.testing.assert_array_equal(project_2d(protos[:, :8], "shared8d"), [[120.0, 30.0]])
+    np.testing.assert_array_equal(project_2d(protos, FEATURIZER_REGISTRY["frame9d"]), [[30.0, 40.0]])
+    np.testing.assert_array_equal(project_2d(protos[:, :8], FEATURIZER_REGISTRY["shared8d"]), [[120.0, 30.0]])
 
 
 def test_q_colors_share_one_range_across_actions() -> None:

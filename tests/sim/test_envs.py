@@ -37,7 +37,7 @@ def test_gymnasium_env_passes_the_checker() -> None:
     assert env.formulation == default_formulation() and env.observation_space.shape == (default_formulation().dim,)
     check_env(env, skip_render_check=True)
     check_env(CmommtSingleRobotEnv(formulation=LOCAL, others="a-cmommt"), skip_render_check=True)
-    shared = Formulation.of("shared8d", "difference-decision", "compass", rules="search-on")
+    shared = Formulation.of("shared8d", "difference-decision", "compass", trial_rules="search-on")
     check_env(CmommtSingleRobotEnv(formulation=shared), skip_render_check=True)
 
 

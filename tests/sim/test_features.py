@@ -3,13 +3,15 @@ that resolves their names."""
 
 from __future__ import annotations
 
+import pickle
+
 import numpy as np
 import pytest
 
 from sim import TrialStep, WorldState, featurize, reset, scenario, sense, step_trial
 from sim.actions import ACTION_SETS
 from sim.features import FEATURIZER_REGISTRY, FEATURIZERS, REWARDS, trial_reward
-from sim.formulation import DEFAULT_FORMULATION, FORMULATIONS, TRIAL_RULES, Formulation, resolve_formulation
+from sim.formulation import DEFAULT_FORMULATION, TRIAL_RULES, Formulation, resolve_formulation
 from tests.fakes import situation
 
 STATE = FEATURIZER_REGISTRY
@@ -94,27 +96,53 @@ def test_paper_names_each_featurizers_own_reward_and_unknown_names_are_refused()
         with pytest.raises(ValueError, match=error):
             Formulation.of(*names)
     with pytest.raises(ValueError, match="unknown trial rules 'lenient'; known: paper, search-on"):
-        Formulation.of("collab6d", "eq2", "compass", rules="lenient")
+        Formulation.of("collab6d", "eq2", "compass", trial_rules="lenient")
     assert {name for name, r in REWARDS.items() if r.per_decision} == {"difference-decision", "difference-redundancy"}
 
 
-def test_a_formulation_is_resolved_by_name_with_explicit_parts_over_it() -> None:
-    assert DEFAULT_FORMULATION == "frame-difference"
+@pytest.mark.parametrize("featurizer", list(FEATURIZER_REGISTRY))
+def test_a_formulation_of_any_parts_pickles_for_worker_processes(featurizer: str) -> None:
+    for rules in TRIAL_RULES:
+        formulation = Formulation.of(featurizer, "difference-decision", "relative", act_every=2, trial_rules=rules)
+        back = pickle.loads(pickle.dumps(formulation))
+        assert back == formulation and back.names == formulation.names and back.trial_rules == formulation.trial_rules
+        assert Formulation.parse(formulation.text) == formulation
+
+
+def test_a_formulations_text_names_every_part_and_reads_back() -> None:
     default = resolve_formulation(DEFAULT_FORMULATION)
-    assert default == Formulation.of("frame9d", "difference-decision", "relative", act_every=1)
-    assert (default.featurizer, default.reward, default.actions, default.rules) == (
-        FEATURIZER_REGISTRY["frame9d"],
-        REWARDS["difference-decision"],
-        ACTION_SETS["relative"],
-        TRIAL_RULES["paper"],
+    assert default.text == "frame9d/difference-redundancy/relative/1/lost-searches"
+    assert Formulation.parse("collab6d/eq2/compass/none/search-on") == resolve_formulation(
+        "paper", trial_rules="search-on"
     )
-    assert default.names == ("frame9d", "difference-decision", "relative") and default.dim == 9
+    for text, error in [
+        ("collab6d/eq2/compass", "expected featurizer/reward/actions/act_every/rules"),
+        ("collab6d/eq2/compass/often/paper", "act_every must be an integer or none"),
+        ("collab6d/eq2/joystick/none/paper", "unknown action set 'joystick'"),
+    ]:
+        with pytest.raises(ValueError, match=error):
+            Formulation.parse(text)
+
+
+def test_a_formulation_is_resolved_by_name_with_explicit_parts_over_it() -> None:
+    assert DEFAULT_FORMULATION == "frame-cooperative"
+    default = resolve_formulation(DEFAULT_FORMULATION)
+    assert default == Formulation.of(
+        "frame9d", "difference-redundancy", "relative", act_every=1, trial_rules="lost-searches"
+    )
+    assert (default.featurizer, default.reward, default.actions, default.trial_rules) == (
+        FEATURIZER_REGISTRY["frame9d"],
+        REWARDS["difference-redundancy"],
+        ACTION_SETS["relative"],
+        TRIAL_RULES["lost-searches"],
+    )
+    assert default.names == ("frame9d", "difference-redundancy", "relative") and default.dim == 9
     assert resolve_formulation("shared-difference") == Formulation.of("shared8d", "difference", "compass", act_every=1)
     assert resolve_formulation("paper", featurizer="local2d") == Formulation.of("local2d", "eq2", "compass")
     assert resolve_formulation("paper", featurizer="local2d", reward="paper").reward is REWARDS["observed"]
     assert resolve_formulation("shared-difference", act_every=5).act_every == 5
-    search = resolve_formulation("paper", rules="search-on")
-    assert search != resolve_formulation("paper") and not search.rules.lost_ends_trial
+    search = resolve_formulation("paper", trial_rules="search-on")
+    assert search != resolve_formulation("paper") and not search.trial_rules.lost_ends_trial
     assert "search-on trial rules" in search.describe()
     assert resolve_formulation("paper").describe() == (
         "collab6d state, eq2 reward, compass moves, deciding every action in tests"
@@ -167,16 +195,3 @@ def test_a_trial_end_difference_reward_is_paid_once_at_the_end() -> None:
     outs = _two_robots("difference", 10)
     np.testing.assert_allclose(outs[-1].reward[0], [1.0, 0.0])
     np.testing.assert_allclose(np.sum([out.reward[0] for out in outs], axis=0), [1.0, 0.0])
-
-
-def test_every_part_of_every_formulation_pickles_into_a_worker_process() -> None:
-    # ablate --jobs and the SLURM array send their setups to worker processes by pickle.
-    import pickle
-
-    for formulation in FORMULATIONS.values():
-        again = pickle.loads(pickle.dumps(formulation))
-        assert again.names == formulation.names
-    states = np.zeros((2, FEATURIZER_REGISTRY["frame9d"].dim), np.float32)
-    states[1, 0] = 40.0
-    sees_none = pickle.loads(pickle.dumps(FEATURIZER_REGISTRY["frame9d"])).sees_none
-    assert sees_none(scenario(), states).tolist() == [True, False]

@@ -54,11 +54,11 @@ def toy(monkeypatch: pytest.MonkeyPatch) -> Formulation:
     monkeypatch.setitem(REWARDS, TOY_REWARD.name, TOY_REWARD)
     monkeypatch.setitem(ACTION_SETS, TOY_MOVES.name, TOY_MOVES)
     monkeypatch.setitem(TRIAL_RULES, TOY_RULES.name, TOY_RULES)
-    return Formulation.of("toy-count", "paper", "toy-rose", rules="toy-search")
+    return Formulation.of("toy-count", "paper", "toy-rose", trial_rules="toy-search")
 
 
 def test_registered_toy_parts_run_a_learning_trial_end_to_end(toy: Formulation, tmp_path: Path) -> None:
-    assert (toy.featurizer, toy.reward, toy.actions, toy.rules) == (TOY_STATE, TOY_REWARD, TOY_MOVES, TOY_RULES)
+    assert (toy.featurizer, toy.reward, toy.actions, toy.trial_rules) == (TOY_STATE, TOY_REWARD, TOY_MOVES, TOY_RULES)
     assert toy.names == ("toy-count", "toy-twice", "toy-rose") and toy.dim == 1  # "paper": the state's own reward
     cfg = scenario(n_robots=4, n_targets=4)
     batch = ExperienceSlice(cfg, SliceConfig(toy, n_arenas=8), seed=0).run_trial()

@@ -70,7 +70,7 @@ def test_a_learner_that_loses_every_target_is_done_with_the_lost_reward_then_sta
 def test_under_search_on_rules_a_lost_learner_searches_and_goes_on_learning() -> None:
     cfg = small(1, 1)
     # As in the test above, robot 0 loses its target at step 2; searching on, it keeps its heading north.
-    search_on = PAPER.replace(rules="search-on")
+    search_on = PAPER.replace(trial_rules="search-on")
     state = situation(cfg, [(140.0, 0.0)], [(0.0, 0.0)], [True], target_vel=[(1.0, 0.0)], heading=[(0.0, 1.0)])
     state = dataclasses.replace(state, formulation=search_on)
     rng = np.random.default_rng(0)
@@ -88,10 +88,12 @@ def test_under_search_on_rules_a_lost_learner_searches_and_goes_on_learning() ->
     assert outs[-1].done[0, 0] and outs[-1].reward[0, 0] == cfg.lost_reward
 
 
-@pytest.mark.parametrize(("rules", "terminal"), [("paper", True), ("search-on", False)])
-def test_a_per_decision_rewards_time_out_is_terminal_or_bootstraps_by_the_rules(rules: str, terminal: bool) -> None:
+@pytest.mark.parametrize(("trial_rules", "terminal"), [("paper", True), ("search-on", False)])
+def test_a_per_decision_rewards_time_out_is_terminal_or_bootstraps_by_the_rules(
+    trial_rules: str, terminal: bool
+) -> None:
     cfg = small(1, 1)
-    formulation = Formulation.of("collab6d", "difference-decision", "compass", rules=rules)
+    formulation = Formulation.of("collab6d", "difference-decision", "compass", trial_rules=trial_rules)
     state = situation(cfg, [(0.0, 0.0)], [(0.0, 0.0)], [True], formulation=formulation)
     rng = np.random.default_rng(0)
     decide = np.ones((1, 1), bool)
