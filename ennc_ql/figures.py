@@ -26,16 +26,21 @@ SNAPSHOT_STEP = 300
 """The step of test trial 0 shown in the arena panel (well past the start, when the robots have spread out)."""
 
 
-def _snapshot(policy: Policy, cfg: ScenarioConfig, seed: int, step: int) -> tuple[np.ndarray, np.ndarray, float]:
-    """Robot and target positions of test trial 0 at ``step``, and the trial's metric A over ``step`` steps."""
+def _snapshot(
+    policy: Policy, cfg: ScenarioConfig, seed: int, step: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Robot and target positions of test trial 0 at ``step``, each robot's move from there (its displacement over
+    the next step: what the policy does), and the trial's metric A over the ``step + 1`` steps run."""
     seen: dict[str, np.ndarray] = {}
 
     def on_step(world: WorldState, _obs: Observation) -> None:
         if world.t == step:
             seen["robots"], seen["targets"] = world.robot_pos[0].copy(), world.target_pos[0].copy()
+        elif world.t == step + 1:
+            seen["next"] = world.robot_pos[0].copy()
 
-    result = evaluate(cfg, PolicyController(policy), trials=1, steps=step, seed=seed, on_step=on_step)
-    return seen["robots"], seen["targets"], float(result.coverage_per_trial[0])
+    result = evaluate(cfg, PolicyController(policy), trials=1, steps=step + 1, seed=seed, on_step=on_step)
+    return seen["robots"], seen["targets"], seen["next"] - seen["robots"], float(result.coverage_per_trial[0])
 
 
 def _rgb(color: tuple[int, int, int]) -> tuple[float, float, float]:
@@ -62,13 +67,28 @@ def _arena_panel(left: Any, policy: Policy, cfg: ScenarioConfig, seed: int, step
     """Test trial ``seed`` at ``step`` under the policy: robots with their sensing disks, targets observed or not."""
     from matplotlib.patches import Circle
 
-    robots, targets, coverage = _snapshot(policy, cfg, seed, step)
+    robots, targets, moves, coverage = _snapshot(policy, cfg, seed, step)
     observed = observed_targets(robots, targets, cfg.sensing_range)
     ax: Any = left.subplots()
     ax.add_patch(Circle((0.0, 0.0), cfg.arena_radius, fill=False, color=_rgb(style.BOUNDARY)))
     for x, y in robots:
         ax.add_patch(Circle((x, y), cfg.sensing_range, color=_rgb(style.ROBOT), alpha=0.18, lw=0))
     ax.scatter(robots[:, 0], robots[:, 1], s=28, color=_rgb(style.ROBOT), marker="^", label="robot (sensing disk)")
+    # What the policy does: each robot's move from here, drawn as a sensing radius long whatever its speed.
+    length = np.linalg.norm(moves, axis=1, keepdims=True)
+    arrows = np.divide(moves, length, out=np.zeros_like(moves), where=length > 0) * 0.8 * cfg.sensing_range
+    ax.quiver(
+        robots[:, 0],
+        robots[:, 1],
+        arrows[:, 0],
+        arrows[:, 1],
+        angles="xy",
+        scale_units="xy",
+        scale=1.0,
+        width=0.006,
+        color=_rgb(style.ROBOT),
+        label="its move now (the policy's choice)",
+    )
     ax.scatter(*targets[observed].T, s=30, color=_rgb(style.OBSERVED), label="target, observed")
     ax.scatter(*targets[~observed].T, s=30, color=_rgb(style.UNOBSERVED), marker="X", label="target, unobserved")
     ax.set_xlim(-1.05 * cfg.arena_radius, 1.05 * cfg.arena_radius)
@@ -77,7 +97,7 @@ def _arena_panel(left: Any, policy: Policy, cfg: ScenarioConfig, seed: int, step
     ax.legend(loc="lower left", fontsize=7, framealpha=0.8)
     ax.set_title(
         f"test trial {seed} at step {step}: {observed.sum()} of {len(targets)} targets observed\n"
-        f"over steps 0-{step}: {coverage:.1f} % of the targets observed on average",
+        f"over steps 0-{step + 1}: {coverage:.1f} % of the targets observed on average",
         fontsize=9,
     )
 
@@ -130,8 +150,9 @@ def caption(featurizer: Featurizer) -> str:
         "sensing range)"
     )
     return textwrap.fill(
-        "Left: one test trial under the learned policy; a target is observed when it lies within some robot's "
-        f"sensing disk. Right: the learned discretization, one panel per move: each dot is a prototype placed by "
+        "Left: one test trial under the learned policy, each robot's arrow the move the policy makes it take next; "
+        "a target is observed when it lies within some robot's sensing disk. Right: the learned discretization, one "
+        "panel per move: each dot is a prototype placed by "
         f"{where}, coloured by the Q value of making that move from there: brighter is better. States with nothing "
         "there in view lie outside the panels.",
         width=200,

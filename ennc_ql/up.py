@@ -139,15 +139,37 @@ def cmd_up(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace, run_dir: Path, config: UpConfig, *, resume: bool) -> int:
     """The run, fresh or resumed, to its report: the exit status (128 + the signal that stopped it, or 0)."""
     started = time.monotonic()
-    if args.serial:
-        learner, actors = child_configs(config)
-        report = run_serial(learner, actors, run_dir)
-        emit_run_report(report, run_dir, _extra(args, config, run_dir, started, None, secure=False), args.json)
-        return 0
     interrupts = Interrupts(say=_say)
     # Installed until the report is written: a signal then still counts, and never cuts the report short.
     with interrupts.installed():
-        return _processes_and_report(args, config, run_dir, resume, interrupts, started)
+        if not args.serial:
+            return _processes_and_report(args, config, run_dir, resume, interrupts, started)
+        # One process: no child to kill first; a second signal ends it at once (exit 130, as Ctrl-C does).
+        interrupts.escalate(_interrupt_now)
+        learner, actors = child_configs(config)
+        report = run_serial(learner, actors, run_dir, stop=interrupts.stop)
+        extra = _extra(args, config, run_dir, started, None, secure=False)
+        if interrupts.first is not None:
+            extra["interrupted"] = _interruption(interrupts, report, config, run_dir)
+        emit_run_report(report, run_dir, extra, args.json)
+        return interrupts.exit_code
+
+
+def _interrupt_now() -> str:
+    raise KeyboardInterrupt
+
+
+def _interruption(interrupts: Interrupts, report: LearnerReport, config: UpConfig, run_dir: Path) -> dict[str, Any]:
+    """How a stopped run ended, for its report: the signal, the training time, and the command that continues."""
+    assert interrupts.first is not None
+    return {
+        "signal": interrupts.first.name,
+        "signals": len(interrupts.received),
+        "at_s": round(report.seconds, 1),
+        "duration_s": config.duration,
+        "learner": "finished" if report.extra.get("saved_by") != "up" else "killed",
+        "resume": f"ennc-ql up --resume {run_dir}",
+    }
 
 
 def emit_run_report(report: LearnerReport, run_dir: Path, extra: dict[str, Any], as_json: bool) -> None:
@@ -183,14 +205,7 @@ def _processes_and_report(
     extra = _extra(args, config, run_dir, started, recording, secure=_secure(args, run_dir))
     extra.update(run.report_extra(report))
     if signum is not None:
-        extra["interrupted"] = {
-            "signal": signum.name,
-            "signals": len(interrupts.received),
-            "at_s": round(report.seconds, 1),
-            "duration_s": config.duration,
-            "learner": "finished" if report.extra.get("saved_by") != "up" else "killed",
-            "resume": f"ennc-ql up --resume {run_dir}",
-        }
+        extra["interrupted"] = _interruption(interrupts, report, config, run_dir)
     emit_run_report(report, run_dir, extra, args.json)
     return interrupts.exit_code
 

@@ -23,9 +23,11 @@ from protocol import InMemoryBus, InMemoryTransport
 log = logging.getLogger(__name__)
 
 
-def run_serial(learner: LearnerConfig, actors: list[ActorConfig], run_dir: Path) -> LearnerReport:
+def run_serial(
+    learner: LearnerConfig, actors: list[ActorConfig], run_dir: Path, stop: threading.Event | None = None
+) -> LearnerReport:
     """Every process as an object on its own thread; ends when the learner's duration is over, as the process
-    topology does."""
+    topology does, or once ``stop`` is set (the learner then scores its policy and reports, as on SIGTERM)."""
     bus = InMemoryBus()
     stop_actors = threading.Event()
     with ExitStack() as stack:
@@ -44,7 +46,7 @@ def run_serial(learner: LearnerConfig, actors: list[ActorConfig], run_dir: Path)
             log.info(
                 "serial: the learner and %d actor(s) in this process for %.0f s", len(actors), learner.duration or 0
             )
-            report = service.run(threading.Event())
+            report = service.run(stop or threading.Event())
         finally:
             stop_actors.set()
             for thread in threads:

@@ -220,3 +220,17 @@ def test_children_die_with_up_when_it_is_killed(tmp_path: Path) -> None:
         assert up.wait(10) == -signal.SIGKILL
         wait_for(lambda: not up.left(), 90, "the orphaned children to wind down")
     assert report(run_dir)["tuples_received"] >= stored(run_dir) > 0  # the learner's own clean stop
+
+
+def test_sigterm_to_a_serial_run_winds_it_down_to_its_report_too(tmp_path: Path) -> None:
+    run_dir = tmp_path / "r"
+    flags = [*SMALL, "--serial", "--duration=60", "--learner-min-tuples=5000", "--runs", str(tmp_path), "--run-id", "r"]
+    with Up(tmp_path, "up", *flags) as up:
+        wait_for(lambda: stored(run_dir) > 0, 120, "a checkpoint holding experience")
+        up.send(signal.SIGTERM)
+        code = up.wait(180)
+    assert code == 143, up.stderr()[-3000:]
+    out = report(run_dir)
+    assert out["interrupted"]["signal"] == "SIGTERM" and out["interrupted"]["learner"] == "finished"
+    assert out["tuples_received"] >= stored(run_dir) > 0 and (run_dir / "report.md").exists()
+    assert f"ennc-ql up --resume {run_dir}" in up.stdout()

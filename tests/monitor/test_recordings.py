@@ -212,6 +212,14 @@ def test_merge_reports_bad_input(tmp_path: Path, merged: Path) -> None:
         merge_recordings([junk], tmp_path / "out.rrd")
 
 
+def recorded(path: Path) -> set[str]:
+    """The entity paths in the recording the server is writing now (none while a frame is half written)."""
+    try:
+        return set(summarize_recording(path)["entity_paths"])
+    except (RuntimeError, RecordingError):
+        return set()
+
+
 def stop_server(server: subprocess.Popen[bytes], grace: float = 30.0) -> None:
     """SIGINT (the server writes what it holds and exits), then SIGKILL to its whole session past ``grace``: on
     loaded cores it may be slow to exit, and nothing of it may outlive the test."""
@@ -243,7 +251,7 @@ def test_connect_streams_processes_into_one_live_recording(tmp_path: Path) -> No
         wanted = {"learner/ticks", "actor-0/ticks"}
         deadline = time.monotonic() + 30.0
         # close() returns once the data is sent; the server writes it to disk on its own schedule.
-        while not (out.is_file() and wanted <= set(summarize_recording(out)["entity_paths"])):
+        while not (out.is_file() and wanted <= recorded(out)):
             assert time.monotonic() < deadline, "the live recording never received both processes' data"
             time.sleep(0.1)
     finally:
