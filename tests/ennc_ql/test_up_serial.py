@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from ennc_ql.cli import main
-from sim import HAND_MADE, evaluate, scenario
+from sim import CONTROLLERS, evaluate, scenario
 
 SMALL = [
     "--actors=2",
@@ -48,16 +48,17 @@ def test_serial_run_learns_and_reports_like_the_process_topology(
     # The result is read beside the hand-made controllers on the same trials, measured by the learner in this run,
     # and report.md says so first.
     references = report["final_reference_coverage"]
-    assert set(references) == set(HAND_MADE) and {"a-cmommt", "a-cmommt-oracle"} <= set(references)
+    assert set(references) == set(CONTROLLERS) and {"a-cmommt", "a-cmommt-public", "a-cmommt-oracle"} <= set(references)
     for name in ("a-cmommt", "a-cmommt-oracle"):
-        expected = evaluate(scenario(), HAND_MADE[name], trials=2, steps=100, seed=0).coverage_mean
+        expected = evaluate(scenario(), CONTROLLERS[name], trials=2, steps=100, seed=0).coverage_mean
         assert references[name] == pytest.approx(expected, abs=1e-3)
         assert report["reference_coverage"][name] == pytest.approx(
-            evaluate(scenario(), HAND_MADE[name], trials=1, steps=100, seed=0).coverage_mean, abs=1e-3
+            evaluate(scenario(), CONTROLLERS[name], trials=1, steps=100, seed=0).coverage_mean, abs=1e-3
         )
     markdown = (run_dir / "report.md").read_text().splitlines()
     assert markdown[2] == "## Result"
-    assert "| A-CMOMMT oracle (true positions) | hand-made; reads true target positions that no robot senses | " in (
-        "\n".join(markdown)
+    assert (
+        "| A-CMOMMT oracle (true positions) | oracle, not a rival: reads true target positions that no robot senses | "
+        in ("\n".join(markdown))
     )
     assert threading.active_count() == before  # every actor thread and transport worker ended
