@@ -12,7 +12,7 @@ Once the first policy is checkpointed, one fault every ``--fault-interval`` seco
 =================  ===============================================================================================
 learner-kill       SIGKILL the learner just after a checkpoint landed (the most unsaved state); restart ``--resume``
 router-restart     SIGKILL the router and start it again on the same port
-actor-stop         SIGSTOP an actor for the zenoh lease + 3 s, then SIGCONT: the learner counts it gone, then back
+actor-stop         SIGSTOP an actor until the learner counts it gone (past the zenoh lease), then SIGCONT: counted back
 actor-kill         SIGKILL an actor (never actor-0 while there are others) and start a new incarnation of it
 partition          (network) every packet of an actor's host dropped for the lease + 3 s, then healed: gone, then back
 delay              (network) every link 25 ms slower each way for 8 s: the streams keep flowing

@@ -159,24 +159,24 @@ class Faults:
 
     def _actor_stop(self) -> tuple[bool, dict[str, Any]]:
         actor = next(self._victims["actor-stop"])
-        pause = self.lease_s + 3.0
         self._full_house()
         self.children.signal(actor, signal.SIGSTOP)
         stopped = time.monotonic()
         try:
-            time.sleep(pause)  # past the lease: the router drops the session and its liveliness token goes
+            # Held until the learner counts it gone: past the lease the router drops the session and its liveliness
+            # token goes (seconds later than the lease itself just after a router restart, on loaded cores).
+            dropped = self.run.wait(
+                f"the learner to count {actor} gone", RECOVERY_TIMEOUT_S, lambda: self._live(stopped, below=True)
+            )
         finally:
             self.children.signal(actor, signal.SIGCONT)
         resumed = time.monotonic()
-        dropped = self.run.wait(
-            f"the learner to count {actor} gone", RECOVERY_TIMEOUT_S, lambda: self._live(stopped, below=True)
-        )
         back = self.run.wait(
             f"the learner to count {actor} back", RECOVERY_TIMEOUT_S, lambda: self._live(dropped[0], below=False)
         )
         figures = {
             "actor": actor,
-            "stopped_s": pause,
+            "stopped_s": round(resumed - stopped, 1),
             "live_actors_min": min(live_actors(s) for s in self.observer.sightings(self.learner_id, stopped)),
             "gone_after_s": round(dropped[0] - stopped, 1),
             "recovered_s": round(back[0] - resumed, 1),
