@@ -43,7 +43,7 @@ FAST = [
     *("--learner-eval-trials", "2", "--learner-final-eval-trials", "2", "--actor-arenas", "32"),
     *("--actor-flush-timeout", "30"),  # the last acks come after the learner's next checkpoint, on loaded cores
 ]
-# One round of the nine process faults takes about a minute at one every 5 s (actor-stop alone holds for the lease and more, 10-15 s); the
+# One round of the nine process faults takes about a minute at one every 5 s (actor-stop alone 10-15 s); the
 # network faults add about 40 s (a partition past the lease, two 8 s windows of delay and loss).
 TIMING = ["--duration", "60", "--fault-interval", "5", "--rss-interval", "5"]
 
