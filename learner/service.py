@@ -165,9 +165,10 @@ class LearnerService:
         if policy is None:
             return
         coverage = self.evaluator.periodic(policy, at=self.elapsed())
+        levels = self.evaluator.references()
         spread = {"learned": {"coverage": coverage, **self.evaluator.spread}}
         for name, figures in self.evaluator.reference_spread().items():
-            spread[name] = {"coverage": self.evaluator.references()[name], **figures}
+            spread[name] = {"coverage": levels[name], **figures}
         self.watch.evaluated(policy, coverage, spread, trials=self.config.eval_trials)
         log.info("evaluation of policy version %d: %.2f%% of targets observed", policy.version, coverage)
 
