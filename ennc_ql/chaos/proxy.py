@@ -72,7 +72,8 @@ class Proxies:
         self.shaping = shaping  # one reference, read by the loop's thread: no lock needed
 
     def relayed(self) -> dict[str, dict[str, int]]:
-        """Bytes relayed so far per link: ``up`` from the client to the router, ``down`` back."""
+        """Bytes relayed so far per link (handed to the far end's socket): ``up`` from the client to the router,
+        ``down`` back."""
         return {name: {"up": up, "down": down} for name, (up, down) in self._relayed.items()}
 
     def close(self) -> None:
@@ -134,9 +135,11 @@ class Proxies:
                 wait = due - loop.time()
                 if wait > 0:
                     await asyncio.sleep(wait)
+                # Counted before the write: the far end may read the chunk (and a caller ask for the counts) before
+                # this task runs again.
+                counts[i] += len(chunk)
                 writer.write(chunk)
                 await writer.drain()
-                counts[i] += len(chunk)
 
         sender = asyncio.create_task(deliver())
 
