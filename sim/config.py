@@ -99,6 +99,9 @@ class ScenarioConfig:
     redundancy_penalty: float = 0.5
     """What the ``difference-redundancy`` reward takes from a robot for a step in which it sees targets, but only
     ones a teammate sees too [choice]."""
+    redundancy_potential: float = 2.0
+    """k of the ``difference-shaped`` reward's potential Φ = −k (1 − d / sensing_range) for a robot seeing only
+    teammate-watched targets, d the nearest one's distance (0 otherwise) [choice]."""
     local_target: LocalTarget = "furthest"
     """Target the 2-D local state points at [paper: furthest; once 'nearest']."""
 
@@ -117,10 +120,10 @@ class ScenarioConfig:
             raise ValueError("target_turn_prob must lie in [0, 1]")
         if self.sensor_noise_std < 0:
             raise ValueError("sensor_noise_std must be non-negative")
-        if not (math.isfinite(self.redundancy_penalty) and self.redundancy_penalty >= 0):
-            raise ValueError(
-                f"redundancy_penalty must be a non-negative finite number, got {self.redundancy_penalty!r}"
-            )
+        for name in ("redundancy_penalty", "redundancy_potential"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a non-negative finite number, got {value!r}")
         if self.mask_value <= self.sensing_range:
             raise ValueError("mask_value must exceed sensing_range so a masked feature cannot look like a real one")
         if self.local_target not in ("furthest", "nearest"):

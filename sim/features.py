@@ -29,6 +29,12 @@ ends:
 * ``difference-redundancy``: the same, less ``redundancy_penalty`` for a step in which the robot sees only targets a
   teammate sees too: a redundant robot is told so at once, as A-CMOMMT with the teammate-observed weight at 0 lets
   it feel no pull [beyond the paper; the analogue of Eq. 2's k(T)].
+* ``difference-shaped``: ``difference-redundancy`` plus the change of a potential over each step, Φ(s′) − Φ(s), with
+  Φ = −``redundancy_potential`` × (1 − d / sensing range) for a robot that sees only teammate-watched targets, d
+  the nearest one's distance, and 0 otherwise: a redundant robot is paid at once for every step that takes it
+  away from the crowd, instead of only after the ~20 steps it takes to leave the view [beyond the paper;
+  potential-based shaping, Ng, Harada & Russell 1999; undiscounted, so with the learner's γ < 1 it also charges a
+  redundant step (1 − γ)Φ(s′), the same sign as the redundancy charge].
 
 ``paper`` names the featurizer's own reward of the paper: ``observed`` for ``local2d``, ``eq2`` for the collaborative
 states. :mod:`sim.formulation` resolves the names of a formulation's parts into these objects, once.
@@ -233,6 +239,9 @@ class Reward:
     per_decision: bool
     """False: ``value`` at the last step of the trial, 0 before. True: ``value`` summed over an action's steps and
     paid as their mean when the action ends."""
+    potential: Callable[[ScenarioConfig, Observation], np.ndarray] | None = None
+    """(E, m) float32 Φ of an observation, or None: a per-decision reward's every step also pays Φ(after) − Φ(before)
+    (:func:`step_value`)."""
 
 
 def _observed(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
@@ -253,6 +262,12 @@ def _difference_redundancy(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
     return obs.n_only.astype(np.float32) - np.float32(cfg.redundancy_penalty) * redundant.astype(np.float32)
 
 
+def _redundancy_potential(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
+    redundant = (obs.n_seen > 0) & (obs.n_only == 0)
+    closeness = 1.0 - np.hypot(obs.features[..., 0], obs.features[..., 1]) / cfg.sensing_range
+    return np.where(redundant, -cfg.redundancy_potential * closeness, 0.0).astype(np.float32)
+
+
 REWARDS: dict[str, Reward] = {
     r.name: r
     for r in (
@@ -261,10 +276,20 @@ REWARDS: dict[str, Reward] = {
         Reward("difference", _difference, per_decision=False),
         Reward("difference-decision", _difference, per_decision=True),
         Reward("difference-redundancy", _difference_redundancy, per_decision=True),
+        Reward("difference-shaped", _difference_redundancy, per_decision=True, potential=_redundancy_potential),
     )
 }
 """Every reward function by name; ``paper`` is accepted wherever a reward is named: the featurizer's own
 (:meth:`sim.formulation.Formulation.of`)."""
+
+
+def step_value(cfg: ScenarioConfig, before: Observation, after: Observation, reward: Reward) -> np.ndarray:
+    """(E, m) float32 what a per-decision ``reward`` earns over the step from ``before`` to ``after``: its value at
+    ``after``, plus the change of its potential if it has one."""
+    value = reward.value(cfg, after)
+    if reward.potential is None:
+        return value
+    return (value + reward.potential(cfg, after) - reward.potential(cfg, before)).astype(np.float32)
 
 
 def featurize(cfg: ScenarioConfig, obs: Observation, featurizer: Featurizer) -> np.ndarray:

@@ -42,7 +42,7 @@ import numpy as np
 
 from sim.config import ScenarioConfig
 from sim.controllers import N_ACTIONS, wander
-from sim.features import lost, trial_reward
+from sim.features import lost, step_value, trial_reward
 from sim.formulation import Formulation
 from sim.world import Observation, WorldState, place_near_targets, reset, sense, step
 
@@ -242,7 +242,7 @@ def step_trial(
     boundary = held >= (cfg.action_steps if hold is None else hold)
     earned, action_mean = state.earned, None
     if per_decision:
-        earned = np.where(decide, np.float32(0.0), earned) + formulation.reward.value(cfg, obs)
+        earned = np.where(decide, np.float32(0.0), earned) + step_value(cfg, state.obs, obs, formulation.reward)
         action_mean = (earned / held).astype(np.float32)
         pay = np.where(done & lost_ends, np.float32(cfg.lost_reward), action_mean)
         reward = np.where(done | truncated | (active & boundary), pay, np.float32(0.0)).astype(np.float32)

@@ -10,7 +10,7 @@ import pytest
 
 from sim import TrialStep, WorldState, featurize, reset, scenario, sense, step_trial
 from sim.actions import ACTION_SETS
-from sim.features import FEATURIZER_REGISTRY, FEATURIZERS, REWARDS, trial_reward
+from sim.features import FEATURIZER_REGISTRY, FEATURIZERS, REWARDS, step_value, trial_reward
 from sim.formulation import DEFAULT_FORMULATION, TRIAL_RULES, Formulation, resolve_formulation
 from tests.fakes import situation
 
@@ -78,6 +78,29 @@ def test_the_redundancy_reward_charges_a_robot_that_sees_only_teammate_watched_t
         scenario(redundancy_penalty=float("nan"))
 
 
+def test_the_shaped_reward_pays_a_redundant_robot_for_each_step_away_from_the_crowd() -> None:
+    # Robot 1 sees only target 0 (robot 0 sees it too), 130 away; it steps 5 further east, then out of view.
+    cfg = scenario(n_robots=3, n_targets=3, redundancy_penalty=0.5, redundancy_potential=3.0)
+    shaped, plain = REWARDS["difference-shaped"], REWARDS["difference-redundancy"]
+    world = arena()
+    before = sense(cfg, world)
+    away = world.robot_pos.copy()
+    away[0, 1] = (125.0, 0.0)
+    after = sense(cfg, WorldState(away, world.target_pos, world.target_vel, world.target_speed))
+    gained = 3.0 * (np.hypot(125.0, 50.0) - 130.0) / cfg.sensing_range
+    np.testing.assert_allclose(step_value(cfg, before, after, shaped)[0], [1.0, -0.5 + gained, 0.0], rtol=1e-5)
+    # The same step back is charged as much; a plain reward ignores the step; leaving the view settles Φ at 0.
+    np.testing.assert_allclose(step_value(cfg, after, before, shaped)[0], [1.0, -0.5 - gained, 0.0], rtol=1e-5)
+    np.testing.assert_allclose(step_value(cfg, before, after, plain)[0], plain.value(cfg, after)[0])
+    away[0, 1] = (400.0, 400.0)
+    gone = sense(cfg, WorldState(away, world.target_pos, world.target_vel, world.target_speed))
+    left = 3.0 * (1.0 - np.hypot(125.0, 50.0) / cfg.sensing_range)
+    # (robot 0 then watches both its targets alone).
+    np.testing.assert_allclose(step_value(cfg, after, gone, shaped)[0], [2.0, left, 0.0], rtol=1e-5)
+    with pytest.raises(ValueError, match="redundancy_potential"):
+        scenario(redundancy_potential=-1.0)
+
+
 def _without(world: WorldState, robot: int) -> WorldState:
     keep = np.arange(world.robot_pos.shape[1]) != robot
     return WorldState(world.robot_pos[:, keep], world.target_pos, world.target_vel, world.target_speed)
@@ -97,7 +120,11 @@ def test_paper_names_each_featurizers_own_reward_and_unknown_names_are_refused()
             Formulation.of(*names)
     with pytest.raises(ValueError, match="unknown trial rules 'lenient'; known: paper, search-on"):
         Formulation.of("collab6d", "eq2", "compass", trial_rules="lenient")
-    assert {name for name, r in REWARDS.items() if r.per_decision} == {"difference-decision", "difference-redundancy"}
+    assert {name for name, r in REWARDS.items() if r.per_decision} == {
+        "difference-decision",
+        "difference-redundancy",
+        "difference-shaped",
+    }
 
 
 @pytest.mark.parametrize("featurizer", list(FEATURIZER_REGISTRY))
