@@ -21,6 +21,7 @@ VERMILLION: Rgb = (213, 94, 0)
 REDDISH_PURPLE: Rgb = (204, 121, 167)
 LIGHT_GREY: Rgb = (225, 225, 225)
 MID_GREY: Rgb = (150, 150, 150)
+BLACK: Rgb = (0, 0, 0)
 
 ACTOR_PALETTE: tuple[Rgb, ...] = (ORANGE, SKY_BLUE, BLUISH_GREEN, REDDISH_PURPLE, VERMILLION, BLUE, YELLOW)
 """One colour per actor; the learner's own series are :data:`LEARNER` so that they never take an actor's colour."""
@@ -67,6 +68,11 @@ def cooperation_table(rows: Mapping[str, Mapping[str, float]], trials: int) -> s
         )
     return "\n".join(lines)
 
+
+MOVE_PALETTE: tuple[Rgb, ...] = (BLUE, YELLOW, VERMILLION, SKY_BLUE, BLACK, BLUISH_GREEN, ORANGE, REDDISH_PURPLE)
+"""One colour per action index, all eight of Okabe and Ito's, in the policy figure's move map: neighbouring moves
+(``toward`` and ``toward-left``, N and NE, …), whose regions usually meet, differ in lightness, and the two closest
+colours (vermillion, orange) go to opposite moves."""
 
 Q_STATS: dict[str, Rgb] = {"mean": LIGHT_GREY, "min": SKY_BLUE, "max": ORANGE}
 
