@@ -104,6 +104,9 @@ class Budget:
     phase2: Phase2Config = field(default_factory=Phase2Config)
     codebook_patterns: int = 50_000
     """LBG runs on a uniform sample of this many explored states [choice]."""
+    team_policy: bool = False
+    """Test the policy with the robots' tables merged into one by their visits (:meth:`Policy.team`, the learner's
+    default); False: each robot on its own row, as the paper's option 2 [paper]."""
     refits: int = 0
     """ENNC-QL: phase 2's batches are cut into ``refits`` + 1 equal parts; after each but the last, phase 1 runs
     again on the part's on-policy tuples (the newest ``refit_tuples``), warm-started from the current
@@ -289,6 +292,8 @@ def train(
         lost_behaviour=lost_behaviour,
         action_steps=formulation.act_every or base.action_steps,
     )
+    if budget.team_policy:
+        policy = policy.team()
     result = evaluate(base, PolicyController(policy), budget.test_trials, budget.test_steps, seed=budget.test_seed)
     say(f"test coverage {result.coverage_mean:.2f}%")
     states = float(spec.codebook) if spec.algorithm == "vqql" else float(disc.sizes().mean())

@@ -9,6 +9,7 @@ Usage::
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -78,6 +79,29 @@ class Policy:
         """(N,) argmax_a Q_robot(s, a) for states (N, d) of robots (N,)."""
         cells = self.discretization.cells(states) if cells is None else cells
         return greedy(self.tables[self.rows(robots)], cells)
+
+    def team(self) -> Policy:
+        """The same policy with one table every robot uses: the rows merged cell by cell, each weighted by its visits
+        (a cell no row visited keeps the rows' mean). Robots are alike, so each row is one robot's noisy estimate of
+        the same values; the merge pools ten times the experience per cell [beyond the paper: the learner's merge
+        across robots, after learning on option 2's per-robot tables]."""
+        if self.tables.shape[0] == 1:
+            return self
+        tables = self.tables.astype(np.float64)
+        if self.visits is None:
+            merged, visits = tables.mean(axis=0), None
+        else:
+            weights = self.visits.astype(np.float64)
+            seen = weights.sum(axis=0)
+            weighted = (tables * weights).sum(axis=0) / np.maximum(seen, 1.0)
+            merged = np.where(seen > 0, weighted, tables.mean(axis=0))
+            visits = self.visits.sum(axis=0, keepdims=True)
+        return dataclasses.replace(
+            self,
+            tables=merged[None].astype(np.float32),
+            robot_table=np.zeros_like(self.robot_table),
+            visits=visits,
+        )
 
     def prototypes_by_action(self) -> tuple[list[np.ndarray], list[np.ndarray]]:
         """Per action: its prototypes in the standardized space the cells are measured in (p_a, d), and each one's

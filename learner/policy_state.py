@@ -37,6 +37,7 @@ class PolicyState:
         scenario: str,
         action_steps: int,
         method: str,
+        team: bool = False,
         on_version: Callable[[int], None] | None = None,
     ) -> None:
         self.on_version = on_version
@@ -48,6 +49,8 @@ class PolicyState:
         self.scenario = scenario
         self.action_steps = action_steps
         self.method = method
+        self.team = team
+        """:meth:`policy` merges the robots' rows into one table (:meth:`algorithm.policy.Policy.team`)."""
         self._lock = threading.Lock()
         self._disc: Discretization | None = None
         self._disc_id = 0
@@ -128,11 +131,14 @@ class PolicyState:
             return self._current
 
     def policy(self) -> Policy | None:
-        """The acting policy, for evaluation and the policy file: robots decide every ``act_every`` steps."""
+        """The acting policy, for evaluation and the policy file: robots decide every ``act_every`` steps, on one
+        merged table if ``team``."""
         with self._lock:
             if self._disc is None:
                 return None
             policy = self._policy()
+        if self.team:
+            policy = policy.team()
         every = self.formulation.act_every
         return policy if every is None else dataclasses.replace(policy, action_steps=every)
 

@@ -70,6 +70,7 @@ class LearnerService:
             self.scenario.name,
             self.scenario.action_steps,
             config.method,
+            team=config.team_policy,
             on_version=self.version_mark.record,
         )
         self.fitter = Fitter(config, on_fitted=self._adopt)

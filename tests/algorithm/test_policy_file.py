@@ -126,6 +126,24 @@ def test_greedy_uses_each_robots_own_table() -> None:
     np.testing.assert_array_equal(policy.greedy(np.zeros((4, 2)), np.array([0, 1, 0, 1])), [3, 6, 3, 6])
 
 
+def test_the_team_policy_merges_the_robots_rows_by_their_visits() -> None:
+    disc = Discretization.from_per_action([np.zeros((1, 2))] * 8)
+    tables = np.zeros((3, 8), np.float32)
+    tables[:, 0] = [1.0, 4.0, 10.0]  # visited 1, 3 and 0 times: (1 * 1 + 4 * 3) / 4
+    tables[:, 1] = [2.0, 6.0, 7.0]  # visited by no robot: the rows' mean
+    visits = np.zeros((3, 8), np.uint64)
+    visits[:, 0] = [1, 3, 0]
+    policy = Policy(Formulation.of("local2d", "paper", "compass"), disc, tables, np.array([0, 1, 2, 0]), visits=visits)
+    team = policy.team()
+    assert team.tables.shape == (1, 8) and team.robot_table.tolist() == [0, 0, 0, 0]
+    assert team.tables[0, 0] == pytest.approx(13 / 4) and team.tables[0, 1] == pytest.approx(5.0)
+    assert team.visits is not None and team.visits[0, 0] == 4
+    np.testing.assert_array_equal(team.greedy(np.zeros((4, 2)), np.arange(4)), [1, 1, 1, 1])  # 5.0 over 3.25
+    unweighted = dataclasses.replace(policy, visits=None).team()
+    assert unweighted.tables[0, 0] == pytest.approx(5.0) and unweighted.visits is None
+    assert team.team() is team
+
+
 def test_policy_controller_holds_actions_and_searches_when_lost() -> None:
     cfg = scenario()
     disc = Discretization.from_per_action([np.zeros((1, 6))] * 8)

@@ -59,11 +59,12 @@ def test_serial_learner_and_actor_exchange_experience_and_policies(tmp_path: Pat
     assert report.tuples_by_actor["a0"] >= status.tuples_sent - status.outbox * 256
     assert report.gaps == 0 and report.duplicates == 0 and report.rejected == 0
     assert report.increments > 0 and status.policies_applied >= 1
-    # Only the learned robots produced tuples, and their tables moved away from the phase-1 labels.
+    # Only the learned robots produced tuples, and their tables (the broadcast's rows) moved away from the phase-1
+    # labels; the team policy evaluated and saved merges them into one.
     assert report.prototypes_per_action and (tmp_path / "checkpoint.npz").exists()
-    policy = service.state.policy()
-    assert policy is not None
-    moved = np.abs(policy.tables - policy.discretization.labels[None, :]).sum(axis=1)
+    policy, current = service.state.policy(), service.state.current
+    assert policy is not None and current is not None and policy.tables.shape[0] == 1
+    moved = np.abs(current.q_tables - policy.discretization.labels[None, :]).sum(axis=1)
     assert (moved[[0, 1, 2]] > 0).all() and (moved[3:] == 0).all()
 
 
@@ -76,13 +77,15 @@ def one_cell_per_action(dim: int = 6) -> Discretization:
     return Discretization.from_per_action([np.zeros((1, dim), np.float32)] * 8)
 
 
-def increment(actor: str, seq: int, q: list[float], visits: list[int], version: int = 1) -> QTableIncrement:
+def increment(
+    actor: str, seq: int, q: list[float], visits: list[int], version: int = 1, robot: int = 2
+) -> QTableIncrement:
     return QTableIncrement(
         actor_id=actor,
         incarnation=1,
         seq=seq,
         policy_version=version,
-        robot=2,
+        robot=robot,
         q=np.array(q, np.float32),
         visits=np.array(visits, np.uint32),
         offsets=one_cell_per_action().offsets,
@@ -131,6 +134,19 @@ def test_the_evaluated_policy_decides_every_act_every_steps_while_the_broadcast_
     plain = PolicyState(formulation=PAPER, action_steps=5, **kw)
     plain.adopt(one_cell_per_action())
     assert plain.policy() is not None and plain.policy().action_steps == 5  # type: ignore[union-attr]
+
+
+def test_a_team_policy_is_evaluated_on_the_merged_rows_while_each_robot_gets_its_own() -> None:
+    state = PolicyState(n_robots=10, formulation=PAPER, scenario="cmommt-v1", action_steps=5, method="m", team=True)
+    state.adopt(one_cell_per_action())
+    state.publish()  # version 1: the increments are learned over it
+    state.add_increment(increment("a", 0, [4.0] * 8, [1] * 8, robot=2))
+    state.add_increment(increment("a", 1, [1.0] * 8, [3] * 8, robot=5))
+    update = state.publish()
+    assert update.q_tables.shape[0] == 10 and update.q_tables[2, 0] == pytest.approx(4.0)
+    policy = state.policy()
+    assert policy is not None and policy.tables.shape[0] == 1
+    assert policy.tables[0, 0] == pytest.approx((4.0 + 3 * 1.0) / 4) and policy.robot_table.tolist() == [0] * 10
 
 
 DEFAULT = FORMULATIONS[DEFAULT_FORMULATION]
