@@ -5,7 +5,7 @@ Zenoh in peer mode on a loopback endpoint with multicast scouting off, so nothin
 is needed; ``--secure`` joins them through a router instead, each with its own certificate, password and
 access-control identity (``ennc-ql secure init``'s files, in ``runs/<id>/secure``); ``--serial`` runs the same
 objects in this one process on the in-memory bus. Every actor learns every robot's table (option 2); the learner
-averages their changes by visits. The flags are generated from ``ennc_ql.cluster.UpConfig`` (with ``up``'s presets,
+averages their changes by visits. The flags are generated from ``tools.cluster.UpConfig`` (with ``up``'s presets,
 ``UP_PRESETS``); every process's resolved configuration is written into ``runs/<id>/`` (``up.toml``,
 ``learner.toml``, ``actor-<i>.toml``) and the children start from those files, so ``ennc-ql up --config
 runs/<id>/up.toml`` repeats a run exactly. At the end the results are printed and ``runs/<id>/report.md`` and
@@ -27,8 +27,16 @@ from typing import Any
 import numpy as np
 
 from actors.config import ActorConfig
-from algorithm.policy_file import load_policy, scenario_from_header
-from ennc_ql.cluster import (
+from ennc_ql.command import check_device, check_folder, configure, fail, make_folder, registry_choices
+from ennc_ql.parser import CommandHelp, add_command
+from ennc_ql.report import emit_run_report
+from learner.checkpoint import Checkpointer, CheckpointError
+from learner.config import LearnerConfig
+from learner.report import LearnerReport
+from learner.service import LearnerService
+from monitor import Sink, add_rerun_args, paths
+from protocol import InMemoryBus, InMemoryTransport, check_id
+from tools.cluster import (
     SET_BY_UP,
     UP_PRESETS,
     LaunchError,
@@ -40,19 +48,9 @@ from ennc_ql.cluster import (
     run_serial,
     write_configs,
 )
-from ennc_ql.command import check_device, check_folder, configure, emit, fail, make_folder, registry_choices
-from ennc_ql.config import ConfigError, add_config_flags, folder, load_config
-from ennc_ql.config_fields import config_leaves, flag_name
-from ennc_ql.figures import policy_figure
-from ennc_ql.parser import CommandHelp, add_command
-from ennc_ql.report import terminal_summary, write_run_report
-from ennc_ql.system import Interrupts
-from learner.checkpoint import Checkpointer, CheckpointError
-from learner.config import LearnerConfig
-from learner.report import LearnerReport
-from learner.service import LearnerService
-from monitor import Sink, add_rerun_args, paths
-from protocol import InMemoryBus, InMemoryTransport, check_id
+from tools.config import ConfigError, add_config_flags, folder, load_config
+from tools.config_fields import config_leaves, flag_name
+from tools.system import Interrupts
 
 log = logging.getLogger(__name__)
 
@@ -104,7 +102,7 @@ def add_up_parser(sub: Any) -> None:
     p.add_argument("--run-id", metavar="ID", help="run folder name (default: the start time, YYYYMMDD-HHMMSS)")
     p.add_argument("--json", action="store_true", help="print the learner's report as one JSON object")
     add_config_flags(
-        p.add_argument_group("run configuration (ennc_ql.cluster.UpConfig)"),
+        p.add_argument_group("run configuration (tools.cluster.UpConfig)"),
         UpConfig,
         exclude=SET_BY_UP,
         defaults=UP_PRESETS,
@@ -170,16 +168,6 @@ def _interruption(interrupts: Interrupts, report: LearnerReport, config: UpConfi
         "learner": "finished" if report.extra.get("saved_by") != "up" else "killed",
         "resume": f"ennc-ql up --resume {run_dir}",
     }
-
-
-def emit_run_report(report: LearnerReport, run_dir: Path, extra: dict[str, Any], as_json: bool) -> None:
-    """The learner's report completed with the launcher's ``extra`` figures and the policy's figure, written as
-    ``report.json``, ``report.md`` and ``learning_curve.png``, and printed (``up`` and a SLURM job alike)."""
-    out = report.with_extra(**extra, **_policy_figure(report, run_dir)).to_dict()
-    markdown, png = write_run_report(out, run_dir)
-    out.update(report_md=str(markdown), learning_curve=str(png))
-    (run_dir / "report.json").write_text(json.dumps(out, indent=2))
-    emit(out, as_json, terminal_summary(out))
 
 
 def _processes_and_report(
@@ -356,11 +344,3 @@ def checkpoint_elapsed(path: Path) -> float | None:
         return float(meta["elapsed"])
     except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile):
         return None
-
-
-def _policy_figure(report: LearnerReport, run_dir: Path) -> dict[str, str]:
-    """``policy.png`` of the learned policy, if one was learned."""
-    if not report.policy_file:
-        return {}
-    policy, header = load_policy(report.policy_file)
-    return {"policy_figure": str(policy_figure(policy, scenario_from_header(header), run_dir / "policy.png"))}
