@@ -19,7 +19,7 @@ from learner.checkpoint import CHECKPOINT
 from protocol import KeySpace
 from protocol.security import OBSERVER, ROUTER
 from tools.chaos.checks import Evidence, figures_and_checks
-from tools.chaos.faults import Faults
+from tools.chaos.faults import Faults, Scene
 from tools.chaos.network import Network, NetworkError
 from tools.chaos.observe import (
     MALLORY,
@@ -110,7 +110,23 @@ class Chaos:
         self.observer = Observer()
         self.rss = RssSampler(self.children, options.rss_interval, self.t0)
         self.records: list[dict[str, Any]] = []
-        self.faults = Faults(self)
+        self.faults = Faults(
+            Scene(
+                run_dir=run_dir,
+                learner_id=self.learner_id,
+                actor_ids=self.actor_ids,
+                formulation=self.formulation,
+                keys=self.keys,
+                secure=options.secure,
+                lease_s=self.lease_s,
+                children=self.children,
+                endpoints=self.endpoints,
+                observer=self.observer,
+                rss=self.rss,
+                network=self.network,
+            ),
+            self,
+        )
         write_configs(config, self.learner, self.actors, run_dir)
 
     def run(self) -> dict[str, Any]:
@@ -166,6 +182,15 @@ class Chaos:
 
     def actor_argv(self, actor: str) -> list[str]:
         return self._on(actor, ["actor", "--config", str(self.run_dir / f"{actor}.toml"), "--json"])
+
+    def restart(self, ident: str) -> None:
+        """Start ``ident`` again after a fault killed it, as the run started it; the learner resumes."""
+        if ident == ROUTER:
+            self.children.start(ROUTER, self.router_argv())
+        elif ident == self.learner_id:
+            self.children.start(ident, self.learner_argv(resume=True))
+        else:
+            self.children.start(ident, self.actor_argv(ident), nice=ACTOR_NICENESS)
 
     def _on(self, ident: str, argv: list[str]) -> list[str]:
         """A learner's or actor's command line with its zenoh flags, on its own host when there are hosts."""
