@@ -31,6 +31,8 @@ from sim.formulation import FORMULATIONS
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
+    from tools.cluster import RunSummary
+
 REPORT_MD = "report.md"
 LEARNING_CURVE_PNG = "learning_curve.png"
 REFERENCE_NOTES = {
@@ -448,10 +450,11 @@ def write_run_report(report: Mapping[str, Any], run_dir: Path) -> tuple[Path, Pa
     return markdown, png
 
 
-def emit_run_report(report: LearnerReport, run_dir: Path, extra: dict[str, Any], as_json: bool) -> None:
-    """The learner's report completed with the launcher's ``extra`` figures and the policy's figure, written as
+def emit_run_report(report: LearnerReport, summary: RunSummary, as_json: bool) -> None:
+    """The learner's report completed with the launcher's ``summary`` and the policy's figure, written as
     ``report.json``, ``report.md`` and ``learning_curve.png``, and printed (``up`` and a SLURM job alike)."""
-    out = report.with_extra(**extra, **_policy_figure(report, run_dir)).to_dict()
+    run_dir = summary.run_dir
+    out = report.with_extra(**summary.figures(report), **_policy_figure(report, run_dir)).to_dict()
     markdown, png = write_run_report(out, run_dir)
     out.update(report_md=str(markdown), learning_curve=str(png))
     (run_dir / "report.json").write_text(json.dumps(out, indent=2))

@@ -23,7 +23,7 @@ from ennc_ql.parser import CommandHelp, add_command, add_commands
 from ennc_ql.report import emit_run_report
 from learner.checkpoint import CHECKPOINT
 from protocol import check_id
-from tools.cluster import SET_BY_UP, UP_PRESETS, LaunchError, UpConfig
+from tools.cluster import SET_BY_UP, UP_PRESETS, LaunchError, RunSummary, UpConfig
 from tools.config import ConfigError, add_config_flags, folder, load_config
 from tools.slurm.array import run_task
 from tools.slurm.job import JOB_SCRIPT, SlurmJob, run_training_job, write_training_job
@@ -162,29 +162,18 @@ def cmd_run(args: argparse.Namespace) -> int:
     except (SlurmError, LaunchError, ConfigError) as exc:
         fail("slurm run", str(exc))
     alloc = done.allocation
-    extra = {
-        "run_id": run_dir.name,
-        "run_dir": str(run_dir),
-        "command": f"sbatch {run_dir / JOB_SCRIPT}",
-        "config": {
-            "actors": done.config.actors,
-            "duration": done.config.duration,
-            "seed": done.config.seed,
-            "formulation": done.config.formulation,
-            "serial": False,
-            "secure": done.job.secure,
-        },
-        **done.run.report_extra(done.report),
-        "slurm": {
-            "job_id": alloc.job_id,
-            "requeued": alloc.restarts,
-            "nodes": list(alloc.nodes),
-            "placement": dict(done.placement.node_of),
-        },
-        "wall_seconds": round(time.monotonic() - started, 1),
-        "recording": done.recording,
+    slurm = {
+        "job_id": alloc.job_id,
+        "requeued": alloc.restarts,
+        "nodes": list(alloc.nodes),
+        "placement": dict(done.placement.node_of),
     }
-    emit_run_report(done.report, run_dir, extra, args.json)
+    wall_seconds = time.monotonic() - started
+    command = f"sbatch {run_dir / JOB_SCRIPT}"
+    summary = RunSummary(
+        run_dir, command, done.config, done.job.secure, wall_seconds, done.recording, run=done.run, slurm=slurm
+    )
+    emit_run_report(done.report, summary, args.json)
     return 0
 
 

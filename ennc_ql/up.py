@@ -15,6 +15,7 @@ runs/<id>/up.toml`` repeats a run exactly. At the end the results are printed an
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import os
@@ -39,13 +40,15 @@ from protocol import InMemoryBus, InMemoryTransport, check_id
 from tools.cluster import (
     SET_BY_UP,
     UP_PRESETS,
+    Finished,
     LaunchError,
     Monitoring,
     ProcessRun,
+    RunSummary,
     UpConfig,
     child_configs,
-    run_processes,
     run_serial,
+    run_to_report,
     write_configs,
 )
 from tools.config import ConfigError, add_config_flags, folder, load_config
@@ -146,10 +149,10 @@ def _run(args: argparse.Namespace, run_dir: Path, config: UpConfig, *, resume: b
         interrupts.escalate(_interrupt_now)
         learner, actors = child_configs(config)
         report = run_serial(learner, actors, run_dir, stop=interrupts.stop)
-        extra = _extra(args, config, run_dir, started, None, secure=False)
+        summary = _summary(config, run_dir, started, None, secure=False, serial=True)
         if interrupts.first is not None:
-            extra["interrupted"] = _interruption(interrupts, report, config, run_dir)
-        emit_run_report(report, run_dir, extra, args.json)
+            summary = dataclasses.replace(summary, interrupted=_interruption(interrupts, report, config, run_dir))
+        emit_run_report(report, summary, args.json)
         return interrupts.exit_code
 
 
@@ -180,7 +183,7 @@ def _processes_and_report(
 ) -> int:
     """The run as OS processes, then its report from what the learner saved, however it ended."""
     learner, actors = child_configs(config)
-    report, run, recording = _processes(args, config, learner, actors, run_dir, resume, interrupts)
+    report, done = _processes(args, config, learner, actors, run_dir, resume, interrupts)
     signum = interrupts.first
     if report is None:  # stopped before the learner saved anything
         assert signum is not None
@@ -190,11 +193,10 @@ def _processes_and_report(
             file=sys.stderr,
         )
         return interrupts.exit_code
-    extra = _extra(args, config, run_dir, started, recording, secure=_secure(args, run_dir))
-    extra.update(run.report_extra(report))
+    summary = _summary(config, run_dir, started, done.recording, secure=_secure(args, run_dir), run=done.run)
     if signum is not None:
-        extra["interrupted"] = _interruption(interrupts, report, config, run_dir)
-    emit_run_report(report, run_dir, extra, args.json)
+        summary = dataclasses.replace(summary, interrupted=_interruption(interrupts, report, config, run_dir))
+    emit_run_report(report, summary, args.json)
     return interrupts.exit_code
 
 
@@ -207,29 +209,19 @@ def _secure(args: argparse.Namespace, run_dir: Path) -> bool:
     return bool(args.secure) or (args.resume is not None and (run_dir / "secure").is_dir())
 
 
-def _extra(
-    args: argparse.Namespace,
+def _summary(
     config: UpConfig,
     run_dir: Path,
     started: float,
     recording: dict[str, Any] | None,
     secure: bool,
-) -> dict[str, Any]:
-    return {
-        "run_id": run_dir.name,
-        "run_dir": str(run_dir),
-        "command": f"ennc-ql up --config {run_dir / 'up.toml'}",
-        "config": {
-            "actors": config.actors,
-            "duration": config.duration,
-            "seed": config.seed,
-            "formulation": config.formulation,
-            "serial": args.serial,
-            "secure": secure,
-        },
-        "wall_seconds": round(time.monotonic() - started, 1),
-        "recording": recording,
-    }
+    *,
+    serial: bool = False,
+    run: ProcessRun | None = None,
+) -> RunSummary:
+    command = f"ennc-ql up --config {run_dir / 'up.toml'}"
+    wall_seconds = time.monotonic() - started
+    return RunSummary(run_dir, command, config, secure, wall_seconds, recording, serial=serial, run=run)
 
 
 def _processes(
@@ -240,23 +232,21 @@ def _processes(
     run_dir: Path,
     resume: bool,
     interrupts: Interrupts,
-) -> tuple[LearnerReport | None, ProcessRun, dict[str, Any] | None]:
+) -> tuple[LearnerReport | None, Finished]:
     """The run as OS processes: the learner's report (its own, or built from its checkpoint if it was killed; None
-    if it saved nothing), what its supervision saw and the summary of the merged recording."""
+    if it saved nothing), and what its supervision saw with the summary of the merged recording."""
     run_id = run_dir.name
     sink = args.rerun or Sink("save", str(run_dir / paths.RECORDING_FILE))
     if resume and sink.kind == "save" and Path(str(sink.target)).exists():
         # The recording so far is merged with the resumed processes' parts at the end, into one.
         paths.part_file(run_dir, "earlier").parent.mkdir(exist_ok=True)
         Path(str(sink.target)).replace(paths.part_file(run_dir, "earlier"))
-    monitoring = Monitoring(sink, run_id, run_dir)
-    begun = time.time()
     try:
-        run = run_processes(
+        done = run_to_report(
             learner,
             actors,
             run_dir,
-            monitoring,
+            Monitoring(sink, run_id, run_dir),
             namespace=f"run-{run_id}",
             secure=_secure(args, run_dir),
             resume=resume,
@@ -265,15 +255,12 @@ def _processes(
         )
     except LaunchError as exc:
         fail("up", str(exc))
-    finally:
-        recording = monitoring.finish()
-    report_path = run_dir / "report.json"
-    if report_path.exists() and report_path.stat().st_mtime >= begun:
-        return LearnerReport.from_dict(json.loads(report_path.read_text())), run, recording
+    if done.report is not None:
+        return done.report, done
     saved = saved_report(learner, run_dir)
     if saved is None and interrupts.first is None:
         fail("up", f"the learner wrote no report; see {run_dir / 'learner.log'}")
-    return saved, run, recording
+    return saved, done
 
 
 def saved_report(learner: LearnerConfig, run_dir: Path) -> LearnerReport | None:

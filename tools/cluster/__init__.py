@@ -9,15 +9,18 @@ Usage::
     write_configs(config, learner, actors, run_dir)
     report = run_serial(learner, actors, run_dir)                                      # one process
     run = run_processes(learner, actors, run_dir, monitoring, "run-x")                 # as OS processes
+    done = run_to_report(learner, actors, run_dir, monitoring, "run-x")                # ... and the learner's report
 """
 
 # The package, by role: config (UpConfig, up's presets, each child's configuration), serial (the serial topology),
 # processes (the process topology, its placement and its progress bar), children (child processes, their supervision),
-# endpoints (how each process joins a run: peer-to-peer or through a router, plain or secure), recording (Rerun).
+# endpoints (how each process joins a run: peer-to-peer or through a router, plain or secure), recording (Rerun),
+# launch (the processes to the learner's report, and the launcher's summary beside it: up and a SLURM job alike).
 
 from tools.cluster.children import ACTOR_NICENESS, Children, Restart, Supervisor, ennc_ql_argv, log_tail
 from tools.cluster.config import SET_BY_UP, UP_PRESETS, UpConfig, child_configs, write_configs
 from tools.cluster.endpoints import Endpoints, make_endpoints
+from tools.cluster.launch import Finished, RunSummary, run_to_report
 from tools.cluster.processes import LaunchError, Placement, ProcessRun, cluster_status, run_processes
 from tools.cluster.recording import Monitoring
 from tools.cluster.serial import run_serial
@@ -28,11 +31,13 @@ __all__ = [
     "UP_PRESETS",
     "Children",
     "Endpoints",
+    "Finished",
     "LaunchError",
     "Monitoring",
     "Placement",
     "ProcessRun",
     "Restart",
+    "RunSummary",
     "Supervisor",
     "UpConfig",
     "child_configs",
@@ -42,5 +47,6 @@ __all__ = [
     "make_endpoints",
     "run_processes",
     "run_serial",
+    "run_to_report",
     "write_configs",
 ]

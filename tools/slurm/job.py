@@ -16,7 +16,6 @@ again (the learner with ``--resume auto``).
 
 from __future__ import annotations
 
-import json
 import math
 import re
 import shlex
@@ -28,7 +27,7 @@ from typing import Any
 
 from learner.report import LearnerReport
 from monitor import Sink, paths
-from tools.cluster import LaunchError, Monitoring, ProcessRun, UpConfig, child_configs, run_processes, write_configs
+from tools.cluster import LaunchError, Monitoring, ProcessRun, UpConfig, child_configs, run_to_report, write_configs
 from tools.config import dump_config, load_config
 from tools.slurm.allocation import Allocation, SlurmPlacement
 from tools.slurm.sbatch import SBATCH_FIELD
@@ -151,24 +150,19 @@ def run_training_job(run_dir: Path, stop: threading.Event) -> JobRun:
         earlier = paths.part_file(run_dir, f"before-requeue-{allocation.restarts}")
         earlier.parent.mkdir(exist_ok=True)
         recording.rename(earlier)
-    monitoring = Monitoring(Sink("save", str(recording)), run_dir.name, run_dir)
-    try:
-        run = run_processes(
-            learner,
-            actors,
-            run_dir,
-            monitoring,
-            namespace=f"run-{run_dir.name}",
-            secure=job.secure,
-            placement=placement,
-            resume=True,
-            max_restarts=config.max_restarts,
-            stop=stop,
-        )
-    finally:
-        summary = monitoring.finish()
-    report_path = run_dir / "report.json"
-    if not report_path.exists():
+    done = run_to_report(
+        learner,
+        actors,
+        run_dir,
+        Monitoring(Sink("save", str(recording)), run_dir.name, run_dir),
+        namespace=f"run-{run_dir.name}",
+        secure=job.secure,
+        placement=placement,
+        resume=True,
+        max_restarts=config.max_restarts,
+        stop=stop,
+        fresh_only=False,
+    )
+    if done.report is None:
         raise LaunchError(f"the learner wrote no report; see {run_dir / 'learner.log'}")
-    report = LearnerReport.from_dict(json.loads(report_path.read_text()))
-    return JobRun(config, job, report, run, allocation, placement, summary)
+    return JobRun(config, job, done.report, done.run, allocation, placement, done.recording)
