@@ -4,7 +4,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 PYTHON ?= python3
-LIBS   := sim algorithm learner actors protocol monitor ennc_ql
+LIBS   := sim algorithm learner actors protocol monitor tools ennc_ql
 
 .PHONY: help run test lint typecheck clean image-test
 

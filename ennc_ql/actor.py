@@ -19,8 +19,8 @@ from actors.config import ActorConfig
 from actors.wiring import connect
 from ennc_ql.command import add_process_args, checked_zenoh, configure, emit, open_transport, registry_choices
 from ennc_ql.parser import CommandHelp, add_command
-from ennc_ql.system import stop_on_signals
 from monitor import open_monitor, sink_from_args
+from tools.system import stop_on_signals
 
 HELP = CommandHelp(
     "actor",

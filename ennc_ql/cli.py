@@ -16,11 +16,11 @@ import sys
 from collections.abc import Sequence
 from importlib.metadata import PackageNotFoundError, version
 
-from ennc_ql.allocator import keep_freed_memory
 from ennc_ql.command import check_recording
 from ennc_ql.parser import PROG, CommandParser, add_commands, wrap
 from ennc_ql.router import add_router_parser
-from ennc_ql.system import die_with_parent
+from tools.allocator import keep_freed_memory
+from tools.system import die_with_parent
 
 DESCRIPTION = """\
 ENNC-QL reinforcement learning for cooperative multi-robot target observation (CMOMMT), as a distributed
@@ -54,14 +54,13 @@ def build_parser(router_only: bool = False) -> argparse.ArgumentParser:
         return parser
     # Imported here, for the router's sake (above).
     from ennc_ql.actor import add_actor_parser
-    from ennc_ql.bench.command import add_bench_parser
+    from ennc_ql.bench import add_bench_parser
     from ennc_ql.chaos import add_chaos_parser
     from ennc_ql.evaluate import add_eval_parser
-    from ennc_ql.experiments.ablate import add_ablate_parser
-    from ennc_ql.experiments.reproduce import add_reproduce_parser
     from ennc_ql.learner import add_learner_parser
     from ennc_ql.secure import add_secure_parser
-    from ennc_ql.slurm.command import add_slurm_parser
+    from ennc_ql.slurm import add_slurm_parser
+    from ennc_ql.sweeps import add_ablate_parser, add_reproduce_parser
     from ennc_ql.up import add_up_parser
 
     for add in (

@@ -17,11 +17,11 @@ from typing import Any, NoReturn
 
 import zenoh
 
-from ennc_ql.config import ConfigError, add_config_flags, load_config
-from ennc_ql.config_fields import UnknownKey, nested_fields
 from monitor import Sink, add_rerun_args
 from monitor.sinks import spawn_problem
 from protocol import ZenohTransport, add_connection_args, config_from_args, keys_from_args
+from tools.config import ConfigError, add_config_flags, load_config
+from tools.config_fields import UnknownKey, nested_fields
 
 _RUST_SOURCE = re.compile(r"\s+at /\S+\.rs:\d+\.?")
 _JSON_ERROR = re.compile(
@@ -57,8 +57,8 @@ def _roles() -> dict[str, tuple[type[Any], str]]:
     """Each process's configuration class, with where its settings go."""
     # Imported here: the router's process never loads the simulator, which these configurations import.
     from actors.config import ActorConfig
-    from ennc_ql.cluster import UpConfig
     from learner.config import LearnerConfig
+    from tools.cluster import UpConfig
 
     return {
         "up": (UpConfig, "ennc-ql up --config and slurm train --config take it"),

@@ -14,12 +14,12 @@ from typing import Any
 from algorithm.policy import PolicyController
 from algorithm.policy_file import PolicyFileError, load_policy, scenario_from_header
 from ennc_ql.command import emit, fail
-from ennc_ql.config import non_negative, positive
 from ennc_ql.parser import CommandHelp, add_command
 from monitor import add_rerun_args, open_monitor, sink_from_args
 from monitor.trial import trial_hook
 from sim import CONTROLLERS, HAND_MADE, ORACLES, SCENARIOS, Controller, ScenarioConfig, evaluate, scenario
 from sim.rollout import EvalResult
+from tools.config import non_negative, positive
 
 HELP = CommandHelp(
     "eval",

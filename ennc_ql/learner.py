@@ -28,14 +28,14 @@ from ennc_ql.command import (
     open_transport,
     registry_choices,
 )
-from ennc_ql.config import folder
 from ennc_ql.parser import CommandHelp, add_command
-from ennc_ql.system import stop_on_signals
 from learner.checkpoint import Checkpointer, CheckpointError
 from learner.config import LearnerConfig
 from learner.service import LearnerService
 from learner.wiring import connect
 from monitor import open_monitor, sink_from_args
+from tools.config import folder
+from tools.system import stop_on_signals
 
 HELP = CommandHelp(
     "learner",

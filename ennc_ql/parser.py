@@ -23,18 +23,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, NoReturn
 
+from tools.config_fields import plain
+
 PROG = "ennc-ql"
-
-_ROLE = re.compile(r":[a-z]+:`~?([^`]+)`")  # :mod:`x`, :class:`~x.Y`
-
-
-def plain(text: str) -> str:
-    """``text`` without reStructuredText markup, for the terminal: ``:mod:`x``` and ````x```` become ``x``.
-
-    >>> plain("see :mod:`protocol.security` and ``ennc-ql up``")
-    'see protocol.security and ennc-ql up'
-    """
-    return _ROLE.sub(r"\1", text).replace("``", "")
 
 
 def wrap(text: str) -> str:

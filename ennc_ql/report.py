@@ -1,4 +1,5 @@
-"""Human-readable reports of a training run: the terminal summary, ``report.md`` and ``learning_curve.png``.
+"""Human-readable reports of a training run: the terminal summary, ``report.md`` and ``learning_curve.png``, all
+written and printed by :func:`emit_run_report` (``up`` and a SLURM job alike).
 
 Input is the learner's report (``runs/<id>/report.json``, a ``learner.report.LearnerReport`` as a dict),
 optionally completed by the launcher with ``run_id``, ``run_dir``, ``command``, ``config``, ``wall_seconds`` and
@@ -13,17 +14,24 @@ commands that come next. Usage::
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from algorithm.policy_file import load_policy, scenario_from_header
+from ennc_ql.command import emit
+from ennc_ql.figures import policy_figure
+from learner.report import LearnerReport
 from monitor.style import REFERENCES as STYLES
 from sim.controllers import COMPASS_NAMES
 from sim.formulation import FORMULATIONS
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
+
+    from tools.cluster import RunSummary
 
 REPORT_MD = "report.md"
 LEARNING_CURVE_PNG = "learning_curve.png"
@@ -440,3 +448,22 @@ def write_run_report(report: Mapping[str, Any], run_dir: Path) -> tuple[Path, Pa
     markdown = run_dir / REPORT_MD
     markdown.write_text(markdown_report(report, png.name))
     return markdown, png
+
+
+def emit_run_report(report: LearnerReport, summary: RunSummary, as_json: bool) -> None:
+    """The learner's report completed with the launcher's ``summary`` and the policy's figure, written as
+    ``report.json``, ``report.md`` and ``learning_curve.png``, and printed (``up`` and a SLURM job alike)."""
+    run_dir = summary.run_dir
+    out = report.with_extra(**summary.figures(report), **_policy_figure(report, run_dir)).to_dict()
+    markdown, png = write_run_report(out, run_dir)
+    out.update(report_md=str(markdown), learning_curve=str(png))
+    (run_dir / "report.json").write_text(json.dumps(out, indent=2))
+    emit(out, as_json, terminal_summary(out))
+
+
+def _policy_figure(report: LearnerReport, run_dir: Path) -> dict[str, str]:
+    """``policy.png`` of the learned policy, if one was learned."""
+    if not report.policy_file:
+        return {}
+    policy, header = load_policy(report.policy_file)
+    return {"policy_figure": str(policy_figure(policy, scenario_from_header(header), run_dir / "policy.png"))}

@@ -26,9 +26,9 @@ import zenoh
 
 from ennc_ql.command import fail, zenoh_conf, zenoh_message
 from ennc_ql.parser import CommandHelp, add_command
-from ennc_ql.system import stop_on_signals
 from protocol import add_connection_args
 from protocol.security import ROUTER
+from tools.system import stop_on_signals
 
 log = logging.getLogger(__name__)
 

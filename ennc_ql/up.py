@@ -5,7 +5,7 @@ Zenoh in peer mode on a loopback endpoint with multicast scouting off, so nothin
 is needed; ``--secure`` joins them through a router instead, each with its own certificate, password and
 access-control identity (``ennc-ql secure init``'s files, in ``runs/<id>/secure``); ``--serial`` runs the same
 objects in this one process on the in-memory bus. Every actor learns every robot's table (option 2); the learner
-averages their changes by visits. The flags are generated from ``ennc_ql.cluster.UpConfig`` (with ``up``'s presets,
+averages their changes by visits. The flags are generated from ``tools.cluster.UpConfig`` (with ``up``'s presets,
 ``UP_PRESETS``); every process's resolved configuration is written into ``runs/<id>/`` (``up.toml``,
 ``learner.toml``, ``actor-<i>.toml``) and the children start from those files, so ``ennc-ql up --config
 runs/<id>/up.toml`` repeats a run exactly. At the end the results are printed and ``runs/<id>/report.md`` and
@@ -15,6 +15,7 @@ runs/<id>/up.toml`` repeats a run exactly. At the end the results are printed an
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import os
@@ -27,32 +28,32 @@ from typing import Any
 import numpy as np
 
 from actors.config import ActorConfig
-from algorithm.policy_file import load_policy, scenario_from_header
-from ennc_ql.cluster import (
-    SET_BY_UP,
-    UP_PRESETS,
-    LaunchError,
-    Monitoring,
-    ProcessRun,
-    UpConfig,
-    child_configs,
-    run_processes,
-    run_serial,
-    write_configs,
-)
-from ennc_ql.command import check_device, check_folder, configure, emit, fail, make_folder, registry_choices
-from ennc_ql.config import ConfigError, add_config_flags, folder, load_config
-from ennc_ql.config_fields import config_leaves, flag_name
-from ennc_ql.figures import policy_figure
+from ennc_ql.command import check_device, check_folder, configure, fail, make_folder, registry_choices
 from ennc_ql.parser import CommandHelp, add_command
-from ennc_ql.report import terminal_summary, write_run_report
-from ennc_ql.system import Interrupts
+from ennc_ql.report import emit_run_report
 from learner.checkpoint import Checkpointer, CheckpointError
 from learner.config import LearnerConfig
 from learner.report import LearnerReport
 from learner.service import LearnerService
 from monitor import Sink, add_rerun_args, paths
 from protocol import InMemoryBus, InMemoryTransport, check_id
+from tools.cluster import (
+    SET_BY_UP,
+    UP_PRESETS,
+    Finished,
+    LaunchError,
+    Monitoring,
+    ProcessRun,
+    RunSummary,
+    UpConfig,
+    child_configs,
+    run_serial,
+    run_to_report,
+    write_configs,
+)
+from tools.config import ConfigError, add_config_flags, folder, load_config
+from tools.config_fields import config_leaves, flag_name
+from tools.system import Interrupts
 
 log = logging.getLogger(__name__)
 
@@ -104,7 +105,7 @@ def add_up_parser(sub: Any) -> None:
     p.add_argument("--run-id", metavar="ID", help="run folder name (default: the start time, YYYYMMDD-HHMMSS)")
     p.add_argument("--json", action="store_true", help="print the learner's report as one JSON object")
     add_config_flags(
-        p.add_argument_group("run configuration (ennc_ql.cluster.UpConfig)"),
+        p.add_argument_group("run configuration (tools.cluster.UpConfig)"),
         UpConfig,
         exclude=SET_BY_UP,
         defaults=UP_PRESETS,
@@ -148,10 +149,10 @@ def _run(args: argparse.Namespace, run_dir: Path, config: UpConfig, *, resume: b
         interrupts.escalate(_interrupt_now)
         learner, actors = child_configs(config)
         report = run_serial(learner, actors, run_dir, stop=interrupts.stop)
-        extra = _extra(args, config, run_dir, started, None, secure=False)
+        summary = _summary(config, run_dir, started, None, secure=False, serial=True)
         if interrupts.first is not None:
-            extra["interrupted"] = _interruption(interrupts, report, config, run_dir)
-        emit_run_report(report, run_dir, extra, args.json)
+            summary = dataclasses.replace(summary, interrupted=_interruption(interrupts, report, config, run_dir))
+        emit_run_report(report, summary, args.json)
         return interrupts.exit_code
 
 
@@ -172,16 +173,6 @@ def _interruption(interrupts: Interrupts, report: LearnerReport, config: UpConfi
     }
 
 
-def emit_run_report(report: LearnerReport, run_dir: Path, extra: dict[str, Any], as_json: bool) -> None:
-    """The learner's report completed with the launcher's ``extra`` figures and the policy's figure, written as
-    ``report.json``, ``report.md`` and ``learning_curve.png``, and printed (``up`` and a SLURM job alike)."""
-    out = report.with_extra(**extra, **_policy_figure(report, run_dir)).to_dict()
-    markdown, png = write_run_report(out, run_dir)
-    out.update(report_md=str(markdown), learning_curve=str(png))
-    (run_dir / "report.json").write_text(json.dumps(out, indent=2))
-    emit(out, as_json, terminal_summary(out))
-
-
 def _processes_and_report(
     args: argparse.Namespace,
     config: UpConfig,
@@ -192,7 +183,7 @@ def _processes_and_report(
 ) -> int:
     """The run as OS processes, then its report from what the learner saved, however it ended."""
     learner, actors = child_configs(config)
-    report, run, recording = _processes(args, config, learner, actors, run_dir, resume, interrupts)
+    report, done = _processes(args, config, learner, actors, run_dir, resume, interrupts)
     signum = interrupts.first
     if report is None:  # stopped before the learner saved anything
         assert signum is not None
@@ -202,11 +193,10 @@ def _processes_and_report(
             file=sys.stderr,
         )
         return interrupts.exit_code
-    extra = _extra(args, config, run_dir, started, recording, secure=_secure(args, run_dir))
-    extra.update(run.report_extra(report))
+    summary = _summary(config, run_dir, started, done.recording, secure=_secure(args, run_dir), run=done.run)
     if signum is not None:
-        extra["interrupted"] = _interruption(interrupts, report, config, run_dir)
-    emit_run_report(report, run_dir, extra, args.json)
+        summary = dataclasses.replace(summary, interrupted=_interruption(interrupts, report, config, run_dir))
+    emit_run_report(report, summary, args.json)
     return interrupts.exit_code
 
 
@@ -219,29 +209,19 @@ def _secure(args: argparse.Namespace, run_dir: Path) -> bool:
     return bool(args.secure) or (args.resume is not None and (run_dir / "secure").is_dir())
 
 
-def _extra(
-    args: argparse.Namespace,
+def _summary(
     config: UpConfig,
     run_dir: Path,
     started: float,
     recording: dict[str, Any] | None,
     secure: bool,
-) -> dict[str, Any]:
-    return {
-        "run_id": run_dir.name,
-        "run_dir": str(run_dir),
-        "command": f"ennc-ql up --config {run_dir / 'up.toml'}",
-        "config": {
-            "actors": config.actors,
-            "duration": config.duration,
-            "seed": config.seed,
-            "formulation": config.formulation,
-            "serial": args.serial,
-            "secure": secure,
-        },
-        "wall_seconds": round(time.monotonic() - started, 1),
-        "recording": recording,
-    }
+    *,
+    serial: bool = False,
+    run: ProcessRun | None = None,
+) -> RunSummary:
+    command = f"ennc-ql up --config {run_dir / 'up.toml'}"
+    wall_seconds = time.monotonic() - started
+    return RunSummary(run_dir, command, config, secure, wall_seconds, recording, serial=serial, run=run)
 
 
 def _processes(
@@ -252,23 +232,21 @@ def _processes(
     run_dir: Path,
     resume: bool,
     interrupts: Interrupts,
-) -> tuple[LearnerReport | None, ProcessRun, dict[str, Any] | None]:
+) -> tuple[LearnerReport | None, Finished]:
     """The run as OS processes: the learner's report (its own, or built from its checkpoint if it was killed; None
-    if it saved nothing), what its supervision saw and the summary of the merged recording."""
+    if it saved nothing), and what its supervision saw with the summary of the merged recording."""
     run_id = run_dir.name
     sink = args.rerun or Sink("save", str(run_dir / paths.RECORDING_FILE))
     if resume and sink.kind == "save" and Path(str(sink.target)).exists():
         # The recording so far is merged with the resumed processes' parts at the end, into one.
         paths.part_file(run_dir, "earlier").parent.mkdir(exist_ok=True)
         Path(str(sink.target)).replace(paths.part_file(run_dir, "earlier"))
-    monitoring = Monitoring(sink, run_id, run_dir)
-    begun = time.time()
     try:
-        run = run_processes(
+        done = run_to_report(
             learner,
             actors,
             run_dir,
-            monitoring,
+            Monitoring(sink, run_id, run_dir),
             namespace=f"run-{run_id}",
             secure=_secure(args, run_dir),
             resume=resume,
@@ -277,15 +255,12 @@ def _processes(
         )
     except LaunchError as exc:
         fail("up", str(exc))
-    finally:
-        recording = monitoring.finish()
-    report_path = run_dir / "report.json"
-    if report_path.exists() and report_path.stat().st_mtime >= begun:
-        return LearnerReport.from_dict(json.loads(report_path.read_text())), run, recording
+    if done.report is not None:
+        return done.report, done
     saved = saved_report(learner, run_dir)
     if saved is None and interrupts.first is None:
         fail("up", f"the learner wrote no report; see {run_dir / 'learner.log'}")
-    return saved, run, recording
+    return saved, done
 
 
 def saved_report(learner: LearnerConfig, run_dir: Path) -> LearnerReport | None:
@@ -356,11 +331,3 @@ def checkpoint_elapsed(path: Path) -> float | None:
         return float(meta["elapsed"])
     except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile):
         return None
-
-
-def _policy_figure(report: LearnerReport, run_dir: Path) -> dict[str, str]:
-    """``policy.png`` of the learned policy, if one was learned."""
-    if not report.policy_file:
-        return {}
-    policy, header = load_policy(report.policy_file)
-    return {"policy_figure": str(policy_figure(policy, scenario_from_header(header), run_dir / "policy.png"))}

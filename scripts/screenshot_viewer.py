@@ -35,8 +35,8 @@ from pathlib import Path
 from PIL import Image
 from rerun.experimental import ViewerClient
 
-from ennc_ql.system import free_port
 from monitor.recordings import rerun_cli
+from tools.system import free_port
 
 DISPLAY = ":99"
 """The display an Xvfb started by this script serves."""

@@ -25,9 +25,9 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from ennc_ql.cluster import ennc_ql_argv
 from tests.e2e.slurm import LocalSlurm
 from tests.e2e.test_cluster import checkpoint_version
+from tools.cluster import ennc_ql_argv
 
 SMALL = [
     "--actors=2",

@@ -22,7 +22,7 @@ import time
 import psutil
 import zenoh
 
-from ennc_ql.system import free_port
+from tools.system import free_port
 
 CLIENT = r"""
 import json, sys, time, zenoh

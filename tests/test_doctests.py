@@ -10,7 +10,7 @@ import pytest
 
 @pytest.mark.parametrize(
     "module",
-    ["algorithm.qtable", "algorithm.checks", "actors.config", "protocol.zenoh_transport", "ennc_ql.chaos.options"],
+    ["algorithm.qtable", "algorithm.checks", "actors.config", "protocol.zenoh_transport", "tools.chaos.options"],
 )
 def test_documentation_examples_run(module: str) -> None:
     result = doctest.testmod(importlib.import_module(module))

@@ -1,7 +1,7 @@
 """End-to-end tests: real ``ennc-ql`` processes (loopback, compose topology, network namespaces, benchmarks).
 
 Shared here: :class:`Processes`, the child processes of one test (the library's start-up skeleton,
-:class:`ennc_ql.cluster.Children`), each with its stdout and stderr in files, all stopped and reaped when the ``with``
+:class:`tools.cluster.Children`), each with its stdout and stderr in files, all stopped and reaped when the ``with``
 block ends, whatever happened::
 
     with Processes(tmp_path) as procs:
@@ -18,7 +18,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any, Self
 
-from ennc_ql.cluster import Children, ennc_ql_argv
+from tools.cluster import Children, ennc_ql_argv
 
 # Budgets of the short cluster runs: small enough for a first policy within seconds on two busy cores, and the
 # actors stop ten seconds before the learner does, so all they sent is acknowledged and in the learner's report.
@@ -44,7 +44,7 @@ ennc_ql = ennc_ql_argv
 
 
 class Processes:
-    """Child processes of one test, by name, on the library's :class:`~ennc_ql.cluster.Children`: each one's stderr in
+    """Child processes of one test, by name, on the library's :class:`~tools.cluster.Children`: each one's stderr in
     ``<name>.log``, its stdout in ``<name>.1.out``; ``close()`` stops and reaps every one still running."""
 
     def __init__(self, log_dir: Path) -> None:

@@ -17,7 +17,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from ennc_ql.system import free_port
+from tools.system import free_port
 
 FAST_LEARNER = [
     "--min-tuples",

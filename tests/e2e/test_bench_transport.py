@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from ennc_ql.bench.transport import bench_transport
+from tools.bench.transport import bench_transport
 
 pytestmark = pytest.mark.slow
 

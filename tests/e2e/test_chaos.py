@@ -25,11 +25,11 @@ import psutil
 import pytest
 
 from algorithm.policy_file import load_policy
-from ennc_ql.chaos import FAULTS
-from ennc_ql.chaos.network import PREFIX, unavailable
-from ennc_ql.chaos.options import NETWORK_FAULTS
 from tests import system
 from tests.e2e import ennc_ql
+from tools.chaos import FAULTS
+from tools.chaos.network import PREFIX, unavailable
+from tools.chaos.options import NETWORK_FAULTS
 
 pytestmark = pytest.mark.slow
 

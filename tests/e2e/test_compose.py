@@ -19,12 +19,12 @@ import yaml
 from actors.config import ActorConfig
 from algorithm.policy_file import load_policy
 from ennc_ql.cli import build_parser
-from ennc_ql.cluster import UP_PRESETS, UpConfig, child_configs
-from ennc_ql.config import load_config
-from ennc_ql.system import free_port
 from learner.config import LearnerConfig
 from sim.formulation import Formulation
 from tests.e2e import ACTOR_BUDGET, LEARNER_BUDGET, Processes, ennc_ql
+from tools.cluster import UP_PRESETS, UpConfig, child_configs
+from tools.config import load_config
+from tools.system import free_port
 
 pytestmark = pytest.mark.slow
 

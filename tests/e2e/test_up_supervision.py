@@ -15,13 +15,13 @@ from pathlib import Path
 import pytest
 
 from actors.config import ActorConfig
-from ennc_ql.cluster import LaunchError, Monitoring, run_processes
-from ennc_ql.config import dump_config
 from learner.checkpoint import VersionMark
 from learner.config import LearnerConfig
 from monitor import Sink
 from tests.e2e import ennc_ql
 from tests.e2e.cluster import checkpoint_version, wait_for
+from tools.cluster import LaunchError, Monitoring, run_processes
+from tools.config import dump_config
 
 pytestmark = pytest.mark.slow
 

@@ -13,9 +13,9 @@ from algorithm.experiments import Budget
 from algorithm.phase1 import Phase1Config
 from algorithm.policy_file import load_policy
 from ennc_ql.cli import main
-from ennc_ql.config import ConfigError
-from ennc_ql.experiments.ablate import REFERENCES, Setup, ablate, parse_sets, variants
 from sim import CONTROLLERS, evaluate, scenario
+from tools.config import ConfigError
+from tools.sweeps.ablate import REFERENCES, Setup, ablate, parse_sets, variants
 
 
 @pytest.mark.parametrize(

@@ -12,7 +12,7 @@ REPO = Path(__file__).resolve().parents[2]
 PUTS_SCRIPT = """
 import os, resource, sys
 import zenoh
-from ennc_ql.allocator import keep_freed_memory
+from tools.allocator import keep_freed_memory
 if sys.argv[1] == "tuned":
     assert keep_freed_memory()
 from protocol import zenoh_config

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ennc_ql.config import dump_config
+from tools.config import dump_config
 
 ENNC_QL = Path(sys.executable).with_name("ennc-ql")
 TIMEOUT_S = 90.0
@@ -207,8 +207,8 @@ def fixtures(folder: Path) -> None:
 def edge_fixtures(folder: Path) -> None:
     """Files of the edges: another process's configuration, a byte-order mark, stopped and finished runs."""
     from actors.config import ActorConfig
-    from ennc_ql.cluster import UP_PRESETS, UpConfig, child_configs, write_configs
-    from ennc_ql.config import load_config
+    from tools.cluster import UP_PRESETS, UpConfig, child_configs, write_configs
+    from tools.config import load_config
 
     (folder / "infinite.toml").write_text("duration = inf\n")
     (folder / "bom.toml").write_bytes("\ufeffduraton = 5\n".encode())

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 
-from ennc_ql.chaos.network import Network, unavailable
-from ennc_ql.chaos.proxy import CHUNK_BYTES, Proxies, Shaping
 from tests import system
+from tools.chaos.network import Network, unavailable
+from tools.chaos.proxy import CHUNK_BYTES, Proxies, Shaping
 
 
 @pytest.fixture
@@ -141,11 +141,11 @@ def test_with_network_faults_every_process_runs_on_its_host_through_its_link(sec
 
     from cryptography import x509
 
-    from ennc_ql.chaos import Chaos, ChaosOptions
     from ennc_ql.cli import build_parser
-    from ennc_ql.cluster import UP_PRESETS, UpConfig
-    from ennc_ql.config import load_config
     from protocol import config_from_args
+    from tools.chaos import Chaos, ChaosOptions
+    from tools.cluster import UP_PRESETS, UpConfig
+    from tools.config import load_config
 
     options = ChaosOptions(60.0, secure, 5.0, ("partition", "delay"), 5.0)
     chaos = Chaos(options, load_config(UpConfig, defaults=UP_PRESETS), tmp_path, "t", "chaos-t")
@@ -175,7 +175,8 @@ def test_with_network_faults_every_process_runs_on_its_host_through_its_link(sec
 def test_without_namespaces_the_network_faults_are_skipped_saying_why(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from ennc_ql.chaos import ChaosOptions, command
+    from ennc_ql import chaos as command
+    from tools.chaos import ChaosOptions
 
     why = "cannot create network namespaces (needs root)"
     monkeypatch.setattr(command, "unavailable", lambda: why)

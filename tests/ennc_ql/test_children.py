@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-from ennc_ql.cluster import Children, Supervisor, ennc_ql_argv
+from tools.cluster import Children, Supervisor, ennc_ql_argv
 
 
 def test_an_exiting_actor_is_restarted_with_back_off_then_given_up(tmp_path: Path) -> None:

@@ -1,4 +1,4 @@
-"""Config dataclasses as flags and TOML files (ennc_ql.config), on toy configs defined here."""
+"""Config dataclasses as flags and TOML files (tools.config), on toy configs defined here."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ from typing import Literal
 
 import pytest
 
-import ennc_ql.config
-from ennc_ql.config import ConfigError, add_config_flags, dump_config, field_docs, load_config, positive
+import tools.config
+from tools.config import ConfigError, add_config_flags, dump_config, field_docs, load_config, positive
 
 
 def parse_robots(text: str) -> tuple[int, ...]:
@@ -379,5 +379,5 @@ def test_positive_accepts_and_reads_as_a_usage_error(capsys: pytest.CaptureFixtu
 
 
 def test_module_docstring_example_runs() -> None:
-    result = doctest.testmod(ennc_ql.config)
+    result = doctest.testmod(tools.config)
     assert result.attempted >= 5 and result.failed == 0

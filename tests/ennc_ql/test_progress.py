@@ -10,11 +10,11 @@ from pathlib import Path
 import pytest
 
 from ennc_ql.cli import main
-from ennc_ql.cluster import cluster_status
-from ennc_ql.experiments.reproduce import reproduce
-from ennc_ql.progress import ProgressBar, plain_line
 from learner.report import LearnerStatus
 from tests.fakes import TINY
+from tools.cluster import cluster_status
+from tools.progress import ProgressBar, plain_line
+from tools.sweeps.reproduce import reproduce
 
 
 def counters(**figures: float) -> dict[str, float]:

@@ -14,11 +14,11 @@ from matplotlib.image import imread
 
 from actors.config import ActorConfig
 from ennc_ql.cli import build_parser
-from ennc_ql.cluster import UP_PRESETS, UpConfig, child_configs, write_configs
-from ennc_ql.config import ConfigError, load_config
 from ennc_ql.report import learning_curve_figure, markdown_report, next_commands, terminal_summary, write_run_report
 from learner.config import LearnerConfig
 from sim.formulation import DEFAULT_FORMULATION, FORMULATIONS
+from tools.cluster import UP_PRESETS, UpConfig, child_configs, write_configs
+from tools.config import ConfigError, load_config
 
 # Levels no constant holds: the charts and tables must take them from the report.
 CURVE_REFERENCES = {

@@ -10,8 +10,8 @@ import pytest
 
 from algorithm.policy_file import load_policy
 from ennc_ql.cli import main
-from ennc_ql.experiments.reproduce import reproduce
 from tests.fakes import TINY
+from tools.sweeps.reproduce import reproduce
 
 
 def test_tiny_reproduce_writes_consistent_results(tmp_path: Path) -> None:

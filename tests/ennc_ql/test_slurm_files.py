@@ -15,14 +15,14 @@ import pytest
 from algorithm.experiments import Budget
 from algorithm.phase1 import Phase1Config
 from ennc_ql.cli import main
-from ennc_ql.cluster import UpConfig
-from ennc_ql.config import load_config
-from ennc_ql.experiments.jobs import Job
-from ennc_ql.slurm.allocation import Allocation, SlurmPlacement
-from ennc_ql.slurm.array import _compact, read_outcome, run_task, write_tasks
-from ennc_ql.slurm.job import SlurmJob
-from ennc_ql.slurm.sbatch import SlurmError
 from sim import Formulation, scenario
+from tools.cluster import UpConfig
+from tools.config import load_config
+from tools.slurm.allocation import Allocation, SlurmPlacement
+from tools.slurm.array import _compact, read_outcome, run_task, write_tasks
+from tools.slurm.job import SlurmJob
+from tools.slurm.sbatch import SlurmError
+from tools.sweeps.jobs import Job
 
 
 def test_slurm_train_writes_a_run_folder_and_a_job_script(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:

@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
-from ennc_ql.system import free_port
 from monitor import RecordingError, Sink, merge_recordings, open_monitor, paths, style, summarize_recording
 from monitor.geometry import observed_targets
 from monitor.recordings import rerun_cli
 from sim.formulation import default_formulation
 from tests.monitor.rrd import layout, rows
+from tools.system import free_port
 
 REPO = Path(__file__).resolve().parents[2]
 RECORDING_ID = "test-run-1"

@@ -19,10 +19,10 @@ from typing import Any
 import pytest
 import zenoh
 
-from ennc_ql.secure import SecureSet, write_secure_set
-from ennc_ql.system import free_port
 from protocol import KeySpace, zenoh_config
 from protocol.security import MAX_MESSAGE_BYTES
+from tools.secure import SecureSet, write_secure_set
+from tools.system import free_port
 
 ACTORS = ("actor-0", "actor-1")
 KEYS = KeySpace("sec")

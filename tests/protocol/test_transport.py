@@ -17,7 +17,6 @@ import numpy as np
 import pytest
 import zenoh
 
-from ennc_ql.system import free_port
 from protocol import (
     DEFAULT_KEYS,
     QOS,
@@ -44,6 +43,7 @@ from protocol import (
     zenoh_config,
 )
 from tests.protocol.conftest import golden_samples, sample_policy
+from tools.system import free_port
 
 GOLDEN = golden_samples()
 K = DEFAULT_KEYS
