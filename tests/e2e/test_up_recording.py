@@ -19,7 +19,7 @@ def test_up_saves_one_recording_of_every_process(tmp_path: Path) -> None:
         "--actor-arenas=32",
         "--learner-min-tuples=20000",
         "--learner-phase1-max-patterns=400",
-        "--learner-eval-interval=8",
+        "--learner-eval-interval=3",
         f"--runs={tmp_path}",
         "--run-id=rec",
         "--json",

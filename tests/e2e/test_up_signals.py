@@ -181,7 +181,9 @@ def test_sigterm_during_phase_1_then_resume_keeps_every_acknowledged_tuple(tmp_p
     assert "interrupted" not in out and out["resumes"][0]["at_s"] == pytest.approx(first["seconds"], abs=2.0)
     # Everything the stopped run stored (and so acknowledged) is in the resumed one's store, exactly once.
     assert out["tuples_received"] >= first["tuples_received"] + acked(out)
-    assert out["duplicates"] == 0 and out["seconds"] >= 30
+    # A batch whose ack comes later than the actor's resend timeout (a loaded learner fitting phase 1) is sent again
+    # and dropped by the ledger as a duplicate: counted, never stored twice; no sequence is missing.
+    assert out["gaps"] == 0 and out["seconds"] >= 30
     assert out["policy_versions"]["increasing"] and out["policy_versions"]["first"] > first["policy_version"]
 
 
