@@ -53,8 +53,9 @@ class LearnerConfig:
     """Seconds between merges + policy broadcasts."""
     team_policy: bool = True
     """Evaluate and save the policy with one table every robot uses, the actors' per-robot tables merged by their
-    visits (README "Learning cooperation"); the broadcast keeps each robot's own table, so the actors learn on
-    option 2 either way. Off: each robot acts on its own row, as the paper's option 2 [paper]."""
+    visits (docs/learning-quality.md, "the learner's merge across robots"); the broadcast keeps each robot's own
+    table, so the actors learn on option 2 either way. Off: each robot acts on its own row, as the paper's option 2
+    [paper]."""
     eval_interval: float = 20.0
     """Seconds between evaluations of the current policy."""
     eval_trials: int = 10
