@@ -6,6 +6,8 @@ import json
 import subprocess
 from pathlib import Path
 
+import pytest
+
 from monitor import paths, summarize_recording
 from tests.e2e import ennc_ql
 from tests.monitor.rrd import rows
@@ -19,7 +21,7 @@ def test_up_saves_one_recording_of_every_process(tmp_path: Path) -> None:
         "--actor-arenas=32",
         "--learner-min-tuples=20000",
         "--learner-phase1-max-patterns=400",
-        "--learner-eval-interval=3",
+        "--learner-eval-interval=5",
         f"--runs={tmp_path}",
         "--run-id=rec",
         "--json",
@@ -42,8 +44,11 @@ def test_up_saves_one_recording_of_every_process(tmp_path: Path) -> None:
         assert f"{paths.actor_arena(actor)}/targets" in entities
         assert rows(recording, paths.actor(actor, paths.ACTOR_COVERAGE), "Scalars:scalars", paths.SIM_STEP)
     # The evaluations of the learner (the learning curve), and the final figure of the report as its own marker.
+    # Every point of the report's curve is in the recording, in order (how many fit in 25 s depends on the cores).
     evaluations = rows(recording, paths.LEARNER_COVERAGE_EVAL, "Scalars:scalars", paths.POLICY_VERSION)
-    assert len(evaluations) >= 2
+    curve = [coverage for _, coverage in report["coverage_curve"]]
+    assert len(evaluations) == len(curve) >= 1
+    assert [value[0] for _, value in evaluations] == pytest.approx(curve, abs=1e-3)
     final = rows(recording, paths.LEARNER_COVERAGE_FINAL, "Scalars:scalars", paths.POLICY_VERSION)
     assert len(final) == 1 and abs(final[-1][1][0] - report["final_coverage_mean"]) < 1e-3
     prototypes = [paths.prototypes_of(k) for k in range(len(report["prototypes_per_action"]))]
