@@ -10,6 +10,9 @@ commands that come next. Usage::
     report = json.loads((run_dir / "report.json").read_text())
     markdown_path, png_path = write_run_report(report, run_dir)
     print(terminal_summary(report))
+
+Over 400 lines: the terminal summary, ``report.md`` and the chart are one document in three forms, and share its
+labels, colours, reference rows and the title that states the result.
 """
 
 from __future__ import annotations

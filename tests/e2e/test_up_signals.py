@@ -18,7 +18,7 @@ import psutil
 import pytest
 
 from tests.e2e import ennc_ql
-from tests.e2e.test_cluster import checkpoint_version, wait_for
+from tests.e2e.cluster import checkpoint_version, wait_for
 
 pytestmark = pytest.mark.slow
 
