@@ -79,6 +79,35 @@ def test_masked_states_large_values_and_shared_codebooks() -> None:
     np.testing.assert_array_equal(huge.cells(points), brute_cells(huge, points))
 
 
+def test_the_index_cuts_at_presence_flags_and_still_equals_brute_force() -> None:
+    # frame9d-like: three offsets whose absent pairs are zeroed, and two presence flags in {0, 1} whose gap is a
+    # quarter of the offsets' range (scaled, a policy's flags span 2-3 where its offsets span 5-10); prototypes keep
+    # the flags exact, as ENNC's do for a flag that separates its classes. No group may span a flag's gap: a box
+    # from 0 to 1 in a flag bounds nothing for a state at either end.
+    rng = np.random.default_rng(11)
+
+    def frame_like(n: int) -> np.ndarray:
+        x = rng.uniform(-2, 2, size=(n, 7))
+        flags = rng.random((n, 2)) < 0.5
+        x[~flags[:, 0], 1:3] = 0.0
+        x[~flags[:, 1], 4:6] = 0.0
+        x[:, 3], x[:, 6] = flags[:, 0], flags[:, 1]
+        return x.astype(np.float32)
+
+    disc = Discretization.from_per_action([frame_like(size) for size in (300, 140, 65)])
+    states = frame_like(4000)
+    np.testing.assert_array_equal(disc.cells(states), brute_cells(disc, states))
+    index, _ = disc._search_index()
+    real = index.index >= 0
+    assert real.sum() == disc.size
+    # Actions 0 and 1 (300 and 140 prototypes) hold every flag pattern more than GROUP / 4 times, so both flags are
+    # cut before any median; action 2 (65) stops cutting once its two halves fit a group.
+    groups = slice(int(index.groups[0]), int(index.groups[2]))
+    for flag in (3, 6):
+        values = np.where(real, index.points[:, :, flag], np.nan)[groups]
+        assert (np.nanmin(values, axis=1) == np.nanmax(values, axis=1)).all()
+
+
 def test_cells_reject_states_of_the_wrong_shape() -> None:
     disc = Discretization.from_per_action([np.zeros((2, 6))])
     with pytest.raises(ValueError, match="states must have shape"):
