@@ -51,10 +51,14 @@ class ActionSet:
 
     def velocity(self, cfg: ScenarioConfig, actions: np.ndarray, frame: np.ndarray) -> np.ndarray:
         """(…, 2) full-speed world displacement of action indices (…) in frames (…, 2, 2)."""
-        local = self.directions[actions]
         if not self.relative:
-            return cfg.robot_speed * local
-        return cfg.robot_speed * np.einsum("...k,...kd->...d", local, frame)
+            return cfg.robot_speed * self.directions[actions]
+        actions = np.asarray(actions, np.int64)
+        if actions.ndim != 2:
+            return cfg.robot_speed * np.einsum("...k,...kd->...d", self.directions[actions], frame)
+        out = np.empty((*actions.shape, 2))
+        _kernels.frame_velocity(self.directions, actions, np.asarray(frame, np.float64), cfg.robot_speed, out)
+        return out
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, ActionSet) and (self.name, self.moves, self.relative) == (

@@ -284,9 +284,6 @@ CONTROLLERS: dict[str, Controller] = {**HAND_MADE, **ORACLES}
 
 def wander(cfg: ScenarioConfig, world: WorldState, heading: np.ndarray) -> np.ndarray:
     """(E, m, 2) unit headings kept as they are but reflected off the wall when pointing out of the disk."""
-    pos = world.robot_pos
-    r = np.linalg.norm(pos, axis=-1, keepdims=True)
-    normal = pos / np.maximum(r, 1e-300)
-    outward = np.einsum("emk,emk->em", heading, normal)[..., None]
-    at_wall = (r >= cfg.arena_radius - 1e-9) & (outward > 0)
-    return np.where(at_wall, heading - 2.0 * outward * normal, heading)
+    out = np.empty(world.robot_pos.shape)
+    _kernels.wander(world.robot_pos, np.asarray(heading, np.float64), cfg.arena_radius, out)
+    return out
