@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from algorithm._search import SearchIndex, build_index, search
+from algorithm._search import Searcher
 
 _CHUNK = 16384
 
@@ -52,7 +52,7 @@ class Discretization:
     """(d,) float32 per-dimension scale of the metric: a state's cell is its nearest prototype under
     |(x − c) / scale|. None means plain Euclidean. ENNC-QL fits on standardized states (see
     :class:`~algorithm.phase1.Phase1Config`), so its discretizations carry the scale they were fitted with."""
-    _index: tuple[SearchIndex, bool] | None = field(default=None, init=False, repr=False, compare=False)
+    _index: tuple[Searcher, bool] | None = field(default=None, init=False, repr=False, compare=False)
     """The search index of :meth:`cells` and whether every action shares action 0's prototypes, built on first use."""
 
     def __post_init__(self) -> None:
@@ -125,16 +125,16 @@ class Discretization:
             raise ValueError("states must be finite")
         if self.scale is not None:
             states = states / self.scale
-        index, shared = self._search_index()
+        searcher, shared = self._search_index()
         if shared:
-            return self.offsets[:-1][None, :] + search(index, states)
-        return search(index, states)
+            return self.offsets[:-1][None, :] + searcher.search(states)
+        return searcher.search(states)
 
-    def _search_index(self) -> tuple[SearchIndex, bool]:
+    def _search_index(self) -> tuple[Searcher, bool]:
         if self._index is None:
             shared = self.is_shared()
             actions = 1 if shared else self.n_actions
-            index = build_index([self._scaled(a) for a in range(actions)], self.offsets)
+            index = Searcher([self._scaled(a) for a in range(actions)], self.offsets)
             # Frozen for callers; the index is derived from the fields, so caching it changes nothing they see.
             object.__setattr__(self, "_index", (index, shared))
         assert self._index is not None

@@ -57,6 +57,7 @@ def test_exact_ties_go_to_the_lowest_index() -> None:
     states = rng.integers(-4, 5, size=(2000, 6)).astype(np.float32)
     cells = disc.cells(states)
     np.testing.assert_array_equal(cells, brute_cells(disc, states))
+    assert disc._search_index()[0].zero_sets >= 6  # states with a zero coordinate tie in fewer dimensions too
     assert (cells[:, 2] == disc.offsets[2]).all()  # nine identical prototypes: always the first
     midpoint = Discretization.from_per_action([np.array([[2.0], [0.0], [2.0]])])
     assert midpoint.cells(np.array([[1.0]]))[0, 0] == 0
@@ -97,7 +98,9 @@ def test_the_index_cuts_at_presence_flags_and_still_equals_brute_force() -> None
     disc = Discretization.from_per_action([frame_like(size) for size in (300, 140, 65)])
     states = frame_like(4000)
     np.testing.assert_array_equal(disc.cells(states), brute_cells(disc, states))
-    index, _ = disc._search_index()
+    searcher = disc._search_index()[0]
+    assert searcher.zero_sets == 3  # one pair absent, the other, both: searched in fewer dimensions
+    index = searcher.full
     real = index.index >= 0
     assert real.sum() == disc.size
     # Actions 0 and 1 (300 and 140 prototypes) hold every flag pattern more than GROUP / 4 times, so both flags are
