@@ -84,6 +84,9 @@ class LearnerService:
         self._checkpoint_lock = threading.Lock()  # the loop and a finished fit both checkpoint
         self._elapsed_before = 0.0
         self._started = time.monotonic()
+        self._stopped_at: float | None = None
+        """The run clock when training stopped: the wind-down (a fit finishing, the final evaluation) is no training,
+        and a stopped run resumed must train for what was left when it stopped."""
         self.resumes: list[dict[str, Any]] = []
         """Every resume of this run (restored with the checkpoint, this one's added at its first broadcast)."""
         self._resumed = resume
@@ -119,6 +122,9 @@ class LearnerService:
     # -- the loop ---------------------------------------------------------------------------------------------------
 
     def elapsed(self) -> float:
+        """Seconds of training of the run, resumes included; frozen once training stops."""
+        if self._stopped_at is not None:
+            return self._stopped_at
         return self._elapsed_before + time.monotonic() - self._started
 
     def run(self, stop: threading.Event) -> LearnerReport:
@@ -146,6 +152,7 @@ class LearnerService:
                 self._publish_status()
                 next_status = now + c.status_interval
             stop.wait(0.05)
+        self._stopped_at = self.elapsed()
         return self._finish()
 
     def _adopt(self, disc: Discretization) -> None:

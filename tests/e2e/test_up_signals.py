@@ -187,6 +187,29 @@ def test_sigterm_during_phase_1_then_resume_keeps_every_acknowledged_tuple(tmp_p
     assert out["policy_versions"]["increasing"] and out["policy_versions"]["first"] > first["policy_version"]
 
 
+def test_a_secure_run_stopped_mid_training_resumes_over_tls_and_trains_only_what_was_left(tmp_path: Path) -> None:
+    run_dir = tmp_path / "r"
+    flags = [*SMALL, "--secure", "--duration=40", "--learner-min-tuples=5000", "--learner-final-eval-trials=20"]
+    with Up(tmp_path, "first", *flags, "--runs", str(tmp_path), "--run-id", "r") as up:
+        wait_for(lambda: checkpoint_version(run_dir) >= 1, 120, "a checkpointed policy")
+        up.send(signal.SIGTERM)
+        first = assert_stopped(up, run_dir, signal.SIGTERM, learner="finished")
+    stopped = first["interrupted"]["at_s"]
+    # The run clock stops with training: the wind-down (the final evaluation) is not counted as training.
+    assert stopped == pytest.approx(first["seconds"], abs=0.1) and stopped < 40 - 5, first["interrupted"]
+    with Up(tmp_path, "resumed", "--resume", str(run_dir), "--json") as up:
+        code = up.wait(240)
+        assert code == 0, up.stderr()[-3000:]
+        assert not up.left()
+    out = json.loads(up.stdout())
+    assert out["endpoint"].startswith("tls/") and out["config"]["secure"] is True
+    assert out["resumes"][0]["at_s"] == pytest.approx(stopped, abs=0.1)
+    assert 40 <= out["seconds"] < 40 + 3  # it trained what was left, then stopped
+    assert out["tuples_received"] >= first["tuples_received"] + acked(out) and out["gaps"] == 0
+    assert out["policy_versions"]["increasing"] and out["policy_versions"]["first"] > first["policy_version"]
+    assert out["rejected"] == 0 and out["refused_tokens"] == 0
+
+
 def test_ctrl_c_twice_just_after_a_checkpoint_kills_the_actors_and_the_learner_still_reports(tmp_path: Path) -> None:
     run_dir = tmp_path / "r"
     flags = [*SMALL, "--duration=60", "--learner-min-tuples=5000", "--runs", str(tmp_path), "--run-id", "r"]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -49,7 +50,21 @@ def test_serial_learner_and_actor_exchange_experience_and_policies(tmp_path: Pat
         result: list[ActorStatus] = []
         thread = threading.Thread(target=lambda: result.append(actor.run(stop)))
         thread.start()
-        report = run_until(service, lambda: service.state.increments >= 3 and len(versions) >= 2)
+        # The wind-down (here a final evaluation made 3 s slower) is no training: the run clock stops with training.
+        final, stopped_at = service.evaluator.final, []
+
+        def slow_final(policy: Any) -> float:
+            time.sleep(3.0)
+            return final(policy)
+
+        def done() -> bool:
+            if service.state.increments >= 3 and len(versions) >= 2:
+                stopped_at.append(service.elapsed())
+                return True
+            return False
+
+        service.evaluator.final = slow_final  # type: ignore[method-assign]
+        report = run_until(service, done)
         stop.set()
         thread.join()
         handles.close()  # the ExitStack connect returned: every handle, in reverse order
@@ -58,6 +73,7 @@ def test_serial_learner_and_actor_exchange_experience_and_policies(tmp_path: Pat
     assert report.policy_version == versions[-1]
     assert report.tuples_by_actor["a0"] >= status.tuples_sent - status.outbox * 256
     assert report.gaps == 0 and report.duplicates == 0 and report.rejected == 0
+    assert stopped_at[0] <= report.seconds < stopped_at[0] + 1.5
     assert report.increments > 0 and status.policies_applied >= 1
     # Only the learned robots produced tuples, and their tables (the broadcast's rows) moved away from the phase-1
     # labels; the team policy evaluated and saved merges them into one.
