@@ -25,8 +25,8 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from tests.e2e.cluster import checkpoint_version
 from tests.e2e.slurm import LocalSlurm
-from tests.e2e.test_cluster import checkpoint_version
 from tools.cluster import ennc_ql_argv
 
 SMALL = [
@@ -101,7 +101,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=60.0, help="seconds of training of the job and of up")
     parser.add_argument("--kills", type=int, default=2, help="learner kills under up, a minute apart")
+    parser.add_argument(
+        "--defaults",
+        action="store_true",
+        help="train the job on the learner's and the actors' defaults instead of the small settings",
+    )
+    parser.add_argument("--job-only", action="store_true", help="only the training job: no sweep, no up")
     args = parser.parse_args()
+    settings = [] if args.defaults else SMALL
     figures: dict[str, Any] = {}
     with tempfile.TemporaryDirectory(prefix="slurm-figures-") as tmp:
         work = Path(tmp)
@@ -109,7 +116,7 @@ def main() -> None:
             # A training job: submitted, one learner kill inside it, to its end.
             run_dir = work / "runs" / "job"
             submitted = time.time()
-            argv = ennc_ql_argv("slurm", "train", "--nodes=3", f"--duration={args.duration}", *SMALL)
+            argv = ennc_ql_argv("slurm", "train", "--nodes=3", f"--duration={args.duration}", *settings)
             out = slurm.run(*argv, f"--runs={work / 'runs'}", "--run-id=job", "--submit", "--json")
             job_id = json.loads(out)["job_id"]
             kills = kill_learner_after_checkpoints(run_dir, 1, 0.0)
@@ -131,6 +138,10 @@ def main() -> None:
                 "gaps": report["gaps"],
                 "policy_versions": report["policy_versions"],
             }
+            figures["job"]["settings"] = "defaults" if args.defaults else "small"
+            if args.job_only:
+                print(json.dumps(figures, indent=2))
+                return
             # A sweep as an array, against the same variants on local workers.
             t = time.monotonic()
             slurm.run(*ennc_ql_argv(*SWEEP, "--slurm", f"--out={work / 'array'}"))
