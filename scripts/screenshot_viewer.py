@@ -23,6 +23,7 @@ viewer reports: each view with any warning it shows, and where the time cursor s
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import shutil
 import signal
@@ -135,7 +136,8 @@ def main() -> None:
         compact.save(args.png, optimize=True)
         print(f"saved {args.png} (the viewer's log: {log})")
     finally:
-        os.killpg(viewer.pid, signal.SIGTERM)
+        with contextlib.suppress(ProcessLookupError):  # a viewer that failed to start has no group left to stop
+            os.killpg(viewer.pid, signal.SIGTERM)
         viewer.wait(timeout=30)
         if xvfb is not None:
             xvfb.terminate()
