@@ -173,7 +173,7 @@ class Searcher:
         """(N, L) int64 as :func:`search` over the full index."""
         x = np.ascontiguousarray(states, dtype=np.float64)
         dim = x.shape[1]
-        if x.shape[0] < REDUCE_MIN or dim > 62:
+        if x.shape[0] < REDUCE_MIN or dim > 62:  # a zero set is keyed by its bits in one int64
             return search(self.full, x)
         keys = (x == 0.0) @ (np.int64(1) << np.arange(dim, dtype=np.int64))
         order = np.argsort(keys, kind="stable")

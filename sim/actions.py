@@ -54,11 +54,11 @@ class ActionSet:
         if not self.relative:
             return cfg.robot_speed * self.directions[actions]
         actions = np.asarray(actions, np.int64)
-        if actions.ndim != 2:
-            return cfg.robot_speed * np.einsum("...k,...kd->...d", self.directions[actions], frame)
-        out = np.empty((*actions.shape, 2))
-        _kernels.frame_velocity(self.directions, actions, np.asarray(frame, np.float64), cfg.robot_speed, out)
-        return out
+        # The kernel walks (E, m): any other shape is laid out as one row of it.
+        frames = np.broadcast_to(np.asarray(frame, np.float64), (*actions.shape, 2, 2)).reshape(1, -1, 2, 2)
+        out = np.empty((1, actions.size, 2))
+        _kernels.frame_velocity(self.directions, actions.reshape(1, -1), frames, cfg.robot_speed, out)
+        return out.reshape(*actions.shape, 2)
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, ActionSet) and (self.name, self.moves, self.relative) == (
