@@ -73,7 +73,7 @@ def test_serial_learner_and_actor_exchange_experience_and_policies(tmp_path: Pat
     assert report.policy_version == versions[-1]
     assert report.tuples_by_actor["a0"] >= status.tuples_sent - status.outbox * 256
     assert report.gaps == 0 and report.duplicates == 0 and report.rejected == 0
-    assert stopped_at[0] <= report.seconds < stopped_at[0] + 1.5
+    assert round(stopped_at[0], 2) <= report.seconds < stopped_at[0] + 1.5  # the report rounds to 0.01 s
     assert report.increments > 0 and status.policies_applied >= 1
     # Only the learned robots produced tuples, and their tables (the broadcast's rows) moved away from the phase-1
     # labels; the team policy evaluated and saved merges them into one.
