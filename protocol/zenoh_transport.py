@@ -55,6 +55,9 @@ log = logging.getLogger(__name__)
 
 MODES = ("peer", "client", "router")
 DEFAULT_CHANNEL_CAPACITY = 32
+SHM_POOL_BYTES = 4 * 2**20
+"""Zenoh's shared-memory pool per session (its default: 16 MiB). Every process of a one-host run maps its own pool
+and each peer's it receives from, all of it resident once used round-robin; an experience batch is about 1 MiB."""
 _JOIN_TIMEOUT_S = 10.0
 
 
@@ -93,6 +96,8 @@ def zenoh_config(
         conf.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast_scouting)))
     if mode == "client":
         conf.insert_json5("connect/timeout_ms", "-1")
+    if not config_file:
+        conf.insert_json5("transport/shared_memory/transport_optimization/pool_size", str(SHM_POOL_BYTES))
     limit = min(int(conf.get_json("transport/link/rx/max_message_size")), MAX_MESSAGE_BYTES)
     conf.insert_json5("transport/link/rx/max_message_size", str(limit))
     return conf

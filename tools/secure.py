@@ -17,21 +17,13 @@ machine can be mounted elsewhere, e.g. as Docker secrets under ``/run/secrets/en
 
 from __future__ import annotations
 
-import datetime
-import ipaddress
 import json
 import logging
 import os
 import secrets
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
-
-from cryptography import x509
-from cryptography.hazmat.primitives import hashes, serialization
-from cryptography.hazmat.primitives.asymmetric import ec
-from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from protocol.keys import KeySpace
 from protocol.security import OBSERVER, ROUTER, TlsFiles, access_control, client_config, router_config
@@ -41,9 +33,8 @@ log = logging.getLogger(__name__)
 DEFAULT_HOSTS = ("localhost", "127.0.0.1")
 """Names and addresses the router's certificate is valid for, besides those given with ``--host``."""
 
-VALID_DAYS = 365
 CA_FILE, CA_KEY_FILE, CREDENTIALS_FILE = "ca.pem", "ca.key", "credentials.txt"
-_SECRET, _PUBLIC, _FOLDER = 0o600, 0o644, 0o700
+_FOLDER = 0o700
 
 
 @dataclass(frozen=True, slots=True)
@@ -69,111 +60,28 @@ class SecureSet:
         return (self.learner_id, *self.actor_ids, OBSERVER)
 
 
-def _write(path: Path, data: bytes, mode: int) -> None:
-    # Created with its final mode: a key is never readable by others, not even between open and chmod.
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, mode)
-    try:
-        os.write(fd, data)
-    finally:
-        os.close(fd)
-    os.chmod(path, mode)
-
-
-def _key() -> ec.EllipticCurvePrivateKey:
-    return ec.generate_private_key(ec.SECP256R1())
-
-
-def _pem_key(key: ec.EllipticCurvePrivateKey) -> bytes:
-    return key.private_bytes(
-        serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
-    )
-
-
-def _name(common_name: str) -> x509.Name:
-    return x509.Name(
-        [x509.NameAttribute(NameOID.ORGANIZATION_NAME, "ennc-ql"), x509.NameAttribute(NameOID.COMMON_NAME, common_name)]
-    )
-
-
-def _builder(subject: x509.Name, issuer: x509.Name, public_key: Any) -> x509.CertificateBuilder:
-    now = datetime.datetime.now(datetime.UTC)
-    return (
-        x509.CertificateBuilder()
-        .subject_name(subject)
-        .issuer_name(issuer)
-        .public_key(public_key)
-        .serial_number(x509.random_serial_number())
-        .not_valid_before(now - datetime.timedelta(minutes=5))  # clocks of other machines may lag a little
-        .not_valid_after(now + datetime.timedelta(days=VALID_DAYS))
-    )
-
-
-def _load_or_make_ca(folder: Path) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
-    cert_path, key_path = folder / CA_FILE, folder / CA_KEY_FILE
-    if cert_path.exists() and key_path.exists():
-        key = serialization.load_pem_private_key(key_path.read_bytes(), password=None)
-        if not isinstance(key, ec.EllipticCurvePrivateKey):
-            raise ValueError(f"{key_path} is not an EC private key written by ennc-ql secure init")
-        return key, x509.load_pem_x509_certificate(cert_path.read_bytes())
-    key = _key()
-    name = _name("ennc-ql CA")
-    cert = (
-        _builder(name, name, key.public_key())
-        .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
-        .add_extension(
-            x509.KeyUsage(False, False, False, False, False, True, True, False, False), critical=True
-        )  # key_cert_sign and crl_sign only
-        .sign(key, hashes.SHA256())
-    )
-    _write(key_path, _pem_key(key), _SECRET)
-    _write(cert_path, cert.public_bytes(serialization.Encoding.PEM), _PUBLIC)
-    return key, cert
-
-
-def _alt_names(hosts: Sequence[str]) -> list[x509.GeneralName]:
-    names: list[x509.GeneralName] = []
-    for host in hosts:
-        try:
-            names.append(x509.IPAddress(ipaddress.ip_address(host)))
-        except ValueError:
-            names.append(x509.DNSName(host))
-    return names
-
-
-def _leaf(
-    ca_key: ec.EllipticCurvePrivateKey, ca: x509.Certificate, ident: str, hosts: Sequence[str], server: bool
-) -> tuple[bytes, bytes]:
-    key = _key()
-    usage = [ExtendedKeyUsageOID.SERVER_AUTH] if server else [ExtendedKeyUsageOID.CLIENT_AUTH]
-    cert = (
-        _builder(_name(ident), ca.subject, key.public_key())
-        # A leaf: zenoh's TLS (rustls) refuses a CA certificate presented as an end entity.
-        .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-        .add_extension(x509.SubjectAlternativeName(_alt_names(hosts)), critical=False)
-        .add_extension(x509.ExtendedKeyUsage(usage), critical=False)
-        .sign(ca_key, hashes.SHA256())
-    )
-    return cert.public_bytes(serialization.Encoding.PEM), _pem_key(key)
-
-
 def write_secure_set(spec: SecureSet) -> list[str]:
     """Write (or refresh) the CA, certificates, keys, credentials and configurations of ``spec``; return the names
     of the files written. Existing CA files are reused; every identity gets a fresh key and
     password, so re-running it revokes nothing but replaces everything else."""
+    # Imported here: a process that only reads a set's paths (every actor of a run) never maps cryptography's
+    # libraries (9 MB resident).
+    from tools.certificates import PUBLIC, SECRET, leaf, load_or_make_ca, write_file
+
     folder = spec.folder
     folder.mkdir(parents=True, exist_ok=True)
     os.chmod(folder, _FOLDER)
     mount = spec.mount or folder.resolve()
-    ca_key, ca = _load_or_make_ca(folder)
+    ca_key, ca = load_or_make_ca(folder, CA_FILE, CA_KEY_FILE)
     passwords = {ident: secrets.token_urlsafe(24) for ident in (ROUTER, *spec.identities)}
     for ident in (ROUTER, *spec.identities):
         hosts = (*DEFAULT_HOSTS, *spec.hosts) if ident == ROUTER else (ident,)
-        cert, key = _leaf(ca_key, ca, ident, list(dict.fromkeys(hosts)), server=ident == ROUTER)
-        _write(folder / f"{ident}.pem", cert, _PUBLIC)
-        _write(folder / f"{ident}.key", key, _SECRET)
+        cert, key = leaf(ca_key, ca, ident, list(dict.fromkeys(hosts)), server=ident == ROUTER)
+        write_file(folder / f"{ident}.pem", cert, PUBLIC)
+        write_file(folder / f"{ident}.key", key, SECRET)
     # The router's dictionary: the users it accepts (its own password only serves the other direction).
     lines = "".join(f"{ident}:{passwords[ident]}\n" for ident in spec.identities)
-    _write(folder / CREDENTIALS_FILE, lines.encode(), _SECRET)
+    write_file(folder / CREDENTIALS_FILE, lines.encode(), SECRET)
 
     def tls(ident: str) -> TlsFiles:
         return TlsFiles(str(mount / CA_FILE), str(mount / f"{ident}.pem"), str(mount / f"{ident}.key"))
@@ -186,7 +94,7 @@ def write_secure_set(spec: SecureSet) -> list[str]:
         configs[ident] = client_config(spec.connect, tls(ident), ident, passwords[ident])
     for ident, conf in configs.items():
         header = f"// zenoh configuration of {ident}, written by ennc-ql secure init; holds a password: keep it 0600.\n"
-        _write(spec.config(ident), (header + json.dumps(conf, indent=2) + "\n").encode(), _SECRET)
+        write_file(spec.config(ident), (header + json.dumps(conf, indent=2) + "\n").encode(), SECRET)
     written = [CA_FILE, CA_KEY_FILE, CREDENTIALS_FILE]
     written += [f"{i}{ext}" for i in (ROUTER, *spec.identities) for ext in (".pem", ".key", ".json5")]
     log.info("secure set for %s written into %s (%d files)", ", ".join(spec.identities), folder, len(written))
