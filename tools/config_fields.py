@@ -8,6 +8,7 @@ import argparse
 import ast
 import dataclasses
 import difflib
+import functools
 import inspect
 import itertools
 import math
@@ -66,6 +67,13 @@ def field_docs(cls: type) -> dict[str, str]:
 
     Classes whose source cannot be read (defined interactively) contribute none.
     """
+    return dict(_field_docs(cls))
+
+
+@functools.cache
+def _field_docs(cls: type) -> dict[str, str]:
+    # Cached: building a command's parser asks for the same classes again and again, and each answer re-reads and
+    # re-parses their source (about 0.07 s of every ennc-ql command's start).
     docs: dict[str, str] = {}
     for klass in reversed(cls.__mro__):
         if klass is object:
