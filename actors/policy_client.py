@@ -89,7 +89,8 @@ class PolicyClient:
             self.tracker.reset(new)
         self.version = int(update.version)
         self.adopted += 1
-        log.debug("adopted policy version %d", self.version)
+        # The first one at INFO: the moment an actor stops exploring at random, which a user (and a test) waits for.
+        (log.info if self.adopted == 1 else log.debug)("adopted policy version %d", self.version)
         return new
 
 

@@ -6,11 +6,11 @@ from __future__ import annotations
 import ctypes
 import logging
 import os
+import random
 import signal
 import socket
 import sys
 import threading
-import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from types import FrameType
@@ -41,7 +41,9 @@ def stop_on_signals() -> threading.Event:
 
 def free_port(host: str = "127.0.0.1") -> int:
     """A TCP port free on ``host`` now, below Linux's ephemeral range so Zenoh's own sockets cannot take it."""
-    for port in range(20000 + (int(time.time() * 1000) % 9000), 32000):
+    # A random start: two processes asking at once (the suite's parallel workers) rarely get the same port before
+    # either has bound it.
+    for port in range(random.randrange(20000, 29000), 32000):
         with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
             try:
                 s.bind((host, port))

@@ -13,22 +13,24 @@ block ends, whatever happened::
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
+import time
 from pathlib import Path
 from types import TracebackType
 from typing import Any, Self
 
 from tools.cluster import Children, ennc_ql_argv
 
-# Budgets of the short cluster runs: small enough for a first policy within seconds on two busy cores, and the
-# actors stop ten seconds before the learner does, so all they sent is acknowledged and in the learner's report.
-# The actors start at once while the learner loads torch and scikit-learn (several seconds on loaded cores), so the
-# actors' time leaves room for that before the first policy.
+# Budgets of the short cluster runs: small enough for a first policy within seconds. Neither has a duration: the
+# learner loads torch and fits while the actors run, which on cores shared with other tests took from 10 s to over
+# 30 s, so :meth:`Processes.stop_after_first_policy` stops them once every actor adopted a policy, the actors first.
 LEARNER_BUDGET = [
-    "--duration=34",
     "--min-tuples=5000",
     "--phase1-max-patterns=300",
     "--phase1-n-cycles=10",
+    "--phase1-seed-prototypes=32",  # the default 512 seeds take the first fit 10-16 s on loaded cores
+    "--phase1-max-iterations=1",
     "--broadcast-interval=1",
     "--checkpoint-interval=1",
     "--eval-interval=1000",
@@ -36,7 +38,9 @@ LEARNER_BUDGET = [
     "--final-eval-trials=2",
     "--json",
 ]
-ACTOR_BUDGET = ["--duration=24", "--arenas=16", "--json", "--batch-size=1024", "--flush-timeout=30"]
+ACTOR_BUDGET = ["--arenas=16", "--json", "--batch-size=1024", "--flush-timeout=30"]
+FIRST_POLICY = "adopted policy version"
+"""What an actor logs (at INFO) when it adopts its first policy."""
 
 
 ennc_ql = ennc_ql_argv
@@ -63,6 +67,28 @@ class Processes:
             return self.procs[name].wait(timeout)
         except subprocess.TimeoutExpired:
             raise AssertionError(f"{name} still running after {timeout:.0f} s\n{self.log_tail(name)}") from None
+
+    def wait_for_log(self, name: str, text: str, timeout: float) -> None:
+        """Wait until ``name``'s stderr holds ``text`` (the test fails with its log if it exits or times out first)."""
+        deadline = time.monotonic() + timeout
+        log = self.children.log_dir / f"{name}.log"
+        while text not in log.read_text(errors="replace"):
+            if self.procs[name].poll() is not None or time.monotonic() > deadline:
+                raise AssertionError(f"{name} never logged {text!r}\n{self.log_tail(name)}")
+            time.sleep(0.2)
+
+    def stop_after_first_policy(
+        self, actors: list[str], learner: str = "learner", timeout: float = 120.0
+    ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+        """Once every actor adopted a policy: SIGTERM the actors, then the learner; their JSON results (exit 0).
+        The actors stop first, flushing their outboxes, so all they sent is in the learner's report."""
+        for name in actors:
+            self.wait_for_log(name, FIRST_POLICY, timeout)
+        for name in actors:
+            self.procs[name].send_signal(signal.SIGTERM)
+        results = [self.json_result(name, timeout=90) for name in actors]
+        self.procs[learner].send_signal(signal.SIGTERM)
+        return results, self.json_result(learner, timeout=90)
 
     def json_result(self, name: str, timeout: float) -> dict[str, Any]:
         """Wait for ``name`` to exit 0 and return the JSON object it printed last (``--json``)."""

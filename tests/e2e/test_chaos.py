@@ -39,6 +39,7 @@ NETWORK = unavailable()
 # Borrowed from test_cluster.FAST_LEARNER: a first policy within seconds; checkpoints (and acks) every 2 s.
 FAST = [
     *("--learner-min-tuples", "20000", "--learner-phase1-max-patterns", "1500", "--learner-phase1-n-cycles", "30"),
+    *("--learner-phase1-seed-prototypes", "32", "--learner-phase1-max-iterations", "1"),  # a first fit in seconds
     *("--learner-broadcast-interval", "1", "--learner-checkpoint-interval", "2", "--learner-eval-interval", "1000"),
     *("--learner-eval-trials", "2", "--learner-final-eval-trials", "2", "--actor-arenas", "32"),
     *("--actor-flush-timeout", "30"),  # the last acks come after the learner's next checkpoint, on loaded cores

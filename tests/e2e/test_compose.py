@@ -146,8 +146,7 @@ def test_compose_topology_runs_as_local_processes(tmp_path: Path) -> None:
         for i in range(replicas):
             procs.start(f"actor-{i}", ennc_ql(*local_command(services["actor"]["command"], port, runs), *ACTOR_BUDGET))
 
-        actors = [procs.json_result(f"actor-{i}", timeout=90) for i in range(replicas)]
-        report = procs.json_result("learner", timeout=90)
+        actors, report = procs.stop_after_first_policy([f"actor-{i}" for i in range(replicas)])
         assert procs.procs["router"].poll() is None, "the router died\n" + procs.log_tail("router")
     assert procs.procs["router"].returncode == 0, "the router did not stop cleanly on SIGTERM"
 
@@ -242,8 +241,7 @@ def test_secure_compose_topology_runs_as_local_processes(tmp_path: Path) -> None
         procs.start("learner", ennc_ql(*learner_argv, *LEARNER_BUDGET))
         for name in actors:
             procs.start(name, ennc_ql(*local(services[name]["command"]), *ACTOR_BUDGET))
-        results = [procs.json_result(name, timeout=90) for name in actors]
-        report = procs.json_result("learner", timeout=90)
+        results, report = procs.stop_after_first_policy(actors)
         assert procs.procs["router"].poll() is None, "the router died\n" + procs.log_tail("router")
     # Each actor's stream reached the learner once and whole, through the authenticating router, and policies
     # came back to every actor.

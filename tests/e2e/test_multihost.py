@@ -114,8 +114,8 @@ def test_router_learner_and_actors_on_separate_hosts(network: Network, tmp_path:
         for actor in ("actor-0", "actor-1"):
             procs.start(actor, network.run(actor, ennc_ql("actor", *client, f"--actor-id={actor}", *ACTOR_BUDGET)))
 
-        counters = {actor: procs.json_result(actor, timeout=90) for actor in ("actor-0", "actor-1")}
-        report = procs.json_result("learner", timeout=90)
+        results, report = procs.stop_after_first_policy(["actor-0", "actor-1"])
+        counters = dict(zip(("actor-0", "actor-1"), results, strict=True))
         assert procs.procs["router"].poll() is None, "the router died\n" + procs.log_tail("router")
     router_log = (tmp_path / "router.log").read_text()
 

@@ -44,6 +44,7 @@ SMALL_RUN = [
     "--learner-final-eval-trials=2",
     "--learner-checkpoint-interval=1",
     "--learner-phase1-max-iterations=1",
+    "--learner-phase1-seed-prototypes=32",  # the default 512 seeds take the first fit 10-16 s on loaded cores
     # A requeue stops the router with the rest: the actors' last acknowledgements cannot come, so they stop soon.
     "--actor-flush-timeout=3",
 ]

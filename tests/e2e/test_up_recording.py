@@ -13,6 +13,7 @@ from tests.e2e import ennc_ql
 from tests.monitor.rrd import rows
 
 
+@pytest.mark.slow
 def test_up_saves_one_recording_of_every_process(tmp_path: Path) -> None:
     recording = tmp_path / "watch.rrd"
     argv = ennc_ql(
@@ -21,6 +22,8 @@ def test_up_saves_one_recording_of_every_process(tmp_path: Path) -> None:
         "--actor-arenas=32",
         "--learner-min-tuples=20000",
         "--learner-phase1-max-patterns=400",
+        "--learner-phase1-seed-prototypes=32",  # the default 512 seeds take the first fit 10-16 s on loaded cores
+        "--learner-phase1-max-iterations=1",
         "--learner-eval-interval=5",
         f"--runs={tmp_path}",
         "--run-id=rec",

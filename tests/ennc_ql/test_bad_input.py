@@ -1,26 +1,46 @@
-"""One error contract for every command, through the real console script: bad input gets one line,
+"""One error contract for every command, through the console script: bad input gets one line,
 ``ennc-ql <command>: error: <what>``, at most one short usage line after it, exit status 2, and leaves nothing
 behind (no run folder, no created directory, no recording), before anything starts.
 
 Each row is a command line and the words its error must carry. Every row runs ``ennc-ql`` in a fresh working
-folder that holds the fixtures below; the folder must hold exactly those afterwards."""
+folder that holds the fixtures below; the folder must hold exactly those afterwards.
+
+The rows run twice (once with the optional programs hidden from PATH), 274 command lines: as new processes, each
+would spend 0.7-3 s importing the command line, numba, zenoh and torch (314 s in all). They run instead in forks of
+one process that imported the command line once (:mod:`tests.ennc_ql._forkserver`), each in its own session, folder
+and environment, with the script's ``sys.argv``, entry point and exit status: ~0.12 s a row, most of it the
+command's own parser (it reads its configurations' docstrings from their source). The tests at the end run the real
+console script: three rows both ways, which must answer alike byte for byte, an ASCII terminal (an encoding a fork
+can't change), a reader that goes away, a port in use."""
 
 from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
 import sys
+from collections.abc import Callable, Iterator
+from functools import partial
+from importlib.metadata import entry_points
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from tests.ennc_ql._forkserver import ForkServer, text
 from tools.config import dump_config
 
 ENNC_QL = Path(sys.executable).with_name("ennc-ql")
+PRELOAD = tuple(
+    f"ennc_ql.{name}"
+    for name in ("cli", "actor", "bench", "chaos", "evaluate", "learner", "router", "secure", "slurm", "sweeps", "up")
+)
+"""What the rows import: the command line and every command's module (numba, zenoh, msgpack come with them), 0.9 s.
+Not torch, which the device checks import (3 rows, twice): it doubles the memory each fork copies, 0.03 s more a row,
+more than its import costs those rows (1.2 s)."""
 TIMEOUT_S = 90.0
 """A row that started something it should not have is stopped here (and fails): none takes a second to answer."""
 
@@ -237,6 +257,21 @@ COMMAND_WORDS = {"eval", "up", "learner", "actor", "router", "secure", "init", "
 COMMAND_WORDS |= {"sim", "ennc", "transport", "broadcast", "phase1", "slurm", "train", "task"}
 
 
+@pytest.fixture(scope="module")
+def template(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The fixtures, made once (writing the configuration files takes 0.2 s): each row gets a copy."""
+    folder = tmp_path_factory.mktemp("fixtures")
+    fixtures(folder)
+    return folder
+
+
+@pytest.fixture
+def folder(template: Path, tmp_path: Path) -> Path:
+    """A fresh working folder holding the fixtures."""
+    shutil.copytree(template, tmp_path, dirs_exist_ok=True)
+    return tmp_path
+
+
 def command_of(argv: list[str]) -> str:
     """The command that answers: the words that name a command and its subcommand, up to the first other word."""
     words: list[str] = []
@@ -249,6 +284,9 @@ def command_of(argv: list[str]) -> str:
 
 def tree(folder: Path) -> list[str]:
     return sorted(str(p.relative_to(folder)) for p in folder.rglob("*"))
+
+
+Runner = Callable[[list[str], Path, dict[str, str] | None], subprocess.CompletedProcess[str]]
 
 
 def run(argv: list[str], cwd: Path, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
@@ -272,6 +310,26 @@ def run(argv: list[str], cwd: Path, env: dict[str, str] | None = None) -> subpro
     return subprocess.CompletedProcess(argv, proc.returncode, out, err)
 
 
+def run_forked(
+    server: ForkServer, argv: list[str], cwd: Path, env: dict[str, str] | None = None
+) -> subprocess.CompletedProcess[str]:
+    """:func:`run`, in a fork of the server: the same environment, timeout and kill."""
+    code, out, err, timed_out = server.run(argv, cwd, {**os.environ, "COLUMNS": "120", **(env or {})}, TIMEOUT_S)
+    if timed_out:
+        pytest.fail(f"ennc-ql {' '.join(argv)} started instead of failing; stderr:\n{text(err)[-2000:]}")
+    return subprocess.CompletedProcess(argv, code, text(out), text(err))
+
+
+@pytest.fixture(scope="module")
+def forked() -> Iterator[Runner]:
+    """:func:`run` through one fork server for the module: the console script's own entry point, preloaded."""
+    [script] = entry_points(group="console_scripts", name="ennc-ql")
+    server = ForkServer(ENNC_QL, script.value, PRELOAD)
+    yield partial(run_forked, server)
+    server.close()
+    assert server.proc.returncode == 0 and server.stderr() == "", server.stderr()
+
+
 HIDDEN = ("iptables", "iptables-legacy", "iptables-nft", "ip6tables", "sbatch", "srun", "slurmd", "Xvfb", "podman")
 """The optional system programs a machine may lack: with them hidden, every row must meet the contract just the same
 (a notice about what is missing never comes before the error)."""
@@ -293,21 +351,35 @@ IDS = [" ".join(argv) or "(nothing)" for argv, _ in ROWS]
 
 
 @pytest.mark.parametrize(("argv", "message"), ROWS, ids=IDS)
-def test_bad_input_is_one_line_exit_2_and_nothing_left(argv: list[str], message: str, tmp_path: Path) -> None:
-    assert_contract(argv, message, tmp_path)
+def test_bad_input_is_one_line_exit_2_and_nothing_left(
+    argv: list[str], message: str, folder: Path, forked: Runner
+) -> None:
+    assert_contract(forked, argv, message, folder)
 
 
 @pytest.mark.parametrize(("argv", "message"), ROWS, ids=IDS)
 def test_without_iptables_slurm_or_xvfb_every_row_meets_the_contract_too(
-    argv: list[str], message: str, tmp_path: Path, bare_path: str
+    argv: list[str], message: str, folder: Path, bare_path: str, forked: Runner
 ) -> None:
-    assert_contract(argv, message, tmp_path, {"PATH": bare_path})
+    assert_contract(forked, argv, message, folder, {"PATH": bare_path})
 
 
-def assert_contract(argv: list[str], message: str, tmp_path: Path, env: dict[str, str] | None = None) -> None:
-    fixtures(tmp_path)
-    before = tree(tmp_path)
-    result = run(argv, tmp_path, env)
+SAME_ROWS = [["evl"], ["up", "--actors", "0"], ["learner", "--run-dir", "r", "--phase1-device", "cuda:7"]]
+"""A usage error of the top parser, one of a command's own checks, and a torch device check."""
+
+
+@pytest.mark.parametrize("argv", SAME_ROWS, ids=[" ".join(argv) for argv in SAME_ROWS])
+def test_a_forked_row_answers_as_the_console_script(argv: list[str], folder: Path, forked: Runner) -> None:
+    """What stands for the console script above says, byte for byte, what the script says."""
+    script, fork = run(argv, folder), forked(argv, folder, None)
+    assert (fork.returncode, fork.stdout, fork.stderr) == (script.returncode, script.stdout, script.stderr)
+
+
+def assert_contract(
+    run: Runner, argv: list[str], message: str, folder: Path, env: dict[str, str] | None = None
+) -> None:
+    before = tree(folder)
+    result = run(argv, folder, env)
     lines = result.stderr.splitlines()
     command = command_of(argv)
     assert result.returncode == 2, result.stderr
@@ -318,7 +390,7 @@ def assert_contract(argv: list[str], message: str, tmp_path: Path, env: dict[str
     for leak in ("Traceback", ".rs:", "allow_pickle", "``", ":mod:"):
         assert leak not in result.stderr
     assert result.stdout == ""
-    assert tree(tmp_path) == before  # no run folder, no created directory, no recording
+    assert tree(folder) == before  # no run folder, no created directory, no recording
 
 
 def test_a_port_in_use_is_one_line_and_leaves_no_run_folder(tmp_path: Path) -> None:
@@ -346,9 +418,9 @@ ENV_ROWS: list[tuple[dict[str, str], list[str], str]] = [
 
 @pytest.mark.parametrize(("env", "argv", "message"), ENV_ROWS, ids=[" ".join(a) + f" {e}" for e, a, _ in ENV_ROWS])
 def test_a_bad_environment_variable_meets_the_contract_too(
-    env: dict[str, str], argv: list[str], message: str, tmp_path: Path
+    env: dict[str, str], argv: list[str], message: str, folder: Path, forked: Runner
 ) -> None:
-    assert_contract(argv, message, tmp_path, env)
+    assert_contract(forked, argv, message, folder, env)
 
 
 def test_help_on_an_ascii_terminal_is_printed_not_a_traceback(tmp_path: Path) -> None:

@@ -20,6 +20,8 @@ SMALL = [
     "--learner-min-tuples=6000",
     "--learner-phase1-max-patterns=300",
     "--learner-phase1-n-cycles=10",
+    "--learner-phase1-seed-prototypes=32",  # the default 512 seeds take the first fit 10-16 s on loaded cores
+    "--learner-phase1-max-iterations=1",
     "--learner-broadcast-interval=1",
     "--learner-checkpoint-interval=1",
     "--learner-eval-interval=5",
@@ -29,6 +31,7 @@ SMALL = [
 ]
 
 
+@pytest.mark.slow
 def test_serial_run_learns_and_reports_like_the_process_topology(
     capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:

@@ -35,6 +35,7 @@ FAST = LearnerConfig(
 )
 
 
+@pytest.mark.slow
 def test_serial_learner_and_actor_exchange_experience_and_policies(tmp_path: Path) -> None:
     bus = InMemoryBus()
     versions: list[int] = []
@@ -218,6 +219,7 @@ def test_parse_robots() -> None:
             parse_robots(bad)
 
 
+@pytest.mark.slow
 def test_refits_warm_start_and_carry_q_values_over(tmp_path: Path) -> None:
     config = LearnerConfig(
         min_tuples=6000,

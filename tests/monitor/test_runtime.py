@@ -37,6 +37,7 @@ CONFIG = LearnerConfig(
 )
 
 
+@pytest.mark.slow
 def test_learner_and_actors_log_into_one_recording(tmp_path: Path) -> None:
     run_id = "runtime-test"
     bus = InMemoryBus()
