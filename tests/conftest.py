@@ -1,6 +1,6 @@
 """Hooks of the whole suite: the order of the tests for ``make test``'s pytest-xdist workers.
 
-``make test`` runs the suite on three workers with ``--dist worksteal``, which first hands each worker one contiguous
+``make test`` runs the suite on two workers (``TEST_WORKERS``) with ``--dist worksteal``, which first hands each worker one contiguous
 share of the collection, in order, then lets an idle worker take the second half of the longest queue. The end-to-end
 tests (marked ``slow``) take 10-120 s each and most of the suite's time; the others milliseconds to seconds. So the
 collection is laid out as those shares: the slow tests dealt longest first, each to the share with the least work so
@@ -27,7 +27,7 @@ SLOW_SECONDS = {
     "test_sigterm_during_phase_1_then_resume_keeps_every_acknowledged_tuple": 59,
     "test_sigterm_to_a_serial_run_winds_it_down_to_its_report_too": 52,
 }
-"""The longest tests' seconds on three workers (make test, 2 cores, 2026-12-03); other slow tests count as
+"""The longest tests' seconds with three workers on 2 cores (2026-12-03); other slow tests count as
 :data:`SLOW_DEFAULT_S`. Only the order depends on these: a wrong figure costs time, never a result."""
 SLOW_DEFAULT_S = 20
 
