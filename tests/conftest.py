@@ -1,12 +1,12 @@
 """Hooks of the whole suite: the order of the tests for ``make test``'s pytest-xdist workers.
 
-``make test`` runs the suite on two workers (``TEST_WORKERS``) with ``--dist worksteal``, which first hands each worker one contiguous
-share of the collection, in order, then lets an idle worker take the second half of the longest queue. The end-to-end
-tests (marked ``slow``) take 10-120 s each and most of the suite's time; the others milliseconds to seconds. So the
-collection is laid out as those shares: the slow tests dealt longest first, each to the share with the least work so
-far, each share starting with its slow tests and filled up with short ones. Every worker then starts on its longest
-test at once, and the short ones fill the gaps (with the slow tests left in one queue, one worker ended alone on the
-last of them, minutes after the others). Without xdist the slow tests simply come first.
+``make test`` runs the suite on two workers (``TEST_WORKERS``) with ``--dist worksteal``, which first hands each
+worker one contiguous share of the collection, in order, then lets an idle worker take the second half of the longest
+queue. The end-to-end tests (marked ``slow``) take 10-120 s each and most of the suite's time; the others milliseconds
+to seconds. So the collection is laid out as those shares: the slow tests dealt longest first, each to the share with
+the least work so far, each share starting with its slow tests and filled up with short ones. Every worker then starts
+on its longest test at once, and the short ones fill the gaps (with the slow tests left in one queue, one worker ended
+alone on the last of them, minutes after the others). Without xdist the slow tests simply come first.
 """
 
 from __future__ import annotations
