@@ -55,7 +55,7 @@ def shares(slow: list[pytest.Item], fast: list[pytest.Item], workers: int) -> li
     return order
 
 
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     slow = [item for item in items if item.get_closest_marker("slow") is not None]
     fast = [item for item in items if item.get_closest_marker("slow") is None]
     # Every worker collects and orders the suite itself (xdist insists the orders agree): it reads the count here.

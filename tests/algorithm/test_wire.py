@@ -178,3 +178,14 @@ def test_acting_never_imports_torch(modules: str) -> None:
     code = f"import sys, {modules}; import ennc_ql.cli as c; c.build_parser(); print('torch' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
     assert out.stdout.strip() == "False"
+
+
+def test_an_actor_reading_a_configuration_never_imports_cryptography() -> None:
+    """Checking a configuration file against every role's settings (an actor given up's file) loads the cluster
+    library, whose secure sets are written with cryptography: only writing them may load it (9 MB resident)."""
+    code = (
+        "import sys, ennc_ql.actor, ennc_ql.command as c; c._roles(); import tools.cluster, tools.secure; "
+        "print('cryptography' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
+    assert out.stdout.strip() == "False"

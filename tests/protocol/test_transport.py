@@ -42,6 +42,7 @@ from protocol import (
     message_equal,
     zenoh_config,
 )
+from protocol.zenoh_transport import SHM_POOL_BYTES
 from tests.protocol.conftest import golden_samples, sample_policy
 from tools.system import free_port
 
@@ -156,6 +157,15 @@ def test_zenoh_config_file_is_overridden_only_by_given_flags(tmp_path: Any) -> N
     assert (
         zenoh_config(config_file=str(path), multicast_scouting=False).get_json("scouting/multicast/enabled") == "false"
     )
+
+
+def test_the_shared_memory_pool_is_small_unless_a_file_sets_it(tmp_path: Any) -> None:
+    pool = "transport/shared_memory/transport_optimization/pool_size"
+    assert zenoh.Config().get_json(pool) == str(16 * 2**20)  # Zenoh's own default, which every actor mapped twice
+    assert zenoh_config(connect=["tcp/127.0.0.1:7447"]).get_json(pool) == str(SHM_POOL_BYTES) == str(4 * 2**20)
+    path = tmp_path / "z.json5"
+    path.write_text("{ transport: { shared_memory: { transport_optimization: { pool_size: 8388608 } } } }")
+    assert zenoh_config(config_file=str(path)).get_json(pool) == "8388608"
 
 
 # --- in-memory transport -----------------------------------------------------------------------------------
