@@ -26,6 +26,7 @@ from sim import ScenarioConfig
 from sim.controllers import random_headings, wander
 from sim.features import lost
 from sim.formulation import Formulation
+from sim.recall import Recall, forget_all, view_of
 from sim.trial import reset_trial, step_trial
 from sim.world import Observation, WorldState
 
@@ -153,6 +154,9 @@ def collect(
         decide = out.decide
 
 
+_NetworkMemory = tuple[np.ndarray, np.ndarray, Recall | None]
+
+
 @dataclass(frozen=True, slots=True)
 class NetworkController:
     """Every robot greedy on the network, deciding every ``act_every`` steps; a robot that sees no target keeps a
@@ -164,24 +168,27 @@ class NetworkController:
     act_every: int = 1
     name: str = "fqi-mlp"
 
-    def init(self, cfg: ScenarioConfig, world: WorldState, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        """(heading of a searching robot, velocity of the move chosen last)."""
-        return random_headings(cfg, world, rng), np.zeros((world.n_arenas, cfg.n_robots, 2))
+    def init(self, cfg: ScenarioConfig, world: WorldState, rng: np.random.Generator) -> _NetworkMemory:
+        """(heading of a searching robot, velocity of the move chosen last, the robots' last sightings)."""
+        shape = (world.n_arenas, cfg.n_robots)
+        recall = forget_all(shape) if self.formulation.featurizer.recalls else None
+        return random_headings(cfg, world, rng), np.zeros((*shape, 2)), recall
 
     def act(
         self,
         cfg: ScenarioConfig,
         world: WorldState,
         obs: Observation,
-        memory: tuple[np.ndarray, np.ndarray],
+        memory: _NetworkMemory,
         rng: np.random.Generator,
-    ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
-        heading, velocity = memory
+    ) -> tuple[np.ndarray, _NetworkMemory]:
+        heading, velocity, recall = memory
+        view, recall = view_of(cfg, world, obs, recall)
         if world.t % self.act_every == 0:
-            states = self.formulation.featurizer.compute(cfg, obs)
+            states = self.formulation.featurizer.compute(cfg, view)
             chosen = self.q.greedy(states.reshape(-1, states.shape[-1])).reshape(states.shape[:2])
             moves = self.formulation.actions
-            velocity = moves.velocity(cfg, chosen, moves.frame(obs))
+            velocity = moves.velocity(cfg, chosen, moves.frame(view))
         heading = wander(cfg, world, heading)
-        move = np.where(lost(obs)[..., None], cfg.robot_speed * heading, velocity)
-        return move, (heading, velocity)
+        move = np.where(lost(view)[..., None], cfg.robot_speed * heading, velocity)
+        return move, (heading, velocity, recall)

@@ -21,6 +21,7 @@ from sim import ScenarioConfig
 from sim.controllers import wander
 from sim.features import lost
 from sim.formulation import Formulation
+from sim.recall import Recall, forget_all, view_of
 from sim.world import Observation, WorldState
 
 LostBehaviour = Literal["wander", "stay", "policy"]
@@ -120,6 +121,7 @@ class _Memory:
     held: np.ndarray  # (E, m) int64 steps the current action has lasted
     cell: np.ndarray  # (E, m) int64 cell of the state the action started in (until_change mode)
     frame: np.ndarray  # (E, m, 2, 2) float64 the frame the current action was chosen in (rows: x, y axes)
+    recall: Recall | None  # every robot's last sighting, for a state that remembers (sim.recall)
 
 
 @dataclass(frozen=True, slots=True)
@@ -138,6 +140,7 @@ class PolicyController:
             held=np.full(shape, 1 << 30, np.int64),
             cell=np.full(shape, -1, np.int64),
             frame=np.broadcast_to(np.eye(2), (*shape, 2, 2)),
+            recall=forget_all(shape) if self.policy.formulation.featurizer.recalls else None,
         )
 
     def act(
@@ -145,7 +148,8 @@ class PolicyController:
     ) -> tuple[np.ndarray, _Memory]:
         p = self.policy
         n_arenas, m = memory.action.shape
-        states = p.formulation.featurizer.compute(cfg, obs).reshape(n_arenas * m, -1)
+        view, recall = view_of(cfg, world, obs, memory.recall)
+        states = p.formulation.featurizer.compute(cfg, view).reshape(n_arenas * m, -1)
         robots = np.tile(np.arange(m), n_arenas)
         held = memory.held
         if p.action_mode == "fixed":
@@ -166,12 +170,12 @@ class PolicyController:
             start_cell = cells[np.arange(n_arenas * m), action.reshape(-1)].reshape(n_arenas, m)
             cell = np.where(decide, start_cell, cell_now)
             if moves.relative:
-                frame = np.where(decide[..., None, None], moves.frame(obs), frame)
+                frame = np.where(decide[..., None, None], moves.frame(view), frame)
         held = np.where(decide, 1, held + 1)
         velocity = moves.velocity(cfg, action, frame)
         heading = wander(cfg, world, memory.heading)
         if p.lost_behaviour != "policy":
-            gone = lost(obs)[..., None]
+            gone = lost(view)[..., None]
             search = cfg.robot_speed * heading if p.lost_behaviour == "wander" else 0.0
             velocity = np.where(gone, search, velocity)
-        return velocity, _Memory(action=action, heading=heading, held=held, cell=cell, frame=frame)
+        return velocity, _Memory(action=action, heading=heading, held=held, cell=cell, frame=frame, recall=recall)

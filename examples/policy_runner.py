@@ -90,6 +90,42 @@ class Observation:
     covered: Ints  # (E,): targets in view of at least one robot
     n_seen: Ints  # (E, m): targets in view
     sees_robot: Bools  # (E, m): another robot in view
+    age: Ints | None = None  # (E, m): frame10d-recall's nearest_target_age
+
+
+@dataclass(frozen=True)
+class Memory:
+    """Each robot's last sighting, for the ``frame10d-recall`` state (section "The state")."""
+
+    point: Floats  # (E, m, 2) world position of the nearest target at the last step a target was in view
+    shared: NDArray[np.float32]  # (E, m) that target's nearest_target_shared flag then
+    age: Ints  # (E, m) steps since; -1: no sighting yet
+
+
+def remember(policy: PolicyFile, obs: Observation, robots: Floats, memory: Memory) -> tuple[Observation, Memory]:
+    """The observation ``frame10d-recall`` reads, and the memory after this step; other states read ``obs``."""
+    if policy.header["featurizer"]["name"] != "frame10d-recall":
+        return obs, memory
+    seeing = ~obs.lost
+    nearest = obs.full_state[..., 0:2].astype(np.float64)
+    point = np.where(seeing[..., None], robots + nearest, memory.point)
+    shared = np.where(seeing, obs.shared[..., 0], memory.shared)
+    age = np.where(seeing, 0, np.where(memory.age < 0, -1, memory.age + 1))
+    recalled = ~seeing & (age >= 0) & (age <= policy.scenario["recall_steps"])
+    full = obs.full_state.copy()
+    full[..., 0:2] = np.where(recalled[..., None], (point - robots).astype(np.float32), full[..., 0:2])
+    view_shared = obs.shared.copy()
+    view_shared[..., 0] = np.where(recalled, shared, view_shared[..., 0])
+    view = Observation(
+        full_state=full,
+        shared=view_shared,
+        lost=obs.lost & ~recalled,
+        covered=obs.covered,
+        n_seen=np.where(recalled, 1, obs.n_seen),
+        sees_robot=obs.sees_robot,
+        age=np.where(seeing | recalled, age, 0),
+    )
+    return view, Memory(point=point, shared=shared, age=age)
 
 
 def _pick(offsets: Floats, index: Ints) -> Floats:
@@ -181,8 +217,10 @@ def featurize(policy: PolicyFile, obs: Observation) -> NDArray[np.float32]:
     distance = np.where(has_target, np.sqrt((f[..., 0:2] ** 2).sum(axis=-1)), 0.0)[..., None]
     # An offset in the frame: its components along the frame's x and y axes.
     furthest, robot = (np.einsum("...k,...dk->...d", pair, frame) for pair in pairs[1:])
-    if name == "frame9d":
+    if name in ("frame9d", "frame10d-recall"):
         columns = [distance, furthest, flags[0], robot, flags[1], obs.shared]
+        if name == "frame10d-recall":
+            columns.append(np.zeros_like(distance) if obs.age is None else obs.age[..., None].astype(np.float64))
         return np.concatenate(columns, axis=-1).reshape(full.shape[0], -1).astype(np.float32)
     if name == "frame7d":
         mask = policy.scenario["mask_value"]
@@ -269,7 +307,10 @@ def run(policy: PolicyFile, trials: int, steps: int, seed: int, violate: str | N
     action = np.zeros((trials, m), np.int64)
     start_cell = np.zeros((trials, m), np.int64)  # until_change: cell of the decision state under the action
     count = np.zeros((trials, m), np.int64)  # until_change: steps the action has lasted
-    obs = sense(sc, robots, targets, rng)
+    memory = Memory(
+        point=np.zeros((trials, m, 2)), shared=np.zeros((trials, m), np.float32), age=np.full((trials, m), -1)
+    )
+    obs, memory = remember(policy, sense(sc, robots, targets, rng), robots, memory)
     total = np.zeros(trials)
     for t in range(steps):
         # When robots decide: a shared clock (fixed) or each robot's own (until_change); everyone at t = 0.
@@ -302,7 +343,7 @@ def run(policy: PolicyFile, trials: int, steps: int, seed: int, violate: str | N
         # Moving: targets draw their turns first (random stream order), then robots move; both from time-t positions.
         targets, target_vel = move_targets(sc, targets, target_vel, target_speed, rng)
         robots = move_robots(robots, displacement, radius)
-        obs = sense(sc, robots, targets, rng)
+        obs, memory = remember(policy, sense(sc, robots, targets, rng), robots, memory)
         total += 100.0 * obs.covered / n
     return total / steps
 

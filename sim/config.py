@@ -102,6 +102,10 @@ class ScenarioConfig:
     redundancy_potential: float = 2.0
     """k of the ``difference-shaped`` reward's potential Φ = −k (1 − d / sensing_range) for a robot seeing only
     teammate-watched targets, d the nearest one's distance (0 otherwise) [choice]."""
+    recall_steps: int = 60
+    """How long a robot of a remembering state (``frame10d-recall``, :mod:`sim.recall`) keeps the target it last saw as
+    its nearest one, in steps [choice; the honest A-CMOMMT tracks its own sightings 60 steps ahead with its public
+    parameters]."""
     local_target: LocalTarget = "furthest"
     """Target the 2-D local state points at [paper: furthest; once 'nearest']."""
 
@@ -111,7 +115,15 @@ class ScenarioConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive finite number, got {value!r}")
-        for name in ("n_robots", "n_targets", "action_steps", "test_steps", "test_trials", "learning_steps"):
+        for name in (
+            "n_robots",
+            "n_targets",
+            "action_steps",
+            "test_steps",
+            "test_trials",
+            "learning_steps",
+            "recall_steps",
+        ):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)!r}")
         if not self.target_speed_frac >= 0.0:

@@ -15,6 +15,9 @@ Featurizers (:data:`FEATURIZER_REGISTRY`; :data:`FEATURIZERS` gives each one's d
   target, mirrored so that the furthest target lies at y >= 0): the nearest target's distance, the furthest
   target's and the robot's (x, y) with presence bits, the two shared flags [beyond the paper: one cell covers
   every rotation and reflection of a situation; with the ``relative`` action set the moves are named in it too].
+* ``frame10d-recall``: ``frame9d`` read from the view of :func:`sim.recall.recall`, in which a robot that lost every
+  target keeps the last one it saw as its nearest for ``recall_steps`` steps, and the steps since it sensed that
+  target [beyond the paper: the robot's own track of a target it lost, as the honest A-CMOMMT keeps].
 
 Rewards (:data:`REWARDS`), each given with the trial rules of :mod:`sim.trial`; a learning robot that loses every
 target gets ``lost_reward`` instead and, under the paper's rules (:class:`sim.formulation.TrialRules`), its trial
@@ -80,6 +83,9 @@ class Featurizer:
     frame: str = "world"
     """The frame its offsets are given in: ``world`` (x east, y north) or ``target``
     (:func:`sim.actions.target_frame`)."""
+    recalls: bool = False
+    """It reads the view of :func:`sim.recall.recall` (a lost robot's remembered target as its nearest one), so a
+    caller keeps every robot's :class:`~sim.recall.Recall` from step to step; False: the observation alone."""
     view: tuple[int, int] = (0, 1)
     """The two columns its prototypes are drawn at in the viewer and the policy figure: the nearest target's (dx, dy)
     for the world-frame states; for the target-frame ones the furthest target's (x, y) in that frame (x towards the
@@ -156,6 +162,26 @@ def _frame9d(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
     return out
 
 
+def _frame10d_recall(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
+    out = np.empty((*obs.n_seen.shape, 10), np.float32)
+    _kernels.frame9d(obs.features, obs.n_seen, obs.sees_robot, obs.shared, target_frame(obs), out[..., :9])
+    age = np.zeros(obs.n_seen.shape) if obs.age is None else np.where(obs.n_seen >= 1, obs.age, 0)
+    out[..., 9] = age
+    return out
+
+
+_FRAME9D = (
+    "nearest_target_distance",
+    "furthest_target_x",
+    "furthest_target_y",
+    "furthest_target_present",
+    "nearest_robot_x",
+    "nearest_robot_y",
+    "nearest_robot_present",
+    "nearest_target_shared",
+    "furthest_target_shared",
+)
+
 FEATURIZER_REGISTRY: dict[str, Featurizer] = {
     f.name: f
     for f in (
@@ -205,21 +231,21 @@ FEATURIZER_REGISTRY: dict[str, Featurizer] = {
         ),
         Featurizer(
             "frame9d",
-            (
-                "nearest_target_distance",
-                "furthest_target_x",
-                "furthest_target_y",
-                "furthest_target_present",
-                "nearest_robot_x",
-                "nearest_robot_y",
-                "nearest_robot_present",
-                "nearest_target_shared",
-                "furthest_target_shared",
-            ),
+            _FRAME9D,
             _frame9d,
             "eq2",
             partial(_nearest_absent, slice(0, 1), 3),
             frame="target",
+            view=(1, 2),
+        ),
+        Featurizer(
+            "frame10d-recall",
+            (*_FRAME9D, "nearest_target_age"),
+            _frame10d_recall,
+            "eq2",
+            partial(_nearest_absent, slice(0, 1), 3),
+            frame="target",
+            recalls=True,
             view=(1, 2),
         ),
     )

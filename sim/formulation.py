@@ -195,13 +195,17 @@ FORMULATIONS: dict[str, Formulation] = {
     "frame-cooperative": Formulation.of(
         "frame9d", "difference-redundancy", "relative", act_every=1, trial_rules="lost-searches"
     ),
+    "frame-recall": Formulation.of(
+        "frame10d-recall", "difference-redundancy", "relative", act_every=1, trial_rules="lost-searches"
+    ),
 }
 """Every formulation by name: ``paper`` is the paper's collaborative formulation [paper §4, Eq. 2];
 ``shared-difference`` the best with the world-frame state and compass moves that the README's ablations found;
 ``frame-difference`` the state and the moves in the frame of the nearest target, the difference reward paid per
 decision; ``frame-cooperative`` the same with a redundant step charged (``difference-redundancy``) and learning
 trials in which a learner that loses every target searches and goes on learning (``lost-searches``) [beyond the
-paper, docs/learning-quality.md "Learning cooperation"]."""
+paper, docs/learning-quality.md "Learning cooperation"]; ``frame-recall`` the same on a state that remembers the
+target a robot lost (:mod:`sim.recall`) [beyond the paper]."""
 DEFAULT_FORMULATION = "frame-cooperative"
 """The formulation of every process (``up``, ``learner``, ``actor``, compose's) unless another is named."""
 

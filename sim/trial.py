@@ -12,7 +12,10 @@ The rules [paper §4; choices as tagged]:
   [paper]; the formulation's :class:`~sim.formulation.TrialRules` may let it search on instead, and let the time-out
   bootstrap [beyond the paper];
 * robots that do not learn follow the caller's actions, or a controller's velocity, and when lost search by keeping
-  a heading reflected off the wall [choice, as in test trials].
+  a heading reflected off the wall [choice, as in test trials];
+* a state that remembers (``Featurizer.recalls``) is read from :func:`sim.recall.recall`'s view, and so are the
+  frame of a relative move and who counts as lost for the search: a robot still remembering its last target decides
+  instead of searching; the rewards and the trial rules read what is sensed [beyond the paper].
 
 Call sequence::
 
@@ -44,6 +47,7 @@ from sim.config import ScenarioConfig
 from sim.controllers import N_ACTIONS, wander
 from sim.features import lost, step_value, trial_reward
 from sim.formulation import Formulation
+from sim.recall import Recall, forget_all, view_of
 from sim.world import Observation, WorldState, place_near_targets, reset, sense, step
 
 
@@ -54,6 +58,11 @@ class TrialState:
     world: WorldState
     obs: Observation
     """What every robot perceives in ``world``."""
+    view: Observation
+    """What its state and moves read: ``obs``, or for a state that remembers, ``obs`` with each lost robot's
+    remembered target (:mod:`sim.recall`)."""
+    recall: Recall | None
+    """Every robot's memory of its last sighting, for a state that remembers; None otherwise."""
     formulation: Formulation
     """The state of ``features``, the learners' reward, the action set of the action indices, the trial rules."""
     features: np.ndarray
@@ -153,17 +162,21 @@ def reset_trial(
     learner = np.broadcast_to(np.asarray(learners, dtype=bool), (n_arenas, cfg.n_robots)).copy()
     world = place_near_targets(cfg, reset(cfg, n_arenas, rng), learner, rng)
     obs = sense(cfg, world, rng)
-    features = formulation.featurizer.compute(cfg, obs)
+    memory = forget_all(learner.shape) if formulation.featurizer.recalls else None
+    view, memory = view_of(cfg, world, obs, memory)
+    features = formulation.featurizer.compute(cfg, view)
     angle = rng.uniform(0.0, 2.0 * np.pi, learner.shape)
     return TrialState(
         world=world,
         obs=obs,
+        view=view,
+        recall=memory,
         formulation=formulation,
         features=features,
         action=np.zeros(learner.shape, np.int64),
         held=np.zeros(learner.shape, np.int64),
         start_features=features,
-        frame=np.array(formulation.actions.frame(obs), dtype=np.float64),
+        frame=np.array(formulation.actions.frame(view), dtype=np.float64),
         learner=learner,
         active=learner.copy(),
         heading=np.stack([np.cos(angle), np.sin(angle)], axis=-1),
@@ -213,7 +226,7 @@ def step_trial(
         start = np.where(decide[..., None], state.features, start)
         held = np.where(decide, 0, held)
         if moves.relative:
-            frame = np.where(decide[..., None, None], moves.frame(state.obs), frame)
+            frame = np.where(decide[..., None, None], moves.frame(state.view), frame)
     # Only robots that do not learn search (and learners, where losing every target does not end their trial); with
     # none in the batch the headings are never read.
     seeker = ~state.learner | (not rules.lost_ends_trial)
@@ -222,13 +235,14 @@ def step_trial(
     if velocity is not None:
         move = np.where(state.learner[..., None], move, velocity)
         seeker = seeker & state.learner
-    searching = seeker & lost(state.obs)
+    searching = seeker & lost(state.view)
     move = np.where(searching[..., None], cfg.robot_speed * heading, move)
     # A learner whose trial ended stays where it lost its targets [paper].
     move = np.where((state.learner & ~state.active)[..., None], 0.0, move)
     world = step(cfg, state.world, move, rng)
     obs = sense(cfg, world, rng)
-    features = formulation.featurizer.compute(cfg, obs)
+    view, memory = view_of(cfg, world, obs, state.recall)
+    features = formulation.featurizer.compute(cfg, view)
     held = held + 1
     trial_over = world.t >= cfg.learning_steps
     gone = lost(obs)
@@ -266,6 +280,8 @@ def step_trial(
     new_state = TrialState(
         world=world,
         obs=obs,
+        view=view,
+        recall=memory,
         formulation=formulation,
         features=features,
         action=held_action,

@@ -16,6 +16,7 @@ from algorithm.policy import Policy
 from learner.report import LearnerReport
 from learner.service import LearnerService
 from sim import FORMULATIONS, Formulation, ScenarioConfig, TrialState, WorldState, sense
+from sim.recall import forget_all, view_of
 
 TINY = Budget(
     arenas=24,
@@ -48,17 +49,21 @@ def situation(
         target_speed=np.linalg.norm(vel, axis=-1),
     )
     obs = sense(cfg, world)
-    features = formulation.featurizer.compute(cfg, obs)
-    mask = np.array([learner])
     m = len(robots)
+    memory = forget_all((1, m)) if formulation.featurizer.recalls else None
+    view, memory = view_of(cfg, world, obs, memory)
+    features = formulation.featurizer.compute(cfg, view)
+    mask = np.array([learner])
     return TrialState(
         world=world,
         obs=obs,
+        view=view,
+        recall=memory,
         formulation=formulation,
         features=features,
         action=np.zeros((1, m), np.int64),
         held=np.zeros((1, m), np.int64),
-        frame=np.array(formulation.actions.frame(obs), dtype=np.float64),
+        frame=np.array(formulation.actions.frame(view), dtype=np.float64),
         start_features=features,
         learner=mask,
         active=mask.copy(),

@@ -104,7 +104,9 @@ def test_a_relative_move_is_held_in_the_frame_it_was_chosen_in(actions: str) -> 
     obs = sense(cfg, world)
     frame = formulation.actions.frame(obs)
     features = featurize(cfg, obs, FRAME9D)
-    state = dataclasses.replace(state, world=world, obs=obs, features=features, start_features=features, frame=frame)
+    state = dataclasses.replace(
+        state, world=world, obs=obs, view=obs, features=features, start_features=features, frame=frame
+    )
     decide = np.ones((1, 2), bool)
     for _ in range(cfg.action_steps):
         state, out = step_trial(cfg, state, np.zeros((1, 2), np.int64), decide, rng)
