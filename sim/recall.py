@@ -63,7 +63,7 @@ def recall(cfg: ScenarioConfig, world: WorldState, obs: Observation, memory: Rec
     after = Recall(point=point, age=age, shared=shared)
     remembered = ~seeing & (age <= cfg.recall_steps)
     if not remembered.any():
-        return dataclasses.replace(obs, age=np.where(seeing, 0, age)), after
+        return dataclasses.replace(obs, age=age), after
     features = obs.features.copy()
     features[..., 0:2] = np.where(
         remembered[..., None], (point - world.robot_pos).astype(np.float32), obs.features[..., 0:2]
@@ -75,7 +75,7 @@ def recall(cfg: ScenarioConfig, world: WorldState, obs: Observation, memory: Rec
         features=features,
         n_seen=np.where(remembered, 1, obs.n_seen).astype(np.int32),
         shared=view_shared,
-        age=np.where(seeing, 0, age),
+        age=age,
     )
     return view, after
 
