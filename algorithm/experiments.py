@@ -25,6 +25,7 @@ from algorithm.discretization import Discretization
 from algorithm.fqi import FQIConfig, NetworkController, QNetwork, collect, fit_q
 from algorithm.phase1 import CMOMMT_PHASE1, Phase1Config, phase1
 from algorithm.policy import ActionMode, LostBehaviour, Policy, PolicyController
+from algorithm.selection import BestPolicy
 from algorithm.transitions import Transitions
 from algorithm.trials import ExperienceSlice, SliceConfig
 from algorithm.vqql import lbg
@@ -82,7 +83,16 @@ METHODS: dict[str, MethodSpec] = {
 
 
 UNUSED_BUDGET: dict[str, tuple[str, ...]] = {
-    "fqi": ("phase1", "phase2", "codebook_patterns", "refits", "refit_tuples", "refit_seed_prototypes"),
+    "fqi": (
+        "phase1",
+        "phase2",
+        "codebook_patterns",
+        "refits",
+        "refit_tuples",
+        "refit_seed_prototypes",
+        "validate_every",
+        "validation_trials",
+    ),
     "vqql": ("phase1", "refits", "refit_tuples", "refit_seed_prototypes", "fqi"),
     "enncql": ("codebook_patterns", "fqi"),
 }
@@ -118,6 +128,11 @@ class Budget:
     fqi: FQIConfig = field(default_factory=FQIConfig)
     """The neural fitted-Q reference (method ``fqi-mlp``): it explores as phase 0 and learns on as many batches of
     learning trials as phase 2, in ``fqi.rounds`` rounds."""
+    validate_every: int = 0
+    """Every this many phase-2 batches (and after the last), score the policy on validation trials
+    (:mod:`algorithm.selection`, never the test trials) and test the best one instead of the last; 0: test the last
+    [beyond the paper]."""
+    validation_trials: int = 30
     test_trials: int = 10
     test_steps: int = 1000
     test_seed: int = 0
@@ -276,6 +291,17 @@ def train(
         else {round(k * budget.phase2_trials / (budget.refits + 1)) for k in range(1, budget.refits + 1)}
     )
     recent: list[Transitions] = []
+    keeper = BestPolicy(base, budget.validation_trials, budget.test_steps)
+
+    def acting() -> Policy:
+        """The policy as tested: every test robot on its row, deciding as the formulation says."""
+        policy = dataclasses.replace(
+            agent.policy(robot_table=np.arange(base.n_robots) % rows, meta={"seed": seed, "tuples": tuples}),
+            lost_behaviour=lost_behaviour,
+            action_steps=formulation.act_every or base.action_steps,
+        )
+        return policy.team() if budget.team_policy else policy
+
     for trial in range(budget.phase2_trials):
         batch = learner_slice.run_trial(agent, update=True)
         tuples += len(batch)
@@ -285,15 +311,14 @@ def train(
         if trial + 1 in refit_at:
             agent, disc = _refit(agent, Transitions.concat(recent), budget, seed + trial, learn_cfg)
             say(f"refit: {disc.sizes().mean():.1f} prototypes per action")
-    test_robots = base.n_robots
-    robot_table = np.arange(test_robots) % rows
-    policy = dataclasses.replace(
-        agent.policy(robot_table=robot_table, meta={"seed": seed, "tuples": tuples}),
-        lost_behaviour=lost_behaviour,
-        action_steps=formulation.act_every or base.action_steps,
-    )
-    if budget.team_policy:
-        policy = policy.team()
+        if budget.validate_every and (trial + 1) % budget.validate_every == 0 and trial + 1 < budget.phase2_trials:
+            keeper.offer(acting(), at=trial + 1)
+    policy = acting()
+    if budget.validate_every:
+        keeper.offer(policy, at=budget.phase2_trials)
+        assert keeper.best is not None
+        policy = keeper.best.policy
+        say(f"kept the policy of batch {keeper.best.at:.0f}: {keeper.best.coverage:.2f}% on validation trials")
     result = evaluate(base, PolicyController(policy), budget.test_trials, budget.test_steps, seed=budget.test_seed)
     say(f"test coverage {result.coverage_mean:.2f}%")
     states = float(spec.codebook) if spec.algorithm == "vqql" else float(disc.sizes().mean())

@@ -173,10 +173,23 @@ def result_rows(report: Mapping[str, Any]) -> list[tuple[str, str]]:
         ("coverage curve", ", ".join(f"{t:.0f}s: {c:.1f}%" for t, c in curve)),
         ("policy file", str(report["policy_file"])),
     ]
+    kept = report.get("kept")
+    if kept:
+        rows.insert(-1, ("kept policy", _kept(kept)))
     formulation = _formulation(report)
     if formulation in FORMULATIONS:
         rows.insert(1, ("formulation", f"{formulation} ({FORMULATIONS[formulation].describe()})"))
     return rows
+
+
+def _kept(kept: Mapping[str, Any]) -> str:
+    """Which policy the run saved and scored, and why: its score on the validation trials beside the last one's."""
+    curve = kept.get("validation_curve") or []
+    last = f"; the last policy's {curve[-1][1]:.2f} %" if curve else ""
+    return (
+        f"version {kept['version']} of {kept['at_s']:.0f} s, the best on {kept['validation_trials']} validation "
+        f"trials (seed {kept['validation_seed']}, not the test trials): {kept['validation_coverage']:.2f} %{last}"
+    )
 
 
 def results_table(report: Mapping[str, Any]) -> str:
@@ -211,7 +224,8 @@ def _result(report: Mapping[str, Any], curve_png: str) -> list[str]:
         return [*lines, headline(report)[0].removeprefix("result: ").capitalize() + ".", ""]
     trials = report.get("final_eval_trials", 200)
     formulation = _formulation(report)
-    learned = f"version {report['policy_version']}" + (f", formulation {formulation}" if formulation else "")
+    version = (report.get("kept") or {}).get("version", report["policy_version"])
+    learned = f"version {version}" + (f", formulation {formulation}" if formulation else "")
     rows = [("**learned policy**", learned, f"**{final:.2f}**")]
     rows += [
         (_label(name), REFERENCE_NOTES.get(name, "hand-made"), f"{value:.2f}")

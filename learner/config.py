@@ -64,6 +64,13 @@ class LearnerConfig:
     """Test trials of the final policy's figure and of its paired comparison with every reference: 200, since one
     run of ten trials varies by a few points from one set of trials to another, and a paired difference of a point
     needs about 200 trials for a standard error near 0.5 [choice; the paper's figures rest on 5 x 10]."""
+    keep_best: bool = True
+    """Save, score and report the policy that scored best on the validation trials (``validation_trials`` of seed
+    1000, never the reported test trials) at the periodic evaluations and at the end, rather than the last one:
+    phase 2 can settle on a worse policy and stay there [beyond the paper]. The actors learn on the current tables
+    either way. Off: the last policy."""
+    validation_trials: int = 30
+    """Validation trials of each periodic evaluation when ``keep_best`` (the same trials every time)."""
     eval_steps: int = 1000
     """Steps of each test trial [paper]."""
     checkpoint_interval: float = 2.0
@@ -92,6 +99,7 @@ class LearnerConfig:
             min_tuples=self.min_tuples,
             eval_trials=self.eval_trials,
             final_eval_trials=self.final_eval_trials,
+            validation_trials=self.validation_trials,
             eval_steps=self.eval_steps,
         )
         require_positive(

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 from algorithm.wire import figures_from_counters, status_counters
 
 if TYPE_CHECKING:  # the parts; readers of the figures (``ennc-ql up``) need none of them
+    from algorithm.selection import BestPolicy
     from learner.config import LearnerConfig
     from learner.evaluator import Evaluator
     from learner.intake import IntakeFigures
@@ -140,6 +141,11 @@ class LearnerReport:
     policy_file: str | None
     checkpoint: str
     seconds: float
+    kept: dict[str, Any] | None = None
+    """With ``keep_best``: the policy saved and scored, the best on the validation trials (``version``, ``at_s``,
+    ``validation_coverage``), those trials (``validation_trials``, ``validation_seed``) and every evaluated
+    policy's score on them (``validation_curve``, [[seconds, %], ...], the last one scored at the end); None
+    without ``keep_best`` or before a policy was scored."""
     resumes: list[dict[str, Any]] = field(default_factory=list)
     """Every time the run was resumed from its checkpoint: the run clock it resumed at (``at_s``), the policy version
     of its first broadcast, that broadcast's wall time and the seconds from the process's start to it."""
@@ -159,6 +165,7 @@ class LearnerReport:
         policy_file: Path | None,
         checkpoint: Path,
         resumes: list[dict[str, Any]] | None = None,
+        keeper: BestPolicy | None = None,
     ) -> LearnerReport:
         """The report of a run that ended with ``status`` (built from the same ``intake`` figures) and the final
         figure ``final`` (None: no policy was learned, and no reference is measured)."""
@@ -195,6 +202,7 @@ class LearnerReport:
             checkpoint=str(checkpoint),
             seconds=round(status.elapsed, 2),
             resumes=list(resumes or []),
+            kept=None if keeper is None or keeper.best is None else _kept(keeper),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -217,3 +225,16 @@ class LearnerReport:
 
     def with_extra(self, **extra: Any) -> LearnerReport:
         return dataclasses.replace(self, extra={**self.extra, **extra})
+
+
+def _kept(keeper: BestPolicy) -> dict[str, Any]:
+    best = keeper.best
+    assert best is not None
+    return {
+        "version": best.policy.version,
+        "at_s": round(best.at, 2),
+        "validation_coverage": round(best.coverage, 3),
+        "validation_trials": keeper.trials,
+        "validation_seed": keeper.seed,
+        "validation_curve": [list(p) for p in keeper.scores],
+    }

@@ -30,7 +30,9 @@ import psutil
 
 from algorithm.discretization import Discretization
 from algorithm.phase1 import estimator
-from algorithm.policy_file import save_policy
+from algorithm.policy import Policy
+from algorithm.policy_file import PolicyFileError, load_policy, save_policy
+from algorithm.selection import BestPolicy
 from learner.checkpoint import Checkpointer, CheckpointError, VersionMark
 from learner.config import LearnerConfig
 from learner.evaluator import Evaluator
@@ -45,6 +47,9 @@ from protocol import Ack, QTableIncrement, Status, Transport
 from sim import scenario
 
 log = logging.getLogger(__name__)
+
+BEST_POLICY = "best-policy.npz"
+"""The run folder's copy of the policy ``keep_best`` holds, written when it changes, so a resumed learner has it."""
 
 
 class LearnerService:
@@ -75,6 +80,9 @@ class LearnerService:
         )
         self.fitter = Fitter(config, on_fitted=self._adopt)
         self.evaluator = Evaluator(self.scenario, config.eval_trials, config.eval_steps, config.final_eval_trials)
+        self.keeper = None
+        if config.keep_best:
+            self.keeper = BestPolicy(self.scenario, config.validation_trials, config.eval_steps)
         self.checkpointer = Checkpointer(run_dir)
         # The viewer's train_time is the run clock of the learning curve.
         self.watch = LearnerWatch(monitor or Monitor(), self.scenario, clock=self.elapsed)
@@ -179,6 +187,22 @@ class LearnerService:
             spread[name] = {"coverage": levels[name], **figures}
         self.watch.evaluated(policy, coverage, spread, trials=self.config.eval_trials)
         log.info("evaluation of policy version %d: %.2f%% of targets observed", policy.version, coverage)
+        self._offer(policy)
+
+    def _offer(self, policy: Policy) -> None:
+        """Score ``policy`` on the validation trials; a new best goes to disk before the checkpoint that names it."""
+        if self.keeper is None:
+            return
+        validation = self.keeper.offer(policy, at=self.elapsed())
+        if self.keeper.best is not None and self.keeper.best.policy is policy:
+            save_policy(policy, self.scenario, self.run_dir / BEST_POLICY)
+        log.info("validation of policy version %d: %.2f%% of targets observed", policy.version, validation)
+
+    def _chosen(self) -> Policy | None:
+        """The policy the run saves and scores: the best on the validation trials with ``keep_best``, else the last."""
+        if self.keeper is not None and self.keeper.best is not None:
+            return self.keeper.best.policy
+        return self.state.policy()
 
     # -- status, checkpoints, report --------------------------------------------------------------------------------
 
@@ -201,6 +225,7 @@ class LearnerService:
                 **policy_meta,
                 **self.fitter.to_meta(),
                 **self.evaluator.to_meta(),
+                **({} if self.keeper is None else self.keeper.to_meta()),
                 **self.members.to_meta(),
                 "elapsed": self.elapsed(),
                 "resumes": self.resumes,
@@ -229,6 +254,8 @@ class LearnerService:
             self.state.restore(arrays, meta, published=self.version_mark.load())
             self.fitter.restore(meta)
             self.evaluator.restore(meta)
+            if self.keeper is not None:
+                self.keeper.restore(meta, self._kept_file() if meta.get("kept") else None)
             self.members.restore(meta)
             self._elapsed_before = float(meta["elapsed"])
             self.resumes = list(meta["resumes"])
@@ -242,12 +269,23 @@ class LearnerService:
             self.state.version,
         )
 
+    def _kept_file(self) -> Policy | None:
+        try:
+            return load_policy(self.run_dir / BEST_POLICY)[0]
+        except PolicyFileError as exc:
+            log.warning("--resume: the kept policy is lost (%s); the next evaluated policy is kept instead", exc)
+            return None
+
     def _finish(self) -> LearnerReport:
         self.fitter.join()  # a fit under way finishes, so its work is in the final policy
         final = None
         if self.state.fitted:
             self._broadcast()
-            policy = self.state.policy()
+            last = self.state.policy()
+            assert last is not None
+            if self.keeper is not None and self.keeper.scores:  # else the last is the only candidate: not scored
+                self._offer(last)
+            policy = self._chosen()
             assert policy is not None
             final = self.evaluator.final(policy)
             self.watch.final(policy, final, self.config.final_eval_trials, self.evaluator.comparison())
@@ -263,7 +301,7 @@ class LearnerService:
         return self._report(None, self.checkpointer.path, self._elapsed_before)
 
     def _report(self, final: float | None, checkpoint: Path, elapsed: float) -> LearnerReport:
-        policy = self.state.policy()
+        policy = self._chosen()
         policy_file = None if policy is None else save_policy(policy, self.scenario, self.run_dir / "policy.npz")
         figures = self.intake.figures()
         status = LearnerStatus.of(figures, self.state, self.members, self.evaluator, self.fitter.fits, elapsed)
@@ -278,4 +316,5 @@ class LearnerService:
             policy_file,
             checkpoint,
             resumes=self.resumes,
+            keeper=self.keeper,
         )

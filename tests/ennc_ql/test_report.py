@@ -323,3 +323,21 @@ def test_after_a_slurm_job_the_next_commands_are_new_jobs_not_arguments_to_its_s
     assert not [line for line in lines if line.startswith("sbatch")]
     again = f"ennc-ql slurm train --config {tmp_path / 'up.toml'} --run-id NEW-ID --submit"
     assert again in lines and f"{again} --duration 960" in lines
+
+
+def test_a_kept_policy_is_named_with_its_validation_score_beside_the_last_one_s(tmp_path: Path) -> None:
+    kept = {
+        "version": 31,
+        "at_s": 337.9,
+        "validation_coverage": 62.5,
+        "validation_trials": 30,
+        "validation_seed": 1000,
+        "validation_curve": [[95.2, 50.25], [337.9, 62.5], [480.3, 60.125]],
+    }
+    text = write_run_report({**run_report(tmp_path), "kept": kept}, tmp_path)[0].read_text()
+    assert "| **learned policy** | version 31, formulation shared-difference | **61.23** |" in text
+    assert (
+        "| kept policy | version 31 of 338 s, the best on 30 validation trials (seed 1000, not the test trials): "
+        "62.50 %; the last policy's 60.12 % |" in text
+    )
+    assert "kept policy" not in write_run_report(run_report(tmp_path), tmp_path)[0].read_text()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from pathlib import Path
@@ -15,11 +16,13 @@ from actors.config import ActorConfig, parse_robots
 from actors.wiring import connect as connect_actor
 from algorithm.discretization import Discretization
 from algorithm.phase1 import Phase1Config
+from algorithm.policy import PolicyController
 from learner.config import LearnerConfig
 from learner.policy_state import PolicyState
 from learner.service import LearnerService
 from learner.wiring import connect as connect_learner
 from protocol import ExperienceBatch, InMemoryBus, InMemoryTransport, PolicyUpdate, QTableIncrement, Reject
+from sim import evaluate
 from sim.formulation import DEFAULT_FORMULATION, FORMULATIONS
 from tests.fakes import run_until
 
@@ -323,3 +326,40 @@ def test_a_poisoned_message_is_rejected_by_its_seq_and_the_stream_flows_on(tmp_p
     # One count per arrival: each refused message once, each re-send a duplicate; the lie is counted, but no Reject
     # went to b for it.
     assert figures.rejected_by_type == {"InvalidValues": 2, "StateDimension": 1} and figures.duplicates == 2
+
+
+def test_the_run_saves_and_scores_the_policy_best_on_validation_trials_and_resumes_with_it(tmp_path: Path) -> None:
+    from algorithm.policy_file import load_policy
+    from learner.service import BEST_POLICY
+    from tests.algorithm.test_selection import constant, validation
+
+    config = dataclasses.replace(FAST, keep_best=True, validation_trials=3, final_eval_trials=3, duration=0.5)
+    scores = {a: validation(constant(a, version=1), 3) for a in range(8)}
+    good, bad = max(scores, key=scores.__getitem__), min(scores, key=scores.__getitem__)
+    offered = iter([constant(bad, version=3), constant(good, version=4), constant(bad, version=5)])
+    with InMemoryTransport(InMemoryBus()) as t:
+        service = LearnerService(t, config, tmp_path)
+        service.state.adopt(one_cell_per_action(DIM))
+        service.state.policy = lambda: next(offered)  # type: ignore[method-assign]
+        service._evaluate()
+        service._evaluate()
+        service.checkpoint()
+        report = service.run(threading.Event())  # half a second, then the end: the last policy is offered too
+    saved, _ = load_policy(tmp_path / "policy.npz")
+    assert int(np.argmax(saved.tables[0])) == good and saved.version == 4
+    assert report.kept is not None and report.kept["version"] == 4
+    assert report.kept["validation_coverage"] == round(scores[good], 3)
+    assert [c for _, c in report.kept["validation_curve"]] == [round(scores[a], 3) for a in (bad, good, bad)]
+    # The final figure is the kept policy's, on the test trials.
+    assert report.final_coverage_mean == round(
+        evaluate(service.scenario, PolicyController(constant(good, 1)), 3, FAST.eval_steps, seed=0).coverage_mean, 3
+    )
+    # A resumed learner keeps it (from its file); without the file it forgets it, and says so.
+    with InMemoryTransport(InMemoryBus()) as t:
+        resumed = LearnerService(t, config, tmp_path, resume=True)
+    assert resumed.keeper is not None and resumed.keeper.best is not None
+    assert int(np.argmax(resumed.keeper.best.policy.tables[0])) == good
+    (tmp_path / BEST_POLICY).unlink()
+    with InMemoryTransport(InMemoryBus()) as t:
+        forgot = LearnerService(t, config, tmp_path, resume=True)
+    assert forgot.keeper is not None and forgot.keeper.best is None and len(forgot.keeper.scores) == 3

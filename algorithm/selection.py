@@ -1,0 +1,64 @@
+"""Keep the best policy of a learning run by its score on validation trials, never on the reported test trials.
+
+Phase 2 does not improve monotonically: a run can settle early on a worse policy and stay there (the scaling runs
+of docs/learning-quality.md spread 66.6–74.9 % at 16 minutes). The learner and ``train`` therefore score each
+policy they would evaluate on validation trials too, and save and report the best one. Every policy is scored on
+the same validation trials, so two scores differ by the policies, not by the trials::
+
+    keeper = BestPolicy(scenario("cmommt-v1"), trials=10, steps=1000)
+    keeper.offer(policy, at=61.0)        # its validation coverage (%); kept if above every earlier one
+    keeper.best                          # Kept(policy, coverage, at) or None before the first offer
+    keeper.to_meta(); keeper.restore(meta, policy)   # across a learner's resume (the policy from its file)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from algorithm.policy import Policy, PolicyController
+from sim import ScenarioConfig, evaluate
+
+VALIDATION_SEED = 1000
+"""The validation trials' seed: none of the reported test trials (seed 0 for ``up`` and ``train``, 0…3 for the
+README's tables), nor the references' tuning seeds and the screens' test trials (100…103)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Kept:
+    policy: Policy
+    coverage: float
+    """Metric A (%) on the validation trials."""
+    at: float
+    """When it was offered: seconds of training (the learner) or phase-2 batches (``train``)."""
+
+
+class BestPolicy:
+    def __init__(self, cfg: ScenarioConfig, trials: int, steps: int, seed: int = VALIDATION_SEED) -> None:
+        self.cfg = cfg
+        self.trials = trials
+        self.steps = steps
+        self.seed = seed
+        self.best: Kept | None = None
+        self.scores: list[tuple[float, float]] = []
+        """(at, validation coverage %) of every policy offered."""
+
+    def offer(self, policy: Policy, at: float) -> float:
+        """Score ``policy`` on the validation trials and keep it if it beats every earlier one (ties keep the
+        earlier); returns its score."""
+        coverage = evaluate(self.cfg, PolicyController(policy), self.trials, self.steps, seed=self.seed).coverage_mean
+        self.scores.append((round(at, 2), round(coverage, 3)))
+        if self.best is None or coverage > self.best.coverage:
+            self.best = Kept(policy, coverage, at)
+        return coverage
+
+    def to_meta(self) -> dict[str, Any]:
+        kept = None if self.best is None else {"coverage": self.best.coverage, "at": self.best.at}
+        return {"validation_scores": list(self.scores), "kept": kept}
+
+    def restore(self, meta: dict[str, Any], policy: Policy | None) -> None:
+        """Continue from a checkpoint's figures and the kept policy (None: none was kept, or its file is lost, so
+        the next offer is kept)."""
+        self.scores = [(float(t), float(c)) for t, c in meta.get("validation_scores", [])]
+        kept = meta.get("kept")
+        self.best = None if kept is None or policy is None else Kept(policy, float(kept["coverage"]), float(kept["at"]))
