@@ -28,6 +28,7 @@ from sim import ScenarioConfig
 from sim.formulation import Formulation
 from sim.rollout import StepHook
 from sim.trial import TrialState, TrialStep, random_actions, reset_trial, step_trial
+from sim.world import WorldState, reset
 
 
 @dataclass(frozen=True, slots=True)
@@ -60,6 +61,9 @@ class ExperienceSlice:
         learners = range(cfg.n_robots) if config.learning_robots is None else config.learning_robots
         self.learner_mask = np.zeros(cfg.n_robots, dtype=bool)
         self.learner_mask[list(learners)] = True
+        self._world: WorldState | None = None
+        """Where the last trial left the arenas (``continuing`` trial rules)."""
+        self._trials = 0
 
     def run_trial(
         self, agent: TabularAgent | None = None, update: bool = False, on_step: StepHook | None = None
@@ -69,7 +73,7 @@ class ExperienceSlice:
         ``on_step`` (optional) sees the world and observation after every step, e.g. to draw an arena.
         """
         cfg, setup, rng = self.cfg, self.config, self.rng
-        state = reset_trial(cfg, setup.n_arenas, self.learner_mask, setup.formulation, rng)
+        state = reset_trial(cfg, setup.n_arenas, self.learner_mask, setup.formulation, rng, self._carried(agent))
         # VQQL actions last until the held action's cell changes, so they need the agent's discretization.
         until_change = setup.action_mode == "until_change" and agent is not None
         hold = setup.max_action_steps if until_change else cfg.action_steps
@@ -95,8 +99,22 @@ class ExperienceSlice:
                     out = out.with_boundary(now != cell_sa)
             self._emit(out, agent if update else None, cell_sa, cells, parts)
             if out.trial_over:
+                self._world = state.world
                 return Transitions.concat(parts) if parts else Transitions.empty(setup.formulation.dim)
             decide = out.decide
+
+    def _carried(self, agent: TabularAgent | None) -> WorldState | None:
+        """The arenas the next trial starts in under ``continuing`` rules: the last trial's, or fresh ones as a test
+        trial's (not beside a target) once per test trial's length; None: fresh arenas beside a target. Random
+        exploration (no ``agent``) always starts beside a target: in fresh arenas random moves rarely find one, and
+        phase 1 would fit its cells on states with nothing in view."""
+        cfg = self.cfg
+        if agent is None or not self.config.formulation.trial_rules.continuing:
+            return None
+        episode = max(1, cfg.test_steps // cfg.learning_steps)
+        fresh = self._world is None or self._trials % episode == 0
+        self._trials += 1
+        return reset(cfg, self.config.n_arenas, self.rng) if fresh else self._world
 
     def _emit(
         self,

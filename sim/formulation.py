@@ -45,6 +45,13 @@ class TrialRules:
     """The tuple a learner holds when the trial's ``learning_steps`` run out is terminal (q = r) [paper: the trial
     ends]. False: it bootstraps from its s′, as a time limit that is not part of the task should [beyond the paper;
     only with a per-decision reward, whose value is not paid at the end of the trial]."""
+    continuing: bool = False
+    """Learning trials follow each other in the same arenas: a trial starts where the previous one left every robot
+    and target, and every ``test_steps // learning_steps`` trials the arenas start afresh as a test trial's do
+    (robots and targets uniform in the disk, not beside a target). Learning then meets the states of whole test
+    trials in their proportions, the late, crowded phase included, which trials that start beside a target rarely
+    reach [beyond the paper]. Random exploration still starts beside a target. False: every trial starts afresh,
+    each learner within sensing range of a target [choice]."""
 
 
 TRIAL_RULES: dict[str, TrialRules] = {
@@ -53,11 +60,14 @@ TRIAL_RULES: dict[str, TrialRules] = {
         TrialRules("paper"),
         TrialRules("search-on", lost_ends_trial=False, timeout_terminal=False),
         TrialRules("lost-searches", lost_ends_trial=False),
+        TrialRules("continuing", lost_ends_trial=False, timeout_terminal=False, continuing=True),
+        TrialRules("continuing-cut", lost_ends_trial=False, continuing=True),
     )
 }
 """Every set of learning-trial rules by name: ``paper`` [paper §4]; ``search-on``, a lost learner searches and goes
-on learning and the time-out bootstraps; ``lost-searches``, the same with the paper's terminal time-out [beyond the
-paper]."""
+on learning and the time-out bootstraps; ``lost-searches``, the same with the paper's terminal time-out;
+``continuing``, ``search-on`` in arenas that carry over from trial to trial for a test trial's length, and
+``continuing-cut`` the same with the terminal time-out [beyond the paper]."""
 PAPER_RULES = TRIAL_RULES["paper"]
 
 

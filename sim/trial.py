@@ -153,14 +153,19 @@ def reset_trial(
     learners: np.ndarray,
     formulation: Formulation,
     rng: np.random.Generator,
+    world: WorldState | None = None,
 ) -> TrialState:
-    """E fresh arenas whose ``learners`` (bool, broadcastable to (E, m)) start within sensing range of a target.
+    """E fresh arenas whose ``learners`` (bool, broadcastable to (E, m)) start within sensing range of a target, or,
+    given ``world``, a trial in those arenas as they are (its clock restarted: the trial's own steps).
 
     ``formulation`` gives the state, the learners' reward, the action set and the trial rules. No robot holds an
     action yet: the first :func:`step_trial` must let every robot decide.
     """
     learner = np.broadcast_to(np.asarray(learners, dtype=bool), (n_arenas, cfg.n_robots)).copy()
-    world = place_near_targets(cfg, reset(cfg, n_arenas, rng), learner, rng)
+    if world is None:
+        world = place_near_targets(cfg, reset(cfg, n_arenas, rng), learner, rng)
+    else:
+        world = dataclasses.replace(world, t=0)
     obs = sense(cfg, world, rng)
     memory = forget_all(learner.shape) if formulation.featurizer.recalls else None
     view, memory = view_of(cfg, world, obs, memory)

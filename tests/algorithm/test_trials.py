@@ -85,3 +85,39 @@ def test_until_change_actions_last_until_the_cell_changes_or_the_cap() -> None:
     assert (~batch.done).sum() <= 3 * robots_total
     fixed = ExperienceSlice(cfg, SliceConfig(PAPER, n_arenas=32), seed=3).run_trial(agent)
     assert (~fixed.done).sum() > (~batch.done).sum()
+
+
+def test_continuing_trials_start_where_the_last_ended_and_afresh_once_per_test_trial() -> None:
+    cfg = scenario("cmommt-v1").replace(learning_steps=10, test_steps=30)  # 3 trials to a test trial's length
+    starts: list[np.ndarray] = []
+    ends: list[np.ndarray] = []
+    rules = FORMULATIONS["frame-cooperative"].replace(trial_rules="continuing")
+    sl = ExperienceSlice(cfg, SliceConfig(rules, n_arenas=50), seed=4)
+    disc = Discretization.from_per_action([np.zeros((1, rules.dim))] * 8)
+    policy = Policy(rules, disc, np.zeros((1, disc.size), np.float32), np.zeros(cfg.n_robots, np.int64))
+    agent = TabularAgent(policy, Phase2Config())
+    seen: list[np.ndarray] = []
+    for _ in range(7):
+        seen.clear()
+        sl.run_trial(agent, on_step=lambda world, obs: seen.append(world.robot_pos.copy()))
+        starts.append(seen[0])
+        ends.append(seen[-1])
+    step = cfg.robot_speed * (1 + 1e-6)  # one step of a robot, float rounding at the wall aside
+    moved = [np.linalg.norm(starts[k] - ends[k - 1], axis=-1).max() for k in range(1, 7)]
+    # Trials 1, 2, 4, 5 go on from the last step of the one before (one step apart); 3 and 6 start afresh.
+    assert [m <= step for m in moved] == [True, True, False, True, True, False], moved
+    # A fresh start is a test trial's: robots uniform in the disk, most of them beyond sensing range of every target
+    # (trials that are not continuing put every learner beside one).
+    fresh = ExperienceSlice(cfg, SliceConfig(rules, n_arenas=50), seed=4)
+    first: list[tuple[np.ndarray, np.ndarray]] = []
+    fresh.run_trial(agent, on_step=lambda world, obs: first.append((world.robot_pos.copy(), world.target_pos.copy())))
+    robots, targets = first[0]
+    nearest = np.linalg.norm(robots[:, :, None] - targets[:, None], axis=-1).min(axis=-1)
+    assert (nearest > cfg.sensing_range + step).mean() > 0.5
+    # Random exploration (no policy yet), and trials under other rules, put every learner beside a target.
+    beside = ExperienceSlice(cfg, SliceConfig(rules, n_arenas=50), seed=4)
+    first.clear()
+    beside.run_trial(on_step=lambda world, obs: first.append((world.robot_pos.copy(), world.target_pos.copy())))
+    robots, targets = first[0]
+    nearest = np.linalg.norm(robots[:, :, None] - targets[:, None], axis=-1).min(axis=-1)
+    assert (nearest <= cfg.sensing_range + 2 * step).all()
