@@ -11,6 +11,7 @@ Usage::
     mark = VersionMark(run_dir)
     mark.record(7)                           # before version 7 goes out
     mark.load()                              # 7 (0 when no version was ever broadcast)
+    kept_visits(run_dir / "checkpoint.npz")  # visits the tables hold (the exactly-once check of the increments)
 """
 
 from __future__ import annotations
@@ -50,6 +51,14 @@ class Checkpointer:
         except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
             raise CheckpointError(f"--resume: unreadable checkpoint {self.path}: {exc}") from None
         return arrays, meta
+
+
+def kept_visits(path: Path) -> int:
+    """Visits a checkpoint holds: in its tables, and in the increments acknowledged but not merged yet (none after a
+    run's final checkpoint). The saved policy file need not hold them all: it may be an earlier one (``keep_best``)."""
+    names = ("visits", "pending_visits")
+    with np.load(path, allow_pickle=False) as data:
+        return sum(int(data[name].astype(np.int64).sum()) for name in names if name in data.files)
 
 
 class VersionMark:

@@ -7,12 +7,12 @@ import dataclasses
 import itertools
 import json
 import logging
+import zipfile
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from algorithm.policy_file import PolicyFileError, load_policy
+from learner.checkpoint import kept_visits
 from tools.chaos.options import SECURE_ONLY
 from tools.chaos.peers import POISON_TUPLES
 
@@ -110,20 +110,18 @@ def check_exactly_once(ev: Evidence, actors: dict[str, dict[str, Any]]) -> Check
 
 
 def visit_figures(ev: Evidence, actors: dict[str, dict[str, Any]]) -> dict[str, Any]:
-    """Visits in the final policy file's tables (the learner) against those acknowledged to the actors."""
+    """Visits in the learner's final tables (its last checkpoint) against those acknowledged to the actors."""
     figures: dict[str, Any] = {
         "acked": sum(a["visits_acked"] or 0 for a in actors.values()),
         "killed_acked": sum(a["killed_visits_acked"] for a in actors.values()),
         "in_tables": None,
     }
-    path = (ev.report or {}).get("policy_file")
+    path = (ev.report or {}).get("checkpoint")
     if path:
         try:
-            policy, _ = load_policy(path)
-        except (OSError, PolicyFileError) as exc:
-            log.error("cannot read the final policy %s: %s", path, exc)
-        else:
-            figures["in_tables"] = 0 if policy.visits is None else int(policy.visits.astype(np.int64).sum())
+            figures["in_tables"] = kept_visits(Path(path))
+        except (OSError, ValueError, zipfile.BadZipFile) as exc:
+            log.error("cannot read the final checkpoint %s: %s", path, exc)
     return figures
 
 
@@ -131,7 +129,7 @@ def check_visits(ev: Evidence, visits: dict[str, Any]) -> Check:
     name = "acknowledged visits kept"
     in_tables, acked, killed = visits["in_tables"], visits["acked"], visits["killed_acked"]
     if in_tables is None:
-        return Check(name, False, "no readable final policy file")
+        return Check(name, False, "no readable final checkpoint")
     if ev.killed:  # a killed incarnation's last acknowledgements were never seen: a lower bound only
         ok, relation = in_tables >= acked + killed, f">= {acked} + {killed} acked to killed incarnations"
     else:
