@@ -43,7 +43,8 @@ HELP = CommandHelp(
     "The central learner: it stores the actors' experience, runs ENNC-QL phase 1 once --min-tuples are in, merges "
     "the actors' Q-table changes, broadcasts a policy with a strictly increasing version every few seconds, "
     "evaluates it on seeded test trials (the learning curve), checkpoints (acknowledging only what a checkpoint "
-    "holds) and, at the end, scores the final policy and writes report.json and policy.npz into --run-dir. It runs "
+    "holds) and, at the end, scores the policy that did best on validation trials of another seed (--no-keep-best: "
+    "the last) and writes report.json and policy.npz into --run-dir. It runs "
     "until --duration or SIGTERM/Ctrl-C, which end it cleanly. --resume continues from the checkpoint in --run-dir "
     "after a crash. ennc-ql up starts one of these for you; start it by hand for several machines.",
     (
