@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
+from functools import partial
 from typing import Any
 
 from actors.actor import RobotActor
@@ -19,7 +20,9 @@ from actors.config import ActorConfig
 from actors.wiring import connect
 from ennc_ql.command import add_process_args, checked_zenoh, configure, emit, open_transport, registry_choices
 from ennc_ql.parser import CommandHelp, add_command
-from monitor import open_monitor, sink_from_args
+from monitor import Monitor, Sink, open_monitor, sink_from_args
+from monitor.relay import RelayMonitor
+from protocol import Transport
 from tools.system import stop_on_signals
 
 HELP = CommandHelp(
@@ -46,14 +49,20 @@ def add_actor_parser(sub: Any) -> None:
     p.set_defaults(func=cmd_actor)
 
 
+def actor_monitor(sink: Sink, transport: Transport, config: ActorConfig, args: argparse.Namespace) -> Monitor:
+    """``--rerun learner``: the actor's rows travel to the learner as ``ActorView`` messages (no Rerun here);
+    any other sink: the actor logs them itself."""
+    if sink.kind == "learner":
+        return RelayMonitor(partial(transport.publish, transport.keys.view(config.actor_id)), config.actor_id)
+    return open_monitor(sink, process=config.actor_id, recording_id=args.recording_id)
+
+
 def cmd_actor(args: argparse.Namespace) -> int:
     config: ActorConfig = configure(ActorConfig, args, "actor")
     conf = checked_zenoh(args, "actor", config.actor_id)
     stop = stop_on_signals()
-    with (
-        open_transport(conf, args, "actor") as transport,
-        open_monitor(sink_from_args(args), process=config.actor_id, recording_id=args.recording_id) as monitor,
-    ):
+    sink = sink_from_args(args)
+    with open_transport(conf, args, "actor") as transport, actor_monitor(sink, transport, config, args) as monitor:
         actor = RobotActor(transport, config, monitor=monitor)
         with connect(actor, transport):
             status = actor.run(stop)

@@ -130,7 +130,13 @@ def writable_dir(path: Path, command: str, flag: str) -> Path:
 
 def check_recording(sink: Sink | None, command: str) -> None:
     """A ``--rerun save PATH`` whose file cannot be written, or a ``--rerun spawn`` without a viewer or a display,
-    fails now, not once the processes started."""
+    fails now, not once the processes started; so does a ``--rerun learner`` given to another command than
+    ``actor``."""
+    if sink is not None and sink.kind == "learner" and command != "actor":
+        fail(
+            command,
+            "--rerun learner: only an actor relays its rows to the learner; choose off, save, spawn, connect or serve",
+        )
     if sink is not None and sink.kind == "spawn":
         problem = spawn_problem()
         if problem:

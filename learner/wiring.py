@@ -11,7 +11,7 @@ from __future__ import annotations
 from contextlib import ExitStack
 
 from learner.service import LearnerService
-from protocol import ExperienceBatch, QTableIncrement, Transport
+from protocol import ActorView, ExperienceBatch, QTableIncrement, Transport
 
 
 def connect(service: LearnerService, transport: Transport) -> ExitStack:
@@ -25,6 +25,9 @@ def connect(service: LearnerService, transport: Transport) -> ExitStack:
         stack.callback(
             transport.subscribe(keys.qinc(), QTableIncrement, service.on_increment, intake.on_rejected).close
         )
+        # The viewer rows of actors that relay them (``--rerun learner``), into this process's recording.
+        if service.watch.monitor.enabled:
+            stack.callback(transport.subscribe(keys.view(), ActorView, service.watch.monitor.actor_view).close)
         # A late-joining actor asks for the current policy instead of waiting for the next broadcast.
         stack.callback(transport.declare_queryable(keys.policy_latest(), lambda: service.state.current).close)
         # Membership: actors' liveliness tokens appear and vanish (killed at once, hung after the lease).

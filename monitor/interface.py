@@ -6,6 +6,7 @@ unconditionally; guard only work done *to prepare* a call (``if monitor.enabled:
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Mapping, Sequence
 from types import TracebackType
 from typing import TYPE_CHECKING, Self
@@ -13,7 +14,18 @@ from typing import TYPE_CHECKING, Self
 import numpy as np
 
 if TYPE_CHECKING:
+    from protocol.messages import ActorView
     from sim.formulation import Formulation
+
+
+def resident_mb() -> float | None:
+    """Resident memory of this process (MB) from ``/proc`` (Linux, where runs happen); None without it."""
+    try:
+        with open("/proc/self/statm") as statm:
+            pages = int(statm.read().split()[1])
+    except OSError:
+        return None
+    return pages * os.sysconf("SC_PAGE_SIZE") / 1e6
 
 
 class Monitor:
@@ -137,6 +149,11 @@ class Monitor:
         ``coverage`` (%) over its arenas, ``mean_reward`` per learning trial, ``policy_version`` it acts with; the
         process's resident memory is logged with them (``actors/<actor_id>/rss_mb``).
         """
+
+    def actor_view(self, view: ActorView) -> None:
+        """What an actor relayed (``--rerun learner``): its figures and arena frames, logged as :meth:`actor_metrics`
+        and :meth:`arena` log an actor's own, on the actor's timelines (its ``sim_step``, ``train_time`` and wall
+        time), so a recording reads the same whichever process wrote the rows."""
 
     def send_blueprint(
         self,

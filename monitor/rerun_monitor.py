@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import logging
-import os
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -13,8 +12,9 @@ import numpy as np
 import rerun as rr
 
 from monitor import drawings, geometry, paths, style
-from monitor.interface import Monitor
+from monitor.interface import Monitor, resident_mb
 from monitor.layout import default_blueprint
+from protocol.messages import ActorView
 from sim.actions import ActionSet
 from sim.controllers import N_ACTIONS
 from sim.formulation import Formulation, default_formulation
@@ -29,16 +29,6 @@ _SENSING_COLOR = style.rgba(style.ROBOT, style.SENSING_ALPHA)
 _OBSERVED_COLOR = style.rgba(style.OBSERVED)
 _UNOBSERVED_COLOR = style.rgba(style.UNOBSERVED)
 _BOUNDARY_COLOR = style.rgba(style.BOUNDARY)
-
-
-def _rss_mb() -> float | None:
-    """Resident memory of this process (MB) from ``/proc`` (Linux, where runs happen); None without it."""
-    try:
-        with open("/proc/self/statm") as statm:
-            pages = int(statm.read().split()[1])
-    except OSError:
-        return None
-    return pages * os.sysconf("SC_PAGE_SIZE") / 1e6
 
 
 class RerunMonitor(Monitor):
@@ -67,7 +57,15 @@ class RerunMonitor(Monitor):
     def use_clock(self, clock: Callable[[], float]) -> None:
         self._clock = clock
 
-    def _at(self, sim_step: int | None, policy_version: int | None, learner_step: int | None) -> None:
+    def _at(
+        self,
+        sim_step: int | None,
+        policy_version: int | None,
+        learner_step: int | None,
+        clock: tuple[float, float] | None = None,
+    ) -> None:
+        """Set the timelines of the rows logged next; ``clock`` (train_time, wall_time) for rows of another process
+        (an actor's relayed rows), else this process's clock and now."""
         # Rerun keeps the time cursor per thread and recording id (streams sharing an id in one thread share it);
         # resetting it first attaches exactly the timelines given to this call, whatever was set before.
         rec = self.rec
@@ -78,8 +76,9 @@ class RerunMonitor(Monitor):
             rec.set_time(paths.POLICY_VERSION, sequence=policy_version)
         if learner_step is not None:
             rec.set_time(paths.LEARNER_STEP, sequence=learner_step)
-        rec.set_time(paths.TRAIN_TIME, duration=self._clock())
-        rec.set_time(paths.WALL_TIME, timestamp=time.time())
+        train_time, wall_time = (self._clock(), time.time()) if clock is None else clock
+        rec.set_time(paths.TRAIN_TIME, duration=train_time)
+        rec.set_time(paths.WALL_TIME, timestamp=wall_time)
 
     def _first(self, path: str, seen: set[str]) -> bool:
         """True the first time ``path`` is asked about for ``seen`` (thread-safe: callers log from several threads)."""
@@ -130,6 +129,18 @@ class RerunMonitor(Monitor):
     ) -> None:
         if self._closed:
             return
+        self._arena(origin, robot_pos, target_pos, sensing_range, arena_radius, sim_step, None)
+
+    def _arena(
+        self,
+        origin: str,
+        robot_pos: np.ndarray,
+        target_pos: np.ndarray,
+        sensing_range: float,
+        arena_radius: float,
+        sim_step: int,
+        clock: tuple[float, float] | None,
+    ) -> None:
         rec = self.rec
         with self._lock:
             new_boundary = self._boundaries.get(origin) != arena_radius
@@ -142,7 +153,7 @@ class RerunMonitor(Monitor):
         targets = np.asarray(target_pos, dtype=np.float64).reshape(-1, 2)
         observed = geometry.observed_targets(robots, targets, sensing_range)
         target_colors = np.where(observed[:, None], _OBSERVED_COLOR, _UNOBSERVED_COLOR).astype(np.uint8)
-        self._at(sim_step, None, None)
+        self._at(sim_step, None, None, clock)
         rec.log(
             f"{origin}/{paths.ARENA_SENSING}",
             rr.Points2D(robots, radii=sensing_range, colors=_SENSING_COLOR, draw_order=10.0),
@@ -265,7 +276,7 @@ class RerunMonitor(Monitor):
         self._scalar(paths.LEARNER_LIVE_ACTORS, "live actors", live_actors)
         self._scalar(paths.LEARNER_STORE_SIZE, "tuples stored", store_size)
         self._scalar(paths.LEARNER_REJECTED, "rejected messages", rejected)
-        rss = _rss_mb()
+        rss = resident_mb()
         if rss is not None:
             self._scalar(paths.LEARNER_RSS, "learner", rss)
         for actor_id, behind in lag.items():
@@ -288,12 +299,26 @@ class RerunMonitor(Monitor):
             paths.ACTOR_REWARD: mean_reward,
             paths.ACTOR_TUPLES_PER_S: tuples_per_s,
             paths.ACTOR_POLICY_VERSION: policy_version,
-            paths.ACTOR_RSS: _rss_mb(),
+            paths.ACTOR_RSS: resident_mb(),
         }
         self._at(sim_step, policy_version, None)
         for metric, value in figures.items():
             if value is not None:
                 self._scalar(paths.actor(actor_id, metric), actor_id, value)
+
+    def actor_view(self, view: ActorView) -> None:
+        if self._closed:
+            return
+        origin = paths.actor_arena(view.actor_id)
+        epoch = view.wall_time - view.train_time  # the actor's wall time at its train_time 0
+        frames = zip(view.frame_step, view.frame_time, view.robot_pos, view.target_pos, strict=True)
+        for step, at, robots, targets in frames:
+            clock = (float(at), epoch + float(at))
+            self._arena(origin, robots, targets, view.sensing_range, view.arena_radius, int(step), clock)
+        version = view.counters.get(paths.ACTOR_POLICY_VERSION)
+        self._at(view.sim_step, None if version is None else int(version), None, (view.train_time, view.wall_time))
+        for metric, value in view.counters.items():
+            self._scalar(paths.actor(view.actor_id, metric), view.actor_id, value)
 
     def send_blueprint(
         self,

@@ -20,7 +20,7 @@ from monitor.paths import APPLICATION_ID
 
 log = logging.getLogger(__name__)
 
-SinkKind = Literal["off", "save", "spawn", "connect", "serve"]
+SinkKind = Literal["off", "save", "spawn", "connect", "serve", "learner"]
 SINK_KINDS: tuple[str, ...] = get_args(SinkKind)
 _NEEDS_TARGET = {"save": "a path to an .rrd file", "connect": "a URL like rerun+http://127.0.0.1:9876/proxy"}
 _URL_SCHEMES = ("rerun", "rerun+http", "rerun+https")
@@ -77,7 +77,9 @@ class Sink:
 
     ``off`` (nothing, no Rerun import), ``save`` to the .rrd file ``target``, ``spawn`` a local viewer (or join the
     one already listening on port 9876), ``connect`` to the gRPC URL ``target`` of a viewer or a ``rerun --serve-grpc``
-    server, ``serve`` a gRPC server on port 9876 that viewers connect to (one per host: the port is fixed).
+    server, ``serve`` a gRPC server on port 9876 that viewers connect to (one per host: the port is fixed);
+    ``learner``, an actor's only: its rows travel to the learner, which logs them wherever its own go
+    (:class:`monitor.relay.RelayMonitor`; no Rerun in the actor).
     """
 
     kind: SinkKind = "off"
@@ -125,7 +127,10 @@ def add_rerun_args(parser: argparse.ArgumentParser, default: Sink | None = Sink(
         action=_SinkAction,
         default=default,
         metavar="SINK",
-        help=f"off | save PATH | spawn | connect URL (rerun+http://HOST:9876/proxy) | serve (default: {default_text})",
+        help=(
+            "off | save PATH | spawn | connect URL (rerun+http://HOST:9876/proxy) | serve | learner (an actor: the "
+            f"learner logs its rows) (default: {default_text})"
+        ),
     )
     group.add_argument(
         "--recording-id",
@@ -156,6 +161,8 @@ def open_monitor(
     """
     if sink.kind == "off":
         return Monitor()
+    if sink.kind == "learner":
+        raise ValueError(f"{process}: --rerun learner is an actor's (its rows travel to the learner): use RelayMonitor")
     # Imported here so that monitoring off never loads Rerun (or matplotlib) into the process.
     import rerun as rr
 

@@ -17,6 +17,7 @@ ack/{actor_id}          Ack                           learner → actor reliable
 policy                  PolicyUpdate (broadcast)      learner → all   reliable, BLOCK
 policy/latest           PolicyUpdate (queryable)      learner → asker reply to a get
 status/{sender}         Status                        any → any       best effort, DROP
+view/{actor_id}         ActorView                     actor → learner best effort, DROP
 alive/{role}/{id}       (liveliness token)            any             session lifetime
 ======================  ============================  ==============  =====================
 """
@@ -34,6 +35,7 @@ from protocol.messages import (
     ROLES,
     SCHEMA_VERSION,
     Ack,
+    ActorView,
     ExperienceBatch,
     IdentityMismatch,
     InvalidValues,
@@ -65,6 +67,7 @@ class Channel(enum.Enum):
     REJECT = "reject"
     POLICY = "policy"
     STATUS = "status"
+    VIEW = "view"
     ALIVE = "alive"
 
 
@@ -95,6 +98,7 @@ QOS: Mapping[Channel, QoS] = MappingProxyType(
         Channel.REJECT: QoS(True, _BLOCK, zenoh.Priority.DATA_HIGH, express=True),
         Channel.POLICY: QoS(True, _BLOCK, zenoh.Priority.DATA_HIGH),
         Channel.STATUS: QoS(False, _DROP, zenoh.Priority.DATA_LOW),
+        Channel.VIEW: QoS(False, _DROP, zenoh.Priority.DATA_LOW),
     }
 )
 
@@ -106,6 +110,7 @@ MESSAGE_OF: Mapping[Channel, type[Message]] = MappingProxyType(
         Channel.REJECT: Reject,
         Channel.POLICY: PolicyUpdate,
         Channel.STATUS: Status,
+        Channel.VIEW: ActorView,
     }
 )
 
@@ -117,6 +122,7 @@ _ID_CHUNKS = {
     Channel.ACK: 1,
     Channel.REJECT: 1,
     Channel.STATUS: 1,
+    Channel.VIEW: 1,
     Channel.ALIVE: 2,
 }
 _BY_NAME = {c.value: c for c in _ID_CHUNKS}
@@ -170,6 +176,10 @@ class KeySpace:
         """Where ``sender`` publishes its Status."""
         return f"{self.root}/status/{_id_or_wild(sender, 'sender')}"
 
+    def view(self, actor_id: str = WILD) -> str:
+        """Where ``actor_id`` publishes its ActorViews for the learner to log (``--rerun learner``)."""
+        return f"{self.root}/view/{_id_or_wild(actor_id, 'actor_id')}"
+
     def alive(self, role: str = WILD, ident: str = WILD) -> str:
         """Liveliness token key of process ``ident`` in ``role`` (learner, actor or evaluator)."""
         if role != WILD and role not in ROLES:
@@ -196,7 +206,7 @@ class KeySpace:
 
     def owner(self, key: str) -> str | None:
         """The id a per-sender key names (``experience/<actor>``, ``qinc/<actor>``, ``ack/<actor>``,
-        ``status/<sender>``); None for the policy keys."""
+        ``status/<sender>``, ``view/<actor>``); None for the policy keys."""
         channel = self._data_channel(key)
         return None if channel is Channel.POLICY else key.rsplit("/", 1)[-1]
 

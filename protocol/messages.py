@@ -442,10 +442,64 @@ class Status(_Validated):
         validate(self)
 
 
-Message: TypeAlias = ExperienceBatch | QTableIncrement | PolicyUpdate | Ack | Reject | Status
+MAX_VIEW_FRAMES = 1000
+"""T, the most arena frames one ActorView carries (a learning trial is 100 steps)."""
+MAX_VIEW_ENTITIES = 256
+"""The most robots, and the most targets, one ActorView frame carries."""
+VIEW_COUNTERS = ("coverage", "reward", "tuples_per_s", "policy_version", "rss_mb")
+"""The figures an ActorView may carry: the viewer's ``actors/<id>/<name>`` series (``monitor.paths``)."""
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class ActorView(_Validated):
+    """What an actor shows in the viewer, relayed by the learner into its recording (``--rerun learner``), so that
+    the actor itself opens no recording: its figures after a learning trial and, for a sampled trial, arena 0 at
+    each of its steps. Best effort (DROP QoS), never needed for correctness.
+    """
+
+    TAG: ClassVar[str] = "view"
+    actor_id: str = field(metadata=_spec("id"))
+    # The actor's sim_step timeline at the end of the trial, and its train_time there (seconds since its loop began).
+    sim_step: int = field(metadata=_u64())
+    train_time: float = field(metadata=_spec("float"))
+    # Seconds since the Unix epoch at the sender, at the end of the trial.
+    wall_time: float = field(metadata=_spec("float"))
+    # The trial's figures by name, each of VIEW_COUNTERS at most once, any of them left out.
+    counters: Mapping[str, float] = field(metadata=_spec("counters"))
+    # [T] uint64 sim_step of each arena frame; T = 0 for a trial not drawn, ≤ MAX_VIEW_FRAMES.
+    frame_step: npt.NDArray[np.uint64] = field(metadata=_array("uint64", "T"))
+    # [T] float64 the actor's train_time at each frame, ≥ 0.
+    frame_time: npt.NDArray[np.float64] = field(metadata=_array("float64", "T"))
+    # [T, m, 2] float32 robot positions, [T, n, 2] float32 target positions (arena units); m, n ≤ MAX_VIEW_ENTITIES.
+    robot_pos: npt.NDArray[np.float32] = field(metadata=_array("float32", "T", "m", 2))
+    target_pos: npt.NDArray[np.float32] = field(metadata=_array("float32", "T", "n", 2))
+    # Sensing range and arena radius the frames are drawn with, > 0.
+    sensing_range: float = field(metadata=_spec("float"))
+    arena_radius: float = field(metadata=_spec("float"))
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "counters", _freeze_counters(self.counters))
+        validate(self)
+
+    def _check_consistency(self) -> None:
+        frames, robots, targets = self.robot_pos.shape[0], self.robot_pos.shape[1], self.target_pos.shape[1]
+        if frames > MAX_VIEW_FRAMES:
+            raise InvalidValues(f"robot_pos: {frames} frames, at most {MAX_VIEW_FRAMES} allowed")
+        if robots > MAX_VIEW_ENTITIES or targets > MAX_VIEW_ENTITIES:
+            raise InvalidValues(f"{robots} robots and {targets} targets per frame, at most {MAX_VIEW_ENTITIES} each")
+        if self.train_time < 0 or (self.frame_time < 0).any():
+            raise InvalidValues("train_time, frame_time: seconds since the actor's loop began, never negative")
+        if self.sensing_range <= 0 or self.arena_radius <= 0:
+            raise InvalidValues("sensing_range, arena_radius: must be positive")
+        unknown = sorted(set(self.counters) - set(VIEW_COUNTERS))
+        if unknown:
+            raise InvalidValues(f"counters: {unknown} not among {VIEW_COUNTERS}")
+
+
+Message: TypeAlias = ExperienceBatch | QTableIncrement | PolicyUpdate | Ack | Reject | Status | ActorView
 
 MESSAGE_TYPES: Mapping[str, type[Message]] = MappingProxyType(
-    {cls.TAG: cls for cls in (ExperienceBatch, QTableIncrement, PolicyUpdate, Ack, Reject, Status)}
+    {cls.TAG: cls for cls in (ExperienceBatch, QTableIncrement, PolicyUpdate, Ack, Reject, Status, ActorView)}
 )
 """Type tag on the wire -> message class."""
 

@@ -94,7 +94,7 @@ def access_control(keys: KeySpace, learner_id: str, actor_ids: Sequence[str]) ->
         ),
         _rule("learner-serve", ["declare_queryable", "reply"], "ingress", [keys.policy_latest()]),
         _rule("learner-asked", ["query"], "egress", [keys.policy_latest()]),
-        _rule("learner-receive", ["put"], "egress", [keys.experience(), keys.qinc()]),
+        _rule("learner-receive", ["put"], "egress", [keys.experience(), keys.qinc(), keys.view()]),
         _rule("learner-token", ["liveliness_token"], "ingress", [keys.alive("learner", learner_id)]),
         _rule("observer-receive", ["put"], "egress", [keys.status()]),
     ]
@@ -107,7 +107,12 @@ def access_control(keys: KeySpace, learner_id: str, actor_ids: Sequence[str]) ->
     for actor in actor_ids:
         own = [f"{actor}-publish", f"{actor}-receive", f"{actor}-token"]
         rules += [
-            _rule(own[0], ["put"], "ingress", [keys.experience(actor), keys.qinc(actor), keys.status(actor)]),
+            _rule(
+                own[0],
+                ["put"],
+                "ingress",
+                [keys.experience(actor), keys.qinc(actor), keys.status(actor), keys.view(actor)],
+            ),
             _rule(own[1], ["put"], "egress", [keys.ack(actor), keys.reject(actor)]),
             _rule(own[2], ["liveliness_token"], "ingress", [keys.alive("actor", actor)]),
         ]

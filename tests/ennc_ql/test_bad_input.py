@@ -70,6 +70,9 @@ ROWS: list[tuple[list[str], str]] = [
     (["eval", "--rerun", "save", "run"], "ennc-ql eval: error: --rerun save run: a folder, not a file"),
     (["eval", "--rerun", "bogus"], "ennc-ql eval: error: --rerun: unknown Rerun sink 'bogus'"),
     (["eval", "--rerun", "connect", "http://x"], "ennc-ql eval: error: --rerun: 'connect' needs a URL like"),
+    (["eval", "--rerun", "learner"], "ennc-ql eval: error: --rerun learner: only an actor relays its rows to the"),
+    (["learner", "--run-dir", "r", "--rerun", "learner"], "ennc-ql learner: error: --rerun learner: only an actor"),
+    (["up", "--rerun", "learner"], "ennc-ql up: error: --rerun learner: only an actor relays its rows"),
     # up: everything it needs is checked before a process starts or a folder is made.
     (["up", "--learner-phase1-device", "cuda:7"], "ennc-ql up: error: --learner-phase1-device cuda:7: this machine"),
     (["up", "--learner-phase1-device", "tpu"], "--learner-phase1-device tpu: not a torch device"),

@@ -1,12 +1,14 @@
-"""The learner service and two actors, each with its own monitor on one recording id, in one process.
+"""The learner service and two actors in one process: each actor with its own monitor on the run's recording id, or
+relaying its rows to the learner (``--rerun learner``, what ``ennc-ql up`` does).
 
 What the runtime logs (not what the monitor API can log): the merged recording holds the learner's status series,
-its evaluations and prototypes, and each actor's sampled arena and trial figures.
+its evaluations and prototypes, and each actor's sampled arena and trial figures, whichever process wrote them.
 """
 
 from __future__ import annotations
 
 import threading
+from functools import partial
 from pathlib import Path
 
 import pytest
@@ -19,6 +21,7 @@ from learner.config import LearnerConfig
 from learner.service import LearnerService
 from learner.wiring import connect as connect_learner
 from monitor import Sink, merge_recordings, open_monitor, paths, summarize_recording
+from monitor.relay import RelayMonitor
 from protocol import InMemoryBus, InMemoryTransport
 from sim import HAND_MADE, N_ACTIONS
 from tests.fakes import run_until
@@ -38,7 +41,8 @@ CONFIG = LearnerConfig(
 
 
 @pytest.mark.slow
-def test_learner_and_actors_log_into_one_recording(tmp_path: Path) -> None:
+@pytest.mark.parametrize("relay", [False, True], ids=["own-recordings", "relayed-by-the-learner"])
+def test_learner_and_actors_log_into_one_recording(tmp_path: Path, relay: bool) -> None:
     run_id = "runtime-test"
     bus = InMemoryBus()
     actor_ids = ["a0", "a1"]
@@ -53,10 +57,14 @@ def test_learner_and_actors_log_into_one_recording(tmp_path: Path) -> None:
         actors, threads, monitors, transports = [], [], [], []
         stop = threading.Event()
         for i, actor_id in enumerate(actor_ids):
-            monitor = open_monitor(
-                Sink("save", str(paths.part_file(tmp_path, actor_id))), process=actor_id, recording_id=run_id
-            )
             transport = InMemoryTransport(bus)
+            monitor = (
+                RelayMonitor(partial(transport.publish, transport.keys.view(actor_id)), actor_id)
+                if relay
+                else open_monitor(
+                    Sink("save", str(paths.part_file(tmp_path, actor_id))), process=actor_id, recording_id=run_id
+                )
+            )
             config = ActorConfig(actor_id=actor_id, arenas=8, seed=i, batch_size=512, flush_timeout=0.5, draw_every=2)
             actor = RobotActor(transport, config, monitor=monitor)
             handles.enter_context(connect_actor(actor, transport))
@@ -77,7 +85,11 @@ def test_learner_and_actors_log_into_one_recording(tmp_path: Path) -> None:
             transport.close()
         trials = {a.config.actor_id: a.status().trials for a in actors}
 
-    recording = merge_recordings(sorted((tmp_path / "rerun").glob("*.rrd")), tmp_path / paths.RECORDING_FILE)
+    parts = sorted((tmp_path / "rerun").glob("*.rrd"))
+    assert len(parts) == (1 if relay else 3)  # relaying actors open no recording
+    if relay:
+        assert [m.sent for m in monitors] == [trials[a] for a in actor_ids]  # one view per trial, none dropped
+    recording = merge_recordings(parts, tmp_path / paths.RECORDING_FILE)
     summary = summarize_recording(recording)
     assert summary["recording_ids"] == [run_id]
     entities = set(summary["entity_paths"])
@@ -90,6 +102,10 @@ def test_learner_and_actors_log_into_one_recording(tmp_path: Path) -> None:
         assert all(0.0 <= value[0] <= 100.0 for _, value in coverage)
         drawn = rows(recording, f"{paths.actor_arena(actor_id)}/robots", "Points2D:positions", paths.SIM_STEP)
         assert len(drawn) == len(range(0, trials[actor_id], 2)) * 100  # learning trials are 100 steps
+        # The actor's own timelines: the drawn steps of trial k are k·100 + 1 … k·100 + 100.
+        assert [step for step, _ in drawn[:100]] == list(range(1, 101))
+        memory = rows(recording, paths.actor(actor_id, paths.ACTOR_RSS), "Scalars:scalars", paths.SIM_STEP)
+        assert len(memory) == trials[actor_id] and all(value[0] > 50.0 for _, value in memory)
     # The final figure is a marker of its own beside the curve, with the hand-made levels on the curve's trials.
     ((_, final),) = rows(recording, paths.LEARNER_COVERAGE_FINAL, "Scalars:scalars", paths.POLICY_VERSION)
     assert final[0] == pytest.approx(report.final_coverage_mean, abs=1e-3)

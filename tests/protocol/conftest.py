@@ -9,6 +9,7 @@ from hypothesis.extra import numpy as hnp
 from protocol import (
     N_ACTIONS,
     Ack,
+    ActorView,
     ExperienceBatch,
     Message,
     PolicyUpdate,
@@ -76,7 +77,25 @@ def golden_samples() -> dict[str, Message]:
         "status": Status(
             sender="learner-0", role="learner", wall_time=1700000000.25, counters={"tuples": 1024.0, "lag": 0.5}
         ),
+        "view": sample_view(),
     }
+
+
+def sample_view() -> ActorView:
+    """Two arena frames of 3 robots and 2 targets, and the trial's figures."""
+    return ActorView(
+        actor_id="actor-0",
+        sim_step=200,
+        train_time=12.5,
+        wall_time=1700000000.25,
+        counters={"coverage": 61.25, "policy_version": 4.0, "rss_mb": 281.5},
+        frame_step=np.array([101, 102], np.uint64),
+        frame_time=np.array([12.0, 12.25], np.float64),
+        robot_pos=np.arange(12, dtype=np.float32).reshape(2, 3, 2),
+        target_pos=-np.arange(8, dtype=np.float32).reshape(2, 2, 2),
+        sensing_range=150.0,
+        arena_radius=1000.0,
+    )
 
 
 ids = st.from_regex(r"[A-Za-z0-9_][A-Za-z0-9_.\-]{0,63}", fullmatch=True)

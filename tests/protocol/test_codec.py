@@ -233,6 +233,26 @@ def test_golden_layout_is_the_documented_envelope() -> None:
         ("status", {"counters": {"x": True}}, MalformedMessage),
         ("status", {"counters": {"x": 10**400}}, InvalidValues),
         ("status", {"counters": [("x", 1.0)]}, MalformedMessage),
+        ("view", {"counters": {"learner/coverage": 1.0}}, InvalidValues),  # only the actor's own series
+        ("view", {"counters": {"coverage": math.nan}}, InvalidValues),
+        ("view", {"robot_pos": np.full((2, 3, 2), np.inf, np.float32)}, InvalidValues),
+        ("view", {"robot_pos": np.zeros((1, 3, 2), np.float32)}, MalformedMessage),  # 1 frame of robots, 2 of targets
+        ("view", {"target_pos": np.zeros((2, 2, 3), np.float32)}, MalformedMessage),
+        ("view", {"frame_time": np.array([-1.0, 0.0])}, InvalidValues),
+        ("view", {"train_time": -0.5}, InvalidValues),
+        ("view", {"sensing_range": 0.0}, InvalidValues),
+        ("view", {"frame_step": np.array([1, 2], np.int64)}, MalformedMessage),
+        (
+            "view",
+            {
+                "frame_step": np.zeros(1001, np.uint64),
+                "frame_time": np.zeros(1001),
+                "robot_pos": np.zeros((1001, 1, 2), np.float32),
+                "target_pos": np.zeros((1001, 1, 2), np.float32),
+            },
+            InvalidValues,
+        ),
+        ("view", {"robot_pos": np.zeros((2, 257, 2), np.float32)}, InvalidValues),
     ],
 )
 def test_validation_rejects(name: str, changes: dict[str, Any], error: type[ProtocolError]) -> None:

@@ -204,7 +204,7 @@ def _start(
     supervisor.start(LEARNER, resumed if resume else where.command(LEARNER, fresh), restart_argv=resumed)
     for actor in ids:
         argv = ["actor", "--config", str(run_dir / f"{actor}.toml"), *ends.flags(actor), "--json"]
-        command = where.command(actor, ennc_ql_argv(*argv, *monitoring.child_args(actor)))
+        command = where.command(actor, ennc_ql_argv(*argv, *monitoring.child_args(actor, relay=True)))
         supervisor.start(actor, command, nice=ACTOR_NICENESS)
 
 

@@ -2,7 +2,8 @@
 from the children's part files at the end::
 
     monitoring = Monitoring(Sink("save", "runs/x/recording.rrd"), run_id="x", run_dir=Path("runs/x"))
-    argv += monitoring.child_args("actor-0")      # --rerun save runs/x/rerun/actor-0.rrd --recording-id x
+    argv += monitoring.child_args("learner-0")    # --rerun save runs/x/rerun/learner-0.rrd --recording-id x
+    argv += monitoring.child_args("actor-0", relay=True)   # --rerun learner: the learner logs its rows
     monitoring.start()                            # a viewer (spawn) or a proxy (serve), if asked for
     summary = monitoring.finish()                 # save: the parts merged into recording.rrd, summarised
 """
@@ -49,10 +50,14 @@ class Monitoring:
             )
             log.warning("watch with: rerun --connect rerun+http://<this host>:9876/proxy")
 
-    def child_args(self, name: str) -> list[str]:
+    def child_args(self, name: str, relay: bool = False) -> list[str]:
+        """The ``--rerun`` flags of child ``name``; ``relay``: an actor, whose rows the learner logs (it opens no
+        recording: docs/performance.md, the actor's memory)."""
         kind = self.sink.kind
         if kind == "off":
             return []
+        if relay:
+            return ["--rerun", "learner"]
         if kind == "save":
             target = str(paths.part_file(self.run_dir, name))
         else:
