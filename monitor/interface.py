@@ -13,6 +13,8 @@ from typing import TYPE_CHECKING, Self
 
 import numpy as np
 
+from monitor import paths
+
 if TYPE_CHECKING:
     from protocol.messages import ActorView
     from sim.formulation import Formulation
@@ -26,6 +28,20 @@ def resident_mb() -> float | None:
     except OSError:
         return None
     return pages * os.sysconf("SC_PAGE_SIZE") / 1e6
+
+
+def actor_figures(
+    coverage: float | None, mean_reward: float | None, tuples_per_s: float | None, policy_version: int | None
+) -> dict[str, float]:
+    """An actor's trial figures by series name (``monitor.paths``), with this process's memory; None left out."""
+    figures = {
+        paths.ACTOR_COVERAGE: coverage,
+        paths.ACTOR_REWARD: mean_reward,
+        paths.ACTOR_TUPLES_PER_S: tuples_per_s,
+        paths.ACTOR_POLICY_VERSION: policy_version,
+        paths.ACTOR_RSS: resident_mb(),
+    }
+    return {name: float(value) for name, value in figures.items() if value is not None}
 
 
 class Monitor:

@@ -22,8 +22,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from monitor import paths
-from monitor.interface import Monitor, resident_mb
+from monitor.interface import Monitor, actor_figures
 from protocol.messages import MAX_VIEW_FRAMES, ActorView
 
 log = logging.getLogger(__name__)
@@ -85,14 +84,7 @@ class RelayMonitor(Monitor):
     ) -> None:
         if self._closed:
             return
-        figures = {
-            paths.ACTOR_COVERAGE: coverage,
-            paths.ACTOR_REWARD: mean_reward,
-            paths.ACTOR_TUPLES_PER_S: tuples_per_s,
-            paths.ACTOR_POLICY_VERSION: policy_version,
-            paths.ACTOR_RSS: resident_mb(),
-        }
-        self._relay(sim_step, {name: float(value) for name, value in figures.items() if value is not None})
+        self._relay(sim_step, actor_figures(coverage, mean_reward, tuples_per_s, policy_version))
 
     def _relay(self, sim_step: int, counters: dict[str, float]) -> None:
         frames, self._frames = self._frames, []

@@ -12,7 +12,7 @@ import numpy as np
 import rerun as rr
 
 from monitor import drawings, geometry, paths, style
-from monitor.interface import Monitor, resident_mb
+from monitor.interface import Monitor, actor_figures, resident_mb
 from monitor.layout import default_blueprint
 from protocol.messages import ActorView
 from sim.actions import ActionSet
@@ -294,17 +294,10 @@ class RerunMonitor(Monitor):
     ) -> None:
         if self._closed:
             return
-        figures = {
-            paths.ACTOR_COVERAGE: coverage,
-            paths.ACTOR_REWARD: mean_reward,
-            paths.ACTOR_TUPLES_PER_S: tuples_per_s,
-            paths.ACTOR_POLICY_VERSION: policy_version,
-            paths.ACTOR_RSS: resident_mb(),
-        }
+        figures = actor_figures(coverage, mean_reward, tuples_per_s, policy_version)
         self._at(sim_step, policy_version, None)
         for metric, value in figures.items():
-            if value is not None:
-                self._scalar(paths.actor(actor_id, metric), actor_id, value)
+            self._scalar(paths.actor(actor_id, metric), actor_id, value)
 
     def actor_view(self, view: ActorView) -> None:
         if self._closed:
