@@ -90,6 +90,9 @@ class LearnerService:
         # otherwise a checkpoint could acknowledge an increment it does not hold, or hold one it does not acknowledge.
         self._sequence_lock = threading.Lock()
         self._checkpoint_lock = threading.Lock()  # the loop and a finished fit both checkpoint
+        # The loop and a finished fit both broadcast: a version is numbered and sent under one lock, or the later
+        # version could go on the wire first and the actors would see the versions go down.
+        self._broadcast_lock = threading.Lock()
         self._elapsed_before = 0.0
         self._started = time.monotonic()
         self._stopped_at: float | None = None
@@ -111,9 +114,10 @@ class LearnerService:
 
     def announce(self) -> None:
         """Broadcast the restored policy at once (if resumed), so actors need not wait for the next merge."""
-        current = self.state.current
-        if current is not None:
-            self.transport.publish(self.transport.keys.policy(), current)
+        with self._broadcast_lock:
+            current = self.state.current
+            if current is not None:
+                self.transport.publish(self.transport.keys.policy(), current)
         if self._resumed:
             now = time.time()
             self.resumes.append(
@@ -174,7 +178,8 @@ class LearnerService:
             self.watch.policy(policy)
 
     def _broadcast(self) -> None:
-        self.transport.publish(self.transport.keys.policy(), self.state.publish())
+        with self._broadcast_lock:
+            self.transport.publish(self.transport.keys.policy(), self.state.publish())
 
     def _evaluate(self) -> None:
         policy = self.state.policy()

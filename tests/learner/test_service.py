@@ -279,6 +279,36 @@ def test_a_checkpoint_holds_the_pending_increments_and_the_resume_goes_above_eve
     assert update.visits[2, 0] == 5 and resumed.increments == 2
 
 
+def test_broadcasts_from_the_loop_and_a_finished_fit_reach_the_wire_in_version_order(tmp_path: Path) -> None:
+    bus = InMemoryBus()
+    versions: list[int] = []
+    with InMemoryTransport(bus) as lt, InMemoryTransport(bus) as watcher:
+        watcher.subscribe(watcher.keys.policy(), PolicyUpdate, lambda u: versions.append(u.version))
+        service = LearnerService(lt, FAST, tmp_path)
+        service.state.adopt(one_cell_per_action(service.config.resolved.dim))
+        numbered, second_numbered = threading.Event(), threading.Event()
+        publish = service.state.publish
+
+        def slow_after_numbering() -> PolicyUpdate:
+            # The first caller is held between numbering its version and sending it, as a thread preempted there;
+            # a second caller that could number and send meanwhile would put the later version on the wire first.
+            update = publish()
+            if not numbered.is_set():
+                numbered.set()
+                second_numbered.wait(1.0)
+            else:
+                second_numbered.set()
+            return update
+
+        service.state.publish = slow_after_numbering  # type: ignore[method-assign]
+        fit = threading.Thread(target=service._broadcast)
+        fit.start()
+        assert numbered.wait(10)
+        service._broadcast()
+        fit.join()
+    assert versions == [1, 2]
+
+
 def test_an_empty_state_checkpoints_and_restores(tmp_path: Path) -> None:
     state = PolicyState(10, PAPER, "cmommt-v1", 5, "m")
     state.adopt(one_cell_per_action())
