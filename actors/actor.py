@@ -166,11 +166,25 @@ class RobotActor:
             if time.monotonic() >= next_status:
                 self._publish_status()
                 next_status = time.monotonic() + self.config.status_interval
+            self._pace(start)
         left = self.outbox.flush(timeout=self.config.flush_timeout)
         if left:
             log.warning("actor %s stops with %d unacknowledged messages", self.config.actor_id, left)
         self._publish_status()
         return self.status()
+
+    def _pace(self, start: float) -> None:
+        """With ``max_tuples_per_s``, rest until the tuples sent so far are within the rate (a stop or the
+        duration's end cuts the rest short)."""
+        rate = self.config.max_tuples_per_s
+        if rate is None:
+            return
+        now = time.monotonic()
+        rest = start + self._tuples / rate - now
+        if self._deadline is not None:
+            rest = min(rest, self._deadline - now)
+        if rest > 0:
+            self._stop.wait(rest)
 
     def _watch_trial(self, start: float) -> TrialWatch:
         return TrialWatch(

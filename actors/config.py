@@ -84,6 +84,9 @@ class ActorConfig:
     """On stopping, seconds to wait for the learner to acknowledge the outbox (it acks after each checkpoint)."""
     duration: float | None = None
     """Stop after this many seconds (None: run until stopped)."""
+    max_tuples_per_s: float | None = None
+    """Pace the actor to at most this many tuples per second, resting between trials (None: as fast as it can); for
+    an actor that shares its cores with other work."""
     status_interval: float = 2.0
     """Seconds between status messages."""
     phase2: Phase2Config = field(default_factory=lambda: Phase2Config(alpha_floor=0.01))
@@ -108,7 +111,12 @@ class ActorConfig:
             outbox_limit=self.outbox_limit,
             draw_every=self.draw_every,
         )
-        require_positive(resend_after=self.resend_after, status_interval=self.status_interval, duration=self.duration)
+        require_positive(
+            resend_after=self.resend_after,
+            status_interval=self.status_interval,
+            duration=self.duration,
+            max_tuples_per_s=self.max_tuples_per_s,
+        )
         require_at_least(0, seed=self.seed)
         if self.flush_timeout < 0:
             raise ValueError(f"flush_timeout must be 0 or more, got {self.flush_timeout}")

@@ -247,3 +247,22 @@ def test_an_actor_sends_a_trial_in_batches_and_drops_an_invalid_one_without_usin
     assert [(m.seq, m.reward.tolist()) for m in seen] == [(0, [0.0, 1.0]), (1, [4.0])]
     assert {(m.actor_id, m.incarnation, m.policy_version) for m in seen} == {("a0", actor.incarnation, 0)}
     assert status.invalid == 1 and status.tuples_sent == 3 and status.batches_sent == 2 and status.outbox == 2
+
+
+def test_a_paced_actor_sends_no_more_than_its_rate_allows() -> None:
+    from actors.actor import RobotActor
+    from actors.config import ActorConfig
+
+    rate = 500.0
+    config = ActorConfig(actor_id="a0", arenas=1, batch_size=4096, outbox_limit=100_000, flush_timeout=0, duration=1.5)
+    with InMemoryTransport() as transport:
+        paced = RobotActor(transport, dataclasses.replace(config, max_tuples_per_s=rate))
+        began = time.monotonic()
+        status = paced.run(threading.Event())
+        elapsed = time.monotonic() - began
+    with InMemoryTransport() as transport:
+        free = RobotActor(transport, config).run(threading.Event())
+    per_trial = status.tuples_sent / status.trials
+    # The rest comes after each trial, so the sent tuples stay within the rate plus the trial in hand.
+    assert status.trials >= 2 and status.tuples_sent <= rate * elapsed + per_trial
+    assert free.tuples_sent > 3 * status.tuples_sent  # unpaced, the same 1.5 s sends many times more

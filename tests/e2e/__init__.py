@@ -38,7 +38,11 @@ LEARNER_BUDGET = [
     "--final-eval-trials=2",
     "--json",
 ]
-ACTOR_BUDGET = ["--arenas=16", "--json", "--batch-size=1024", "--flush-timeout=30"]
+ACTOR_PACE = "10000"
+"""Tuples per second each end-to-end actor is paced to (``--max-tuples-per-s``). Unpaced, two actors kept both cores
+busy for their whole run, so every test's learner and the other worker's test waited for a core; what these tests
+check (acks, resumes, supervision, signals) does not depend on the volume."""
+ACTOR_BUDGET = ["--arenas=16", "--json", "--batch-size=1024", "--flush-timeout=30", f"--max-tuples-per-s={ACTOR_PACE}"]
 FIRST_POLICY = "adopted policy version"
 """What an actor logs (at INFO) when it adopts its first policy."""
 

@@ -17,6 +17,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from tests.e2e import ACTOR_PACE
 from tools.system import free_port
 
 FAST_LEARNER = [
@@ -85,6 +86,8 @@ class Cluster:
             "512",
             "--flush-timeout",
             "30",
+            "--max-tuples-per-s",
+            ACTOR_PACE,
             *extra,
         )
 

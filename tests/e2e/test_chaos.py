@@ -26,7 +26,7 @@ import pytest
 
 from algorithm.policy_file import load_policy
 from tests import system
-from tests.e2e import ennc_ql
+from tests.e2e import ACTOR_PACE, ennc_ql
 from tools.chaos import FAULTS
 from tools.chaos.network import PREFIX, unavailable
 from tools.chaos.options import NETWORK_FAULTS
@@ -42,6 +42,7 @@ FAST = [
     *("--learner-phase1-seed-prototypes", "32", "--learner-phase1-max-iterations", "1"),  # a first fit in seconds
     *("--learner-broadcast-interval", "1", "--learner-checkpoint-interval", "2", "--learner-eval-interval", "1000"),
     *("--learner-eval-trials", "2", "--learner-final-eval-trials", "2", "--actor-arenas", "32"),
+    *("--actor-max-tuples-per-s", ACTOR_PACE),
     *("--actor-flush-timeout", "30"),  # the last acks come after the learner's next checkpoint, on loaded cores
 ]
 # One round of the nine process faults takes about a minute at one every 5 s (actor-stop alone 10-15 s); the

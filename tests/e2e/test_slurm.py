@@ -24,7 +24,7 @@ import psutil
 import pytest
 
 from learner.checkpoint import VersionMark
-from tests.e2e import ennc_ql
+from tests.e2e import ACTOR_PACE, ennc_ql
 from tests.e2e import slurm as local_slurm
 from tests.e2e.cluster import checkpoint_version
 from tests.e2e.slurm import LocalSlurm, require_slurm
@@ -35,6 +35,7 @@ pytestmark = pytest.mark.slow
 SMALL_RUN = [
     "--actors=2",
     "--actor-arenas=16",
+    f"--actor-max-tuples-per-s={ACTOR_PACE}",
     "--actor-batch-size=1024",
     "--learner-min-tuples=5000",
     "--learner-phase1-max-patterns=300",

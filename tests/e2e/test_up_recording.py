@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from monitor import paths, summarize_recording
-from tests.e2e import ennc_ql
+from tests.e2e import ACTOR_PACE, ennc_ql
 from tests.monitor.rrd import rows
 
 
@@ -20,6 +20,7 @@ def test_up_saves_one_recording_of_every_process(tmp_path: Path) -> None:
         "up",
         "--duration=25",
         "--actor-arenas=32",
+        f"--actor-max-tuples-per-s={ACTOR_PACE}",
         "--learner-min-tuples=20000",
         "--learner-phase1-max-patterns=400",
         "--learner-phase1-seed-prototypes=32",  # the default 512 seeds take the first fit 10-16 s on loaded cores

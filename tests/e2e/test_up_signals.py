@@ -17,7 +17,7 @@ from typing import Any
 import psutil
 import pytest
 
-from tests.e2e import ennc_ql
+from tests.e2e import ACTOR_PACE, ennc_ql
 from tests.e2e.cluster import checkpoint_version, wait_for
 
 pytestmark = pytest.mark.slow
@@ -25,6 +25,7 @@ pytestmark = pytest.mark.slow
 SMALL = [
     "--actors=2",
     "--actor-arenas=16",
+    f"--actor-max-tuples-per-s={ACTOR_PACE}",
     "--actor-batch-size=1024",
     "--learner-phase1-max-patterns=300",
     "--learner-phase1-n-cycles=10",

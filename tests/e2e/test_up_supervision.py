@@ -18,7 +18,7 @@ from actors.config import ActorConfig
 from learner.checkpoint import VersionMark
 from learner.config import LearnerConfig
 from monitor import Sink
-from tests.e2e import ennc_ql
+from tests.e2e import ACTOR_PACE, ennc_ql
 from tests.e2e.cluster import checkpoint_version, wait_for
 from tools.cluster import LaunchError, Monitoring, run_processes
 from tools.config import dump_config
@@ -28,6 +28,7 @@ pytestmark = pytest.mark.slow
 SMALL = [
     "--actors=2",
     "--actor-arenas=16",
+    f"--actor-max-tuples-per-s={ACTOR_PACE}",
     "--actor-batch-size=1024",
     "--learner-min-tuples=5000",
     "--learner-phase1-max-patterns=300",
