@@ -215,7 +215,10 @@ def test_a_secure_run_stopped_mid_training_resumes_over_tls_and_trains_only_what
 
 def test_ctrl_c_twice_just_after_a_checkpoint_kills_the_actors_and_the_learner_still_reports(tmp_path: Path) -> None:
     run_dir = tmp_path / "r"
-    flags = [*SMALL, "--duration=60", "--learner-min-tuples=5000", "--runs", str(tmp_path), "--run-id", "r"]
+    # Unpaced actors: a paced one resting with every batch acknowledged stops at once on the first Ctrl-C, before
+    # the second could kill it, and this test is about the second.
+    flags = [*SMALL, "--actor-max-tuples-per-s=none", "--duration=60", "--learner-min-tuples=5000"]
+    flags += ["--runs", str(tmp_path), "--run-id", "r"]
     with Up(tmp_path, "up", *flags) as up:
         wait_for(lambda: checkpoint_version(run_dir) >= 1, 120, "a checkpointed policy")
         landed = (run_dir / "checkpoint.npz").stat().st_mtime_ns
