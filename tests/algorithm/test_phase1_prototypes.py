@@ -1,12 +1,17 @@
 """Phase 1's prototypes and Q-value labels, bit for bit, for a fixed seed.
 
-The digests below were produced by the phase-1 code of commit dfd376d, where ENNC took the Q classes themselves
-as its targets: this file, run there, hashed the two results of :func:`phase1_runs` with :func:`digest` (CPU,
+The cold digest below was produced by the phase-1 code of commit dfd376d, where ENNC took the Q classes themselves
+as its targets: this file, run there, hashed the cold result of :func:`phase1_runs` with :func:`digest` (CPU,
 torch 2.13.0). Phase 1 now hands ENNC class indices and maps each prototype's class back to its Q value; ENNC
 keeps classes in sorted order either way, so its random decisions and therefore every prototype must stay the
 same. The data cover both kinds of classes, distinct rounded q values (few enough) and quantile bins labelled by
-their mean (too many), non-integer Q values, an action without tuples, subsampling, and a warm start whose float32
-labels are mostly not among the new Q classes.
+their mean (too many), non-integer Q values, an action without tuples, and subsampling.
+
+The warm start (float32 labels mostly not among the new Q classes) was pinned by digest too, but its float32
+distance ties fall differently on another CPU (a Xeon with AVX-512 and AMX, 2026-12-04: sizes [38, 41, 32, 1]
+where the digest's machine gives [38, 43, 32, 1], with the same packages), so a digest of it is not portable.
+What the class indices rely on is checked instead, on any CPU: a warm-started ENNC gives the same prototypes for
+any labels in the same order.
 """
 
 from __future__ import annotations
@@ -16,13 +21,13 @@ import hashlib
 import numpy as np
 import pytest
 
+from algorithm import ENNC
 from algorithm.phase1 import Phase1Config, Phase1Result, phase1
 from algorithm.transitions import Transitions
 
 N_ACTIONS = 4
 """Action 3 never occurs in the data: phase 1 keeps its previous prototypes."""
 COLD_DIGEST = "e15166c102193def53354bd0b8f3e33ac971a9aa1c058893861b2a52d167ff3e"
-WARM_DIGEST = "85aa73d2f8da6c8c750ea413407020e810429580a4f291ad52ad54da0d9da1d2"
 
 
 def transitions(n: int, seed: int) -> Transitions:
@@ -86,10 +91,34 @@ def test_cold_phase1_prototypes_are_those_of_the_code_before_class_indices(
     assert digest(cold) == COLD_DIGEST
 
 
-def test_warm_started_phase1_prototypes_are_those_of_the_code_before_class_indices(
+def test_warm_started_phase1_keeps_an_unseen_actions_label_and_grows_the_others(
     results: tuple[Phase1Result, Phase1Result],
 ) -> None:
-    warm = results[1]
+    cold, warm = results
     assert warm.iterations == 2
-    assert warm.discretization.sizes().tolist() == [38, 43, 32, 1]
-    assert digest(warm) == WARM_DIGEST
+    before, after = cold.discretization, warm.discretization
+    # Action 3 has no tuples: the warm start keeps its one prototype and its label.
+    assert after.sizes()[3] == before.sizes()[3] == 1
+    assert after.labels[after.offsets[3] :].tolist() == before.labels[before.offsets[3] :].tolist()
+    assert after.sizes()[:3].min() > 8
+
+
+def test_a_warm_started_ennc_gives_the_same_prototypes_for_any_labels_in_the_same_order() -> None:
+    data = transitions(500, 1)
+    states = data.state.astype(np.float64)
+    classes, index = np.unique(data.reward, return_inverse=True)
+    start = np.random.default_rng(5).choice(len(states), 30, replace=False)
+    init_index = index[start]
+
+    def fit(labels: np.ndarray, init_labels: np.ndarray) -> ENNC:
+        return ENNC(n_cycles=20, random_state=12).fit(
+            states, labels, init_prototypes=states[start] + 0.01, init_labels=init_labels
+        )
+
+    by_index = fit(index, init_index)
+    # Another numbering in the same order (as the Q values themselves were before), absent labels in between.
+    by_other = fit(7 * index - 40, 7 * init_index - 40)
+    assert by_index.n_prototypes_ > len(start)
+    np.testing.assert_array_equal(by_index.prototypes_, by_other.prototypes_)
+    np.testing.assert_array_equal(7 * by_index.labels_ - 40, by_other.labels_)
+    assert len(classes) > 8
