@@ -24,10 +24,10 @@ import numpy as np
 from algorithm.agent import TabularAgent
 from algorithm.policy import ActionMode
 from algorithm.transitions import Transitions
-from sim import ScenarioConfig
+from sim import N_ACTIONS, ScenarioConfig
 from sim.formulation import Formulation
 from sim.rollout import StepHook
-from sim.trial import TrialState, TrialStep, random_actions, reset_trial, step_trial
+from sim.trial import TrialState, TrialStep, explore_actions, reset_trial, step_trial
 from sim.world import WorldState, reset
 
 
@@ -158,14 +158,21 @@ class ExperienceSlice:
         if not decide.any():
             return state.action, cell_sa
         if agent is None or all_cells is None:
-            return random_actions(state, self.rng), cell_sa
+            return explore_actions(self.cfg, state, self.rng), cell_sa
         m = state.shape[1]
         who = np.flatnonzero(decide)
         cells = all_cells[who]
         robots = who % m
         learner_rows = self.learner_mask[robots]
         chosen = agent.act(robots, cells, self.rng, explore=False)
-        if explore and learner_rows.any():
+        guide = state.formulation.trial_rules.guide
+        if explore and learner_rows.any() and guide is not None and guide.epsilon > 0:
+            flip = self.rng.random(who.size) < agent.config.epsilon
+            take = self.rng.random(who.size) < guide.epsilon
+            uniform = self.rng.integers(0, N_ACTIONS, who.size)
+            explored = np.where(take, guide.actions(self.cfg, state).reshape(-1)[who], uniform)
+            chosen = np.where(learner_rows & flip, explored, chosen)
+        elif explore and learner_rows.any():
             chosen[learner_rows] = agent.explore(chosen[learner_rows], self.rng)
         action = state.action.reshape(-1).copy()
         action[who] = chosen

@@ -18,7 +18,7 @@ from sim.controllers import (
 from sim.features import FEATURIZERS, coverage, featurize, lost, trial_reward
 from sim.formulation import DEFAULT_FORMULATION, FORMULATIONS, Formulation, TrialRules
 from sim.rollout import EvalResult, evaluate
-from sim.trial import TrialState, TrialStep, random_actions, reset_trial, step_trial
+from sim.trial import TrialState, TrialStep, explore_actions, random_actions, reset_trial, step_trial
 from sim.world import Observation, WorldState, reset, sense, step
 
 __all__ = [
@@ -45,6 +45,7 @@ __all__ = [
     "WorldState",
     "coverage",
     "evaluate",
+    "explore_actions",
     "featurize",
     "lost",
     "random_actions",

@@ -60,6 +60,16 @@ class ActionSet:
         _kernels.frame_velocity(self.directions, actions.reshape(1, -1), frames, cfg.robot_speed, out)
         return out.reshape(*actions.shape, 2)
 
+    def closest(self, velocity: np.ndarray, frame: np.ndarray) -> np.ndarray:
+        """(…,) the action index whose move is closest in direction to each world ``velocity`` (…, 2), in the frames
+        (…, 2, 2) a robot would name it in (the world's for a set that is not relative): what a hand-made law's move
+        is as an action of this set."""
+        v = np.asarray(velocity, np.float64)
+        if not self.relative:
+            return np.argmax(v @ self.directions.T, axis=-1)
+        along = np.stack([(frame[..., 0, :] * v).sum(-1), (frame[..., 1, :] * v).sum(-1)], axis=-1)
+        return np.argmax(along @ self.directions.T, axis=-1)
+
     def __eq__(self, other: object) -> bool:
         return isinstance(other, ActionSet) and (self.name, self.moves, self.relative) == (
             other.name,

@@ -28,6 +28,7 @@ from typing import TypeVar
 
 from sim.actions import ACTION_SETS, ActionSet
 from sim.features import FEATURIZER_REGISTRY, REWARDS, Featurizer, Reward
+from sim.guide import Guide
 
 
 @dataclass(frozen=True, slots=True)
@@ -52,6 +53,9 @@ class TrialRules:
     trials in their proportions, the late, crowded phase included, which trials that start beside a target rarely
     reach [beyond the paper]. Random exploration still starts beside a target. False: every trial starts afresh,
     each learner within sensing range of a target [choice]."""
+    guide: Guide | None = None
+    """Part of the exploration takes a hand-made law's move instead of a uniform one (:class:`sim.guide.Guide`)
+    [beyond the paper]; None: uniform exploration [paper]."""
 
 
 TRIAL_RULES: dict[str, TrialRules] = {
@@ -62,12 +66,15 @@ TRIAL_RULES: dict[str, TrialRules] = {
         TrialRules("lost-searches", lost_ends_trial=False),
         TrialRules("continuing", lost_ends_trial=False, timeout_terminal=False, continuing=True),
         TrialRules("continuing-cut", lost_ends_trial=False, continuing=True),
+        TrialRules("guided-search", lost_ends_trial=False, guide=Guide("force-6d-shared", explore=0.5, epsilon=0.5)),
     )
 }
 """Every set of learning-trial rules by name: ``paper`` [paper §4]; ``search-on``, a lost learner searches and goes
 on learning and the time-out bootstraps; ``lost-searches``, the same with the paper's terminal time-out;
 ``continuing``, ``search-on`` in arenas that carry over from trial to trial for a test trial's length, and
-``continuing-cut`` the same with the terminal time-out [beyond the paper]."""
+``continuing-cut`` the same with the terminal time-out; ``guided-search``, ``lost-searches`` with half of the
+exploration's moves taken from the force law on the learned state's information, ``force-6d-shared`` [beyond the
+paper]."""
 PAPER_RULES = TRIAL_RULES["paper"]
 
 
@@ -205,6 +212,9 @@ FORMULATIONS: dict[str, Formulation] = {
     "frame-cooperative": Formulation.of(
         "frame9d", "difference-redundancy", "relative", act_every=1, trial_rules="lost-searches"
     ),
+    "frame-guided": Formulation.of(
+        "frame9d", "difference-redundancy", "relative", act_every=1, trial_rules="guided-search"
+    ),
     "frame-recall": Formulation.of(
         "frame10d-recall", "difference-redundancy", "relative", act_every=1, trial_rules="lost-searches"
     ),
@@ -214,9 +224,11 @@ FORMULATIONS: dict[str, Formulation] = {
 ``frame-difference`` the state and the moves in the frame of the nearest target, the difference reward paid per
 decision; ``frame-cooperative`` the same with a redundant step charged (``difference-redundancy``) and learning
 trials in which a learner that loses every target searches and goes on learning (``lost-searches``) [beyond the
-paper, docs/learning-quality.md "Learning cooperation"]; ``frame-recall`` the same on a state that remembers the
+paper, docs/learning-quality.md "Learning cooperation"]; ``frame-guided`` the same with exploration guided by the
+force law on the state's information (``guided-search``) [beyond the paper, the same document's "Seventh round"];
+``frame-recall`` the same on a state that remembers the
 target a robot lost (:mod:`sim.recall`) [beyond the paper]."""
-DEFAULT_FORMULATION = "frame-cooperative"
+DEFAULT_FORMULATION = "frame-guided"
 """The formulation of every process (``up``, ``learner``, ``actor``, compose's) unless another is named."""
 
 

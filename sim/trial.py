@@ -24,7 +24,7 @@ Call sequence::
     state = reset_trial(cfg, n_arenas=E, learners=np.arange(m) == 0, formulation=formulation, rng=rng)
     decide = np.ones(state.shape, bool)              # every robot takes a first action
     while True:
-        action = random_actions(state, rng)          # or a policy's (E, m) actions; read only where ``decide``
+        action = explore_actions(cfg, state, rng)    # or a policy's (E, m) actions; read only where ``decide``
         state, out = step_trial(cfg, state, action, decide, rng)
         ends = out.transition                        # robots whose tuple ⟨s, a, r, s′, done⟩ ends here:
         # out.start_features[ends], out.action[ends], out.reward[ends], out.next_features[ends], out.done[ends]
@@ -195,6 +195,20 @@ def random_actions(state: TrialState, rng: np.random.Generator) -> np.ndarray:
     Drawn for every robot, whoever decides, so that the random stream does not depend on who is deciding.
     """
     return rng.integers(0, N_ACTIONS, state.shape)
+
+
+def explore_actions(cfg: ScenarioConfig, state: TrialState, rng: np.random.Generator) -> np.ndarray:
+    """(E, m) random exploration's actions: :func:`random_actions`, and where the trial rules have a guide
+    (:class:`sim.guide.Guide`), the guide's move instead at its ``explore`` share of them [beyond the paper].
+
+    Without a guide this draws exactly what :func:`random_actions` draws.
+    """
+    actions = random_actions(state, rng)
+    guide = state.formulation.trial_rules.guide
+    if guide is not None and guide.explore > 0:
+        take = rng.random(state.shape) < guide.explore
+        actions = np.where(take, guide.actions(cfg, state), actions)
+    return actions
 
 
 # Over 60 lines: the trial rules of one step in the order the paper applies them, kept in one place so that the

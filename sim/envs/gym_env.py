@@ -25,7 +25,7 @@ from sim.config import scenario
 from sim.controllers import HAND_MADE, N_ACTIONS, Controller
 from sim.features import coverage
 from sim.formulation import Formulation, default_formulation
-from sim.trial import TrialState, random_actions, reset_trial, step_trial
+from sim.trial import TrialState, explore_actions, reset_trial, step_trial
 
 
 class CmommtSingleRobotEnv(gym.Env[np.ndarray, np.int64]):
@@ -89,7 +89,9 @@ class CmommtSingleRobotEnv(gym.Env[np.ndarray, np.int64]):
         decide = self._decide
         while True:
             # Drawn only when someone decides, as the slice does, so both follow one random stream.
-            actions = random_actions(state, rng) if self.others is None and decide.any() else state.action.copy()
+            actions = (
+                explore_actions(self.cfg, state, rng) if self.others is None and decide.any() else state.action.copy()
+            )
             actions[0, 0] = action
             velocity = None
             if self.others is not None:
