@@ -73,12 +73,24 @@ class TabularAgent:
         actions = np.argmax(self._lookup(robots, cells), axis=1)
         return self.explore(actions, rng) if explore else actions
 
-    def explore(self, greedy: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """``greedy`` (N,) actions with a fraction ε replaced by random ones (what ``act`` does with ``explore``)."""
-        if self.config.epsilon <= 0:
-            return greedy
-        flip = rng.random(greedy.size) < self.config.epsilon
-        return np.where(flip, rng.integers(0, N_ACTIONS, greedy.size), greedy)
+    def explore(
+        self, greedy: np.ndarray, rng: np.random.Generator, guided: np.ndarray | None = None, share: float = 0.0
+    ) -> np.ndarray:
+        """``greedy`` (N,) actions with a fraction ε replaced by random ones (what ``act`` does with ``explore``).
+
+        With ``guided`` (N,) actions (a guide's moves, :class:`sim.guide.Guide`), a replaced action is the guided one
+        with probability ``share`` and a uniform one otherwise.
+        """
+        n = greedy.size
+        if guided is None or share <= 0:
+            if self.config.epsilon <= 0:
+                return greedy
+            flip = rng.random(n) < self.config.epsilon
+            return np.where(flip, rng.integers(0, N_ACTIONS, n), greedy)
+        flip = rng.random(n) < self.config.epsilon
+        take = rng.random(n) < share
+        uniform = rng.integers(0, N_ACTIONS, n)
+        return np.where(flip, np.where(take, guided, uniform), greedy)
 
     def update(
         self,

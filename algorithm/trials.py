@@ -24,7 +24,7 @@ import numpy as np
 from algorithm.agent import TabularAgent
 from algorithm.policy import ActionMode
 from algorithm.transitions import Transitions
-from sim import N_ACTIONS, ScenarioConfig
+from sim import ScenarioConfig
 from sim.formulation import Formulation
 from sim.rollout import StepHook
 from sim.trial import TrialState, TrialStep, explore_actions, reset_trial, step_trial
@@ -167,11 +167,8 @@ class ExperienceSlice:
         chosen = agent.act(robots, cells, self.rng, explore=False)
         guide = state.formulation.trial_rules.guide
         if explore and learner_rows.any() and guide is not None and guide.epsilon > 0:
-            flip = self.rng.random(who.size) < agent.config.epsilon
-            take = self.rng.random(who.size) < guide.epsilon
-            uniform = self.rng.integers(0, N_ACTIONS, who.size)
-            explored = np.where(take, guide.actions(self.cfg, state).reshape(-1)[who], uniform)
-            chosen = np.where(learner_rows & flip, explored, chosen)
+            guided = guide.actions(self.cfg, state).reshape(-1)[who]
+            chosen = np.where(learner_rows, agent.explore(chosen, self.rng, guided, guide.epsilon), chosen)
         elif explore and learner_rows.any():
             chosen[learner_rows] = agent.explore(chosen[learner_rows], self.rng)
         action = state.action.reshape(-1).copy()

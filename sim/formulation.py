@@ -226,8 +226,8 @@ decision; ``frame-cooperative`` the same with a redundant step charged (``differ
 trials in which a learner that loses every target searches and goes on learning (``lost-searches``) [beyond the
 paper, docs/learning-quality.md "Learning cooperation"]; ``frame-guided`` the same with exploration guided by the
 force law on the state's information (``guided-search``) [beyond the paper, the same document's "Seventh round"];
-``frame-recall`` the same on a state that remembers the
-target a robot lost (:mod:`sim.recall`) [beyond the paper]."""
+``frame-recall`` ``frame-cooperative`` on a state that remembers the target a robot lost (:mod:`sim.recall`) [beyond
+the paper]."""
 DEFAULT_FORMULATION = "frame-guided"
 """The formulation of every process (``up``, ``learner``, ``actor``, compose's) unless another is named."""
 
