@@ -90,6 +90,8 @@ class Observation:
     covered: Ints  # (E,): targets in view of at least one robot
     n_seen: Ints  # (E, m): targets in view
     sees_robot: Bools  # (E, m): another robot in view
+    nearest: Ints  # (E, m): index of the nearest target in view (meaningless when lost)
+    watched: Bools  # (E, n): target j in view of some robot (what teammates report)
     age: Ints | None = None  # (E, m): frame10d-recall's nearest_target_age
 
 
@@ -98,7 +100,7 @@ class Memory:
     """Each robot's last sighting, for the ``frame10d-recall`` state (section "The state")."""
 
     point: Floats  # (E, m, 2) world position of the nearest target at the last step a target was in view
-    shared: NDArray[np.float32]  # (E, m) that target's nearest_target_shared flag then
+    target: Ints  # (E, m) which target that was
     age: Ints  # (E, m) steps since; -1: no sighting yet
 
 
@@ -109,13 +111,14 @@ def remember(policy: PolicyFile, obs: Observation, robots: Floats, memory: Memor
     seeing = ~obs.lost
     nearest = obs.full_state[..., 0:2].astype(np.float64)
     point = np.where(seeing[..., None], robots + nearest, memory.point)
-    shared = np.where(seeing, obs.shared[..., 0], memory.shared)
+    target = np.where(seeing, obs.nearest, memory.target)
     age = np.where(seeing, 0, np.where(memory.age < 0, -1, memory.age + 1))
-    recalled = ~seeing & (age >= 0) & (age <= policy.scenario["recall_steps"])
+    watched = np.take_along_axis(obs.watched, target, axis=1)
+    recalled = ~seeing & (age >= 0) & (age <= policy.scenario["recall_steps"]) & ~watched
     full = obs.full_state.copy()
     full[..., 0:2] = np.where(recalled[..., None], (point - robots).astype(np.float32), full[..., 0:2])
     view_shared = obs.shared.copy()
-    view_shared[..., 0] = np.where(recalled, shared, view_shared[..., 0])
+    view_shared[..., 0] = np.where(recalled, 0.0, view_shared[..., 0])
     view = Observation(
         full_state=full,
         shared=view_shared,
@@ -123,9 +126,11 @@ def remember(policy: PolicyFile, obs: Observation, robots: Floats, memory: Memor
         covered=obs.covered,
         n_seen=np.where(recalled, 1, obs.n_seen),
         sees_robot=obs.sees_robot,
+        nearest=obs.nearest,
+        watched=obs.watched,
         age=np.where(seeing | recalled, age, 0),
     )
-    return view, Memory(point=point, shared=shared, age=age)
+    return view, Memory(point=point, target=target, age=age)
 
 
 def _pick(offsets: Floats, index: Ints) -> Floats:
@@ -171,6 +176,8 @@ def sense(sc: dict[str, Any], robots: Floats, targets: Floats, rng: np.random.Ge
         covered=seen_t.any(axis=1).sum(axis=1),
         n_seen=seen_t.sum(axis=2),
         sees_robot=any_r[..., 0],
+        nearest=nearest_t,
+        watched=seen_t.any(axis=1),
     )
 
 
@@ -308,7 +315,7 @@ def run(policy: PolicyFile, trials: int, steps: int, seed: int, violate: str | N
     start_cell = np.zeros((trials, m), np.int64)  # until_change: cell of the decision state under the action
     count = np.zeros((trials, m), np.int64)  # until_change: steps the action has lasted
     memory = Memory(
-        point=np.zeros((trials, m, 2)), shared=np.zeros((trials, m), np.float32), age=np.full((trials, m), -1)
+        point=np.zeros((trials, m, 2)), target=np.zeros((trials, m), np.int64), age=np.full((trials, m), -1)
     )
     obs, memory = remember(policy, sense(sc, robots, targets, rng), robots, memory)
     total = np.zeros(trials)

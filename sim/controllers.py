@@ -35,9 +35,11 @@ ACMOMMT_LAW = ForceLawConfig(do1=10.0, do2=150.0, do4=1000.0, shared_target_weig
 """A-CMOMMT's parameters chosen by ``scripts/tune_references.py`` on training seeds 100–103 (50 trials each), never
 on the reported test trials [choice: tuned here, docs/learning-quality.md]: ``a-cmommt``. The oracle keeps the
 public law: with this do4 it would read the true position of nearly every target in the arena."""
-STATE_FORCE_LAW = ForceLawConfig(do1=10.0, do2=150.0, shared_target_weight=0.0)
+STATE_FORCE_LAW = ForceLawConfig(do1=10.0, do2=150.0, do4=ACMOMMT_LAW.do4, shared_target_weight=0.0)
 """The force law on the learned state's information (``force-6d-shared``), tuned by the same script on the same
-training seeds over the parameters that act on it (the band beyond sensing range does not) [choice]."""
+training seeds over the parameters that act on sensed targets [choice]. The band beyond sensing range acts only on
+a remembered target (a guide reading a remembering state's view, :mod:`sim.guide`), and takes the tuned
+``a-cmommt``'s reach."""
 
 
 def compass_velocity(cfg: ScenarioConfig, actions: np.ndarray) -> np.ndarray:

@@ -16,8 +16,9 @@ Featurizers (:data:`FEATURIZER_REGISTRY`; :data:`FEATURIZERS` gives each one's d
   target's and the robot's (x, y) with presence bits, the two shared flags [beyond the paper: one cell covers
   every rotation and reflection of a situation; with the ``relative`` action set the moves are named in it too].
 * ``frame10d-recall``: ``frame9d`` read from the view of :func:`sim.recall.recall`, in which a robot that lost every
-  target keeps the last one it saw as its nearest for ``recall_steps`` steps, and the steps since it sensed that
-  target [beyond the paper: the robot's own track of a target it lost, as the honest A-CMOMMT keeps].
+  target keeps the last one it saw as its nearest for ``recall_steps`` steps while no teammate sees it, and the
+  steps since it sensed that target [beyond the paper: the robot's own track of a target it lost, as the honest
+  A-CMOMMT keeps].
 
 Rewards (:data:`REWARDS`), each given with the trial rules of :mod:`sim.trial`; a learning robot that loses every
 target gets ``lost_reward`` instead and, under the paper's rules (:class:`sim.formulation.TrialRules`), its trial

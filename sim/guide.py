@@ -60,7 +60,8 @@ class Guide:
 
     def actions(self, cfg: ScenarioConfig, state: TrialState) -> np.ndarray:
         """(E, m) the law's move of every robot now, as an action of the formulation's set (a robot the law pulls
-        nowhere: its search heading's)."""
-        velocity, _ = GUIDES[self.law].act(cfg, state.world, state.obs, state.heading, _NO_RNG)
+        nowhere: its search heading's). The law reads the state's view: a remembering state's remembered target
+        pulls as a sensed one (:mod:`sim.recall`)."""
+        velocity, _ = GUIDES[self.law].act(cfg, state.world, state.view, state.heading, _NO_RNG)
         moves = state.formulation.actions
         return moves.closest(velocity, moves.frame(state.view))

@@ -20,53 +20,76 @@ TOWARD, AWAY = 0, 4  # relative action indices
 SPEED = 7.5
 
 
-def world(robots: list[tuple[float, float]], target: tuple[float, float]) -> WorldState:
+def world(robots: list[tuple[float, float]], *targets: tuple[float, float]) -> WorldState:
     return WorldState(
         robot_pos=np.array([robots], dtype=np.float64),
-        target_pos=np.array([[target]], dtype=np.float64),
-        target_vel=np.zeros((1, 1, 2)),
-        target_speed=np.zeros((1, 1)),
+        target_pos=np.array([targets], dtype=np.float64),
+        target_vel=np.zeros((1, len(targets), 2)),
+        target_speed=np.zeros((1, len(targets))),
     )
 
 
 def test_a_lost_robot_sees_its_last_target_where_it_saw_it_for_recall_steps_and_no_longer() -> None:
-    cfg = scenario(n_robots=2, n_targets=1, recall_steps=3)
+    cfg = scenario(n_robots=2, n_targets=2, recall_steps=3)
     memory = forget_all((1, 2))
-    # Both robots see the target 50 away: robot 0 remembers it at (50, 0), watched by a teammate.
-    seen = world([(0.0, 0.0), (100.0, 0.0)], (50.0, 0.0))
+    # Robot 0 sees both targets, the nearer (index 1) 50 east; robot 1 sees neither.
+    seen = world([(0.0, 0.0), (0.0, 600.0)], (0.0, -120.0), (50.0, 0.0))
     view, memory = recall(cfg, seen, sense(cfg, seen), memory)
-    np.testing.assert_array_equal(view.age, [[0, 0]])
+    np.testing.assert_array_equal(view.age, [[0, NEVER]])
     np.testing.assert_allclose(memory.point[0, 0], (50.0, 0.0))
-    assert memory.shared[0, 0]
-    # Robot 0 drives 250 west of the target, out of view; the target itself moves where robot 0 cannot see it.
+    assert memory.target[0, 0] == 1
+    # Robot 0 drives 250 west of target 1, out of view of both; the targets move where no robot sees them.
     ages = []
     for step in range(1, 6):
-        away = world([(-200.0 - step, 0.0), (100.0, 0.0)], (50.0, 10.0 * step))
+        away = world([(-200.0 - step, 0.0), (0.0, 600.0)], (0.0, -400.0), (50.0, 10.0 * step))
         obs = sense(cfg, away)
-        assert obs.n_seen[0, 0] == 0 and obs.n_seen[0, 1] == 1
+        assert obs.n_seen[0, 0] == 0
         view, memory = recall(cfg, away, obs, memory)
         ages.append(int(view.age[0, 0]))
         if step <= cfg.recall_steps:
-            assert view.n_seen[0, 0] == 1 and view.shared[0, 0, 0]
+            assert view.n_seen[0, 0] == 1 and not view.shared[0, 0, 0]
             # Where it saw the target, not where the target is now: nothing unsensed leaks in.
             np.testing.assert_allclose(view.features[0, 0, 0:2], (250.0 + step, 0.0))
             state = RECALL.compute(cfg, view)[0, 0]
-            np.testing.assert_allclose(state[[0, 7, 9]], (250.0 + step, 1.0, step))
+            np.testing.assert_allclose(state[[0, 7, 9]], (250.0 + step, 0.0, step))
             assert not RECALL.sees_none(cfg, state)
         else:
             assert view.n_seen[0, 0] == 0
             state = RECALL.compute(cfg, view)[0, 0]
             np.testing.assert_array_equal(state[[0, 3, 9]], 0.0)
             assert RECALL.sees_none(cfg, state)
-        # The teammate that still sees the target reads it as sensed, the sensed observation is left as it was.
-        np.testing.assert_array_equal(view.features[0, 1], obs.features[0, 1])
+        # The sensed observation is left as it was.
         assert obs.age is None
     assert ages == [1, 2, 3, 4, 5]
     # A sighting again refreshes the memory.
-    back = world([(0.0, 0.0), (100.0, 0.0)], (0.0, 60.0))
+    back = world([(0.0, 0.0), (0.0, 600.0)], (0.0, 60.0), (500.0, 0.0))
     view, memory = recall(cfg, back, sense(cfg, back), memory)
-    assert view.age[0, 0] == 0 and memory.age[0, 0] == 0
+    assert view.age[0, 0] == 0 and memory.age[0, 0] == 0 and memory.target[0, 0] == 0
     np.testing.assert_allclose(memory.point[0, 0], (0.0, 60.0))
+
+
+def test_a_remembered_target_a_teammate_sees_now_is_hidden_until_the_teammate_loses_it() -> None:
+    cfg = scenario(n_robots=2, n_targets=2, recall_steps=10)
+    # Robot 0 sees target 0 (and so remembers it); robot 1, 300 north, sees target 1 only.
+    memory = forget_all((1, 2))
+    seen = world([(0.0, 0.0), (0.0, 300.0)], (40.0, 0.0), (0.0, 330.0))
+    _, memory = recall(cfg, seen, sense(cfg, seen), memory)
+    np.testing.assert_array_equal(memory.target, [[0, 1]])
+    hidden = []
+    # Robot 0 leaves west; target 0 drifts north, into robot 1's view at steps 2 and 3, out of it again after.
+    for step, target_y in enumerate((0.0, 200.0, 220.0, 0.0), start=1):
+        here = world([(-200.0, 0.0), (0.0, 300.0)], (40.0, target_y), (0.0, 330.0))
+        obs = sense(cfg, here)
+        view, memory = recall(cfg, here, obs, memory)
+        assert obs.n_seen[0, 0] == 0 and view.age[0, 0] == step
+        hidden.append(int(view.n_seen[0, 0]) == 0)
+        if not hidden[-1]:
+            # Where robot 0 saw it, unshared: a teammate watching it would have hidden it.
+            np.testing.assert_allclose(view.features[0, 0, 0:2], (240.0, 0.0))
+            assert not view.shared[0, 0, 0]
+        # Robot 1 sees target 1 and target 0 when it is near, read as sensed either way.
+        np.testing.assert_array_equal(view.features[0, 1], obs.features[0, 1])
+    assert hidden == [False, True, True, False]
 
 
 def test_a_robot_that_never_saw_a_target_remembers_nothing() -> None:
