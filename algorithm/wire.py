@@ -146,10 +146,11 @@ def experience_batches(
 
     The header comes last because its seq is the sender's to assign, one message at a time: the actor's outbox
     calls each with the next seq of its stream when it has room (``Outbox.add``); a benchmark calls them with the
-    seqs it counts. Each part is cut from ``transitions`` when the iteration reaches it.
+    seqs it counts. Each part is a view of ``transitions`` (no copy: an actor's outbox holds the parts until they are
+    acknowledged, and a copy would hold every tuple twice meanwhile).
     """
     for start in range(0, len(transitions), batch_size):
-        part = transitions.take(np.arange(start, min(start + batch_size, len(transitions))))
+        part = transitions.take(slice(start, min(start + batch_size, len(transitions))))
         yield partial(experience_message, transitions=part, formulation=formulation)
 
 

@@ -79,6 +79,9 @@ def test_transitions_round_trip_in_batches_with_the_headers_they_are_given() -> 
         np.testing.assert_array_equal(getattr(joined, name), getattr(data, name))
     assert {b.policy_version for b in batches} == {3} and {b.incarnation for b in batches} == {9}
     assert {(b.featurizer, b.reward_function, b.action_set) for b in batches} == {("shared8d", "difference", "compass")}
+    # The messages hold views of the trial's tuples, not copies: an outbox keeps them until they are acknowledged.
+    for name in ("state", "next_state", "reward"):
+        assert all(np.shares_memory(getattr(b, name), getattr(data, name)) for b in batches)
 
 
 def test_an_invalid_tuple_is_caught_in_the_actor_before_the_wire() -> None:
