@@ -16,10 +16,12 @@ from sim.actions import ACTION_SETS
 from sim.controllers import HAND_MADE
 from sim.formulation import TRIAL_RULES, TrialRules
 from sim.guide import GUIDES, Guide
-from sim.trial import reset_trial
+from sim.trial import reset_trial, step_trial
+from tests.fakes import situation
 
 COOPERATIVE = FORMULATIONS["frame-cooperative"]
 GUIDED = FORMULATIONS["frame-guided"]
+AWAY = 4  # the relative move directly away from the nearest target
 
 
 def guided(explore: float, epsilon: float) -> Formulation:
@@ -140,3 +142,25 @@ def test_the_default_formulation_explores_guided_and_the_papers_does_not() -> No
     # Everything else is frame-cooperative's: the guide is the one difference.
     assert GUIDED.names == COOPERATIVE.names and GUIDED.act_every == COOPERATIVE.act_every
     assert GUIDED.trial_rules.lost_ends_trial == COOPERATIVE.trial_rules.lost_ends_trial
+
+
+def test_a_guided_robot_that_remembers_its_lost_target_is_pulled_back_to_it() -> None:
+    cfg = scenario(n_robots=1, n_targets=1, action_steps=1, learning_steps=30, recall_steps=10, target_turn_prob=0.0)
+    # The target runs east at 20 per step from the robot 145 west of it, which moves "away" (west) for 6 steps: it
+    # loses the target on the first and ends 190 from where it last saw it, beyond the public law's do4 of 180.
+    start = ([(-145.0, 0.0)], [(0.0, 0.0)], [True])
+    common = {"target_vel": [(20.0, 0.0)], "heading": [(0.0, 1.0)]}
+    rng = np.random.default_rng(0)
+    moves = {}
+    for name in ("frame-guided", "frame-recall"):
+        formulation = FORMULATIONS[name]
+        state = situation(cfg, *start, formulation=formulation, **common)
+        for _ in range(6):
+            state, _ = step_trial(cfg, state, np.full((1, 1), AWAY), np.ones((1, 1), bool), rng)
+        assert state.obs.n_seen[0, 0] == 0
+        chosen = formulation.trial_rules.guide.actions(cfg, state)
+        moves[name] = formulation.actions.velocity(cfg, chosen, formulation.actions.frame(state.view))[0, 0]
+    # Forgetting, the law pulls nowhere and the guide keeps the search heading (north); remembering, the law reads
+    # the remembered target (east of the robot, where it last saw it) and the guide moves towards it.
+    np.testing.assert_allclose(moves["frame-guided"] / cfg.robot_speed, (0.0, 1.0), atol=1e-9)
+    np.testing.assert_allclose(moves["frame-recall"] / cfg.robot_speed, (1.0, 0.0), atol=1e-9)
