@@ -65,10 +65,9 @@ class ActionSet:
         (…, 2, 2) a robot would name it in (the world's for a set that is not relative): what a hand-made law's move
         is as an action of this set."""
         v = np.asarray(velocity, np.float64)
-        if not self.relative:
-            return np.argmax(v @ self.directions.T, axis=-1)
-        along = np.stack([(frame[..., 0, :] * v).sum(-1), (frame[..., 1, :] * v).sum(-1)], axis=-1)
-        return np.argmax(along @ self.directions.T, axis=-1)
+        if self.relative:
+            v = np.stack([(frame[..., 0, :] * v).sum(-1), (frame[..., 1, :] * v).sum(-1)], axis=-1)
+        return np.argmax(v @ self.directions.T, axis=-1)
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, ActionSet) and (self.name, self.moves, self.relative) == (
