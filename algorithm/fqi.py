@@ -171,7 +171,7 @@ class NetworkController:
     def init(self, cfg: ScenarioConfig, world: WorldState, rng: np.random.Generator) -> _NetworkMemory:
         """(heading of a searching robot, velocity of the move chosen last, the robots' last sightings)."""
         shape = (world.n_arenas, cfg.n_robots)
-        recall = forget_all(shape) if self.formulation.featurizer.recalls else None
+        recall = forget_all(cfg, shape) if self.formulation.featurizer.recalls else None
         return random_headings(cfg, world, rng), np.zeros((*shape, 2)), recall
 
     def act(

@@ -140,7 +140,7 @@ class PolicyController:
             held=np.full(shape, 1 << 30, np.int64),
             cell=np.full(shape, -1, np.int64),
             frame=np.broadcast_to(np.eye(2), (*shape, 2, 2)),
-            recall=forget_all(shape) if self.policy.formulation.featurizer.recalls else None,
+            recall=forget_all(cfg, shape) if self.policy.formulation.featurizer.recalls else None,
         )
 
     def act(

@@ -28,8 +28,8 @@ HELP = CommandHelp(
     "every step of every test trial (10 robots, 10 targets, 1000-step trials, as in the paper). The policy is a "
     "hand-made controller by name (random, local, a-cmommt: A-CMOMMT tuned on training trials, on what robots sense "
     "or are told; a-cmommt-public: its public untuned parameters; force-6d, force-6d-shared: its law on the learned "
-    "state's information), the labelled oracle a-cmommt-oracle (true target positions no robot senses), or a policy "
-    "file written by a run "
+    "state's information; force-recall: that law with the robot's own memory of a lost target), the labelled "
+    "oracle a-cmommt-oracle (true target positions no robot senses), or a policy file written by a run "
     "(runs/<id>/policy.npz). The same seed gives the same trials, so two policies scored with it compare directly. "
     "With --rerun, one trial is drawn in the Rerun viewer.",
     (

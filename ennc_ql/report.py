@@ -40,6 +40,7 @@ REPORT_MD = "report.md"
 LEARNING_CURVE_PNG = "learning_curve.png"
 REFERENCE_NOTES = {
     "a-cmommt": "hand-made, tuned on training trials; reads only what its robots sense or are told",
+    "force-recall": "the tuned force law on frame11d-recall's information: the state and the robot's remembered target",
     "force-6d-shared": "A-CMOMMT's force law fed the 6-D state and the shared-observation flags, tuned",
     "a-cmommt-public": "hand-made; the public code's untuned parameters (teammate-observed weight 0.25)",
     "force-6d": "A-CMOMMT's force law fed the paper's 6-D state",

@@ -90,47 +90,56 @@ class Observation:
     covered: Ints  # (E,): targets in view of at least one robot
     n_seen: Ints  # (E, m): targets in view
     sees_robot: Bools  # (E, m): another robot in view
-    nearest: Ints  # (E, m): index of the nearest target in view (meaningless when lost)
+    seen: Bools  # (E, m, n): robot i has target j in view
     watched: Bools  # (E, n): target j in view of some robot (what teammates report)
-    age: Ints | None = None  # (E, m): frame10d-recall's nearest_target_age
+    memory: Floats | None = None  # (E, m, 2): frame11d-recall's offset to a remembered target beside one in view
+    remembers: Bools | None = None  # (E, m): ``memory`` holds one
 
 
 @dataclass(frozen=True)
 class Memory:
-    """Each robot's last sighting, for the ``frame10d-recall`` state (section "The state")."""
+    """Each robot's tracks of every target, for the ``frame11d-recall`` state (section "The state")."""
 
-    point: Floats  # (E, m, 2) world position of the nearest target at the last step a target was in view
-    target: Ints  # (E, m) which target that was
-    age: Ints  # (E, m) steps since; -1: no sighting yet
+    position: Floats  # (E, m, n, 2) the target's world position at robot i's last sighting of it
+    velocity: Floats  # (E, m, n, 2) its displacement per step estimated from robot i's sightings
+    age: Ints  # (E, m, n) steps since that sighting; -1: never seen
 
 
-def remember(policy: PolicyFile, obs: Observation, robots: Floats, memory: Memory) -> tuple[Observation, Memory]:
-    """The observation ``frame10d-recall`` reads, and the memory after this step; other states read ``obs``."""
-    if policy.header["featurizer"]["name"] != "frame10d-recall":
+def remember(
+    policy: PolicyFile, obs: Observation, robots: Floats, targets: Floats, memory: Memory
+) -> tuple[Observation, Memory]:
+    """The observation ``frame11d-recall`` reads, and the tracks after this step; other states read ``obs``."""
+    if policy.header["featurizer"]["name"] != "frame11d-recall":
         return obs, memory
-    seeing = ~obs.lost
-    nearest = obs.full_state[..., 0:2].astype(np.float64)
-    point = np.where(seeing[..., None], robots + nearest, memory.point)
-    target = np.where(seeing, obs.nearest, memory.target)
-    age = np.where(seeing, 0, np.where(memory.age < 0, -1, memory.age + 1))
-    watched = np.take_along_axis(obs.watched, target, axis=1)
-    recalled = ~seeing & (age >= 0) & (age <= policy.scenario["recall_steps"]) & ~watched
+    seen, known = obs.seen[..., None], (memory.age >= 0)[..., None]
+    gap = np.where(known, memory.age[..., None] + 1, 1)
+    position = np.where(seen, targets[:, None], memory.position)
+    velocity = np.where(seen, np.where(known, (targets[:, None] - memory.position) / gap, 0.0), memory.velocity)
+    age = np.where(obs.seen, 0, np.where(memory.age >= 0, memory.age + 1, -1))
+    offset = position + age[..., None] * velocity - robots[:, :, None, :]
+    d2 = offset[..., 0] * offset[..., 0] + offset[..., 1] * offset[..., 1]
+    r2 = policy.scenario["sensing_range"] ** 2
+    candidate = ~obs.seen & (age >= 0) & (age <= policy.scenario["recall_steps"]) & ~obs.watched[:, None, :]
+    candidate &= d2 > r2  # a prediction inside the sensing range is known to be wrong
+    remembers = candidate.any(axis=2)
+    chosen = _pick(offset, np.argmin(np.where(candidate, d2, np.inf), axis=2))
+    lost_one = remembers & obs.lost
     full = obs.full_state.copy()
-    full[..., 0:2] = np.where(recalled[..., None], (point - robots).astype(np.float32), full[..., 0:2])
-    view_shared = obs.shared.copy()
-    view_shared[..., 0] = np.where(recalled, 0.0, view_shared[..., 0])
+    full[..., 0:2] = np.where(lost_one[..., None], chosen.astype(np.float32), full[..., 0:2])
+    also = remembers & ~lost_one
     view = Observation(
         full_state=full,
-        shared=view_shared,
-        lost=obs.lost & ~recalled,
+        shared=obs.shared,
+        lost=obs.lost & ~lost_one,
         covered=obs.covered,
-        n_seen=np.where(recalled, 1, obs.n_seen),
+        n_seen=np.where(lost_one, 1, obs.n_seen),
         sees_robot=obs.sees_robot,
-        nearest=obs.nearest,
+        seen=obs.seen,
         watched=obs.watched,
-        age=np.where(seeing | recalled, age, 0),
+        memory=np.where(also[..., None], chosen, 0.0).astype(np.float32).astype(np.float64),
+        remembers=also,
     )
-    return view, Memory(point=point, target=target, age=age)
+    return view, Memory(position=position, velocity=velocity, age=age)
 
 
 def _pick(offsets: Floats, index: Ints) -> Floats:
@@ -176,7 +185,7 @@ def sense(sc: dict[str, Any], robots: Floats, targets: Floats, rng: np.random.Ge
         covered=seen_t.any(axis=1).sum(axis=1),
         n_seen=seen_t.sum(axis=2),
         sees_robot=any_r[..., 0],
-        nearest=nearest_t,
+        seen=seen_t,
         watched=seen_t.any(axis=1),
     )
 
@@ -224,10 +233,12 @@ def featurize(policy: PolicyFile, obs: Observation) -> NDArray[np.float32]:
     distance = np.where(has_target, np.sqrt((f[..., 0:2] ** 2).sum(axis=-1)), 0.0)[..., None]
     # An offset in the frame: its components along the frame's x and y axes.
     furthest, robot = (np.einsum("...k,...dk->...d", pair, frame) for pair in pairs[1:])
-    if name in ("frame9d", "frame10d-recall"):
+    if name in ("frame9d", "frame11d-recall"):
         columns = [distance, furthest, flags[0], robot, flags[1], obs.shared]
-        if name == "frame10d-recall":
-            columns.append(np.zeros_like(distance) if obs.age is None else obs.age[..., None].astype(np.float64))
+        if name == "frame11d-recall":
+            memory = np.zeros_like(f[..., 0:2]) if obs.memory is None else obs.memory
+            length = np.sqrt((memory**2).sum(axis=-1, keepdims=True))
+            columns.append(np.einsum("...k,...dk->...d", memory / np.maximum(length, 1e-300), frame))
         return np.concatenate(columns, axis=-1).reshape(full.shape[0], -1).astype(np.float32)
     if name == "frame7d":
         mask = policy.scenario["mask_value"]
@@ -315,9 +326,9 @@ def run(policy: PolicyFile, trials: int, steps: int, seed: int, violate: str | N
     start_cell = np.zeros((trials, m), np.int64)  # until_change: cell of the decision state under the action
     count = np.zeros((trials, m), np.int64)  # until_change: steps the action has lasted
     memory = Memory(
-        point=np.zeros((trials, m, 2)), target=np.zeros((trials, m), np.int64), age=np.full((trials, m), -1)
+        position=np.zeros((trials, m, n, 2)), velocity=np.zeros((trials, m, n, 2)), age=np.full((trials, m, n), -1)
     )
-    obs, memory = remember(policy, sense(sc, robots, targets, rng), robots, memory)
+    obs, memory = remember(policy, sense(sc, robots, targets, rng), robots, targets, memory)
     total = np.zeros(trials)
     for t in range(steps):
         # When robots decide: a shared clock (fixed) or each robot's own (until_change); everyone at t = 0.
@@ -350,7 +361,7 @@ def run(policy: PolicyFile, trials: int, steps: int, seed: int, violate: str | N
         # Moving: targets draw their turns first (random stream order), then robots move; both from time-t positions.
         targets, target_vel = move_targets(sc, targets, target_vel, target_speed, rng)
         robots = move_robots(robots, displacement, radius)
-        obs, memory = remember(policy, sense(sc, robots, targets, rng), robots, memory)
+        obs, memory = remember(policy, sense(sc, robots, targets, rng), robots, targets, memory)
         total += 100.0 * obs.covered / n
     return total / steps
 

@@ -22,6 +22,9 @@ REDDISH_PURPLE: Rgb = (204, 121, 167)
 LIGHT_GREY: Rgb = (225, 225, 225)
 MID_GREY: Rgb = (150, 150, 150)
 BLACK: Rgb = (0, 0, 0)
+DARK_VERMILLION: Rgb = (140, 55, 0)
+"""Not Okabe & Ito's: a ninth reference needed a colour, and this one reads as kin of ``force-6d-shared``'s
+vermillion, the law it extends."""
 
 ACTOR_PALETTE: tuple[Rgb, ...] = (ORANGE, SKY_BLUE, BLUISH_GREEN, REDDISH_PURPLE, VERMILLION, BLUE, YELLOW)
 """One colour per actor; the learner's own series are :data:`LEARNER` so that they never take an actor's colour."""
@@ -40,6 +43,7 @@ REFERENCES: dict[str, tuple[str, Rgb]] = {
     "a-cmommt-oracle": ("A-CMOMMT oracle (true positions)", BLUE),
     "force-6d": ("force law on the 6-D state", BLUISH_GREEN),
     "force-6d-shared": ("force law, 6-D state + shared flags", VERMILLION),
+    "force-recall": ("force law, 6-D state + shared flags + memory", DARK_VERMILLION),
 }
 """Legend name and colour of each hand-made controller (by its ``sim.CONTROLLERS`` name) drawn as a reference level
 on the learning curve."""

@@ -533,3 +533,83 @@ def frame_velocity(
             lx, ly = directions[actions[e, i], 0], directions[actions[e, i], 1]
             for d in range(2):
                 out[e, i, d] = speed * (lx * frame[e, i, 0, d] + ly * frame[e, i, 1, d])
+
+
+# Over 60 lines: one pass per arena that updates every robot's tracks and picks its remembered target in the same
+# pair loop (split, each part would repeat the loop and keep an (E, m, n) in-view array between them).
+@njit(cache=True)
+def track_targets(
+    robot_pos: np.ndarray,  # (E, m, 2) float64
+    target_pos: np.ndarray,  # (E, n, 2) float64, read only where some robot senses the target
+    track_pos: np.ndarray,  # (E, m, n, 2) float64: robot i's last sighting of target j
+    track_vel: np.ndarray,  # (E, m, n, 2) float64: the target's displacement per step estimated then
+    track_age: np.ndarray,  # (E, m, n) int64: steps since that sighting before this step (NEVER_SEEN: none)
+    sensing_range: float,
+    recall_steps: int,
+    out_pos: np.ndarray,  # out (E, m, n, 2) the tracks after this step's sightings
+    out_vel: np.ndarray,  # out (E, m, n, 2)
+    out_age: np.ndarray,  # out (E, m, n) int64
+    out_memory: np.ndarray,  # out (E, m, 2) float64: offset to the remembered target (0 where none)
+    out_remembers: np.ndarray,  # out (E, m) bool: the robot has a remembered target
+) -> None:
+    """:func:`sim.recall.recall`'s tracks and remembered target, one pass per arena.
+
+    A sensed target's track takes its position now and its mean displacement since the robot's last sighting (0 on a
+    first sighting), as :func:`tracked_force_heading` keeps them. A robot's remembered target is, of the targets it
+    saw at most ``recall_steps`` steps ago, sees not now and no teammate sees now, the one whose prediction (the last
+    sighting moved on by its velocity for the steps since) lies nearest; a prediction inside the sensing range is
+    known to be wrong (the robot would see the target) and is passed over.
+    """
+    n_arenas, m, _ = robot_pos.shape
+    n = target_pos.shape[1]
+    r2 = sensing_range * sensing_range
+    in_view = np.zeros((m, n), dtype=np.bool_)
+    watched = np.zeros(n, dtype=np.bool_)
+    for e in range(n_arenas):
+        watched[:] = False
+        for i in range(m):
+            for j in range(n):
+                dx = target_pos[e, j, 0] - robot_pos[e, i, 0]
+                dy = target_pos[e, j, 1] - robot_pos[e, i, 1]
+                in_view[i, j] = dx * dx + dy * dy <= r2
+                if in_view[i, j]:
+                    watched[j] = True
+        for i in range(m):
+            rx = robot_pos[e, i, 0]
+            ry = robot_pos[e, i, 1]
+            best = np.inf
+            mx = my = 0.0
+            for j in range(n):
+                age = track_age[e, i, j]
+                if in_view[i, j]:
+                    px = target_pos[e, j, 0]
+                    py = target_pos[e, j, 1]
+                    if age < NEVER_SEEN:
+                        gap = float(age + 1)
+                        out_vel[e, i, j, 0] = (px - track_pos[e, i, j, 0]) / gap
+                        out_vel[e, i, j, 1] = (py - track_pos[e, i, j, 1]) / gap
+                    else:
+                        out_vel[e, i, j, 0] = 0.0
+                        out_vel[e, i, j, 1] = 0.0
+                    out_pos[e, i, j, 0] = px
+                    out_pos[e, i, j, 1] = py
+                    out_age[e, i, j] = 0
+                    continue
+                out_pos[e, i, j, 0] = track_pos[e, i, j, 0]
+                out_pos[e, i, j, 1] = track_pos[e, i, j, 1]
+                out_vel[e, i, j, 0] = track_vel[e, i, j, 0]
+                out_vel[e, i, j, 1] = track_vel[e, i, j, 1]
+                age = age + 1 if age < NEVER_SEEN else NEVER_SEEN
+                out_age[e, i, j] = age
+                if watched[j] or age > recall_steps:
+                    continue
+                dx = track_pos[e, i, j, 0] + age * track_vel[e, i, j, 0] - rx
+                dy = track_pos[e, i, j, 1] + age * track_vel[e, i, j, 1] - ry
+                d2 = dx * dx + dy * dy
+                if d2 > r2 and d2 < best:
+                    best = d2
+                    mx = dx
+                    my = dy
+            out_memory[e, i, 0] = mx
+            out_memory[e, i, 1] = my
+            out_remembers[e, i] = best < np.inf

@@ -102,10 +102,9 @@ class ScenarioConfig:
     redundancy_potential: float = 2.0
     """k of the ``difference-shaped`` reward's potential Φ = −k (1 − d / sensing_range) for a robot seeing only
     teammate-watched targets, d the nearest one's distance (0 otherwise) [choice]."""
-    recall_steps: int = 60
-    """How long a robot of a remembering state (``frame10d-recall``, :mod:`sim.recall`) keeps the target it last saw as
-    its nearest one, in steps [choice; the honest A-CMOMMT tracks its own sightings 60 steps ahead with its public
-    parameters]."""
+    recall_steps: int = 120
+    """How long a robot of a remembering state (``frame11d-recall``, :mod:`sim.recall`) keeps a target it lost as
+    its remembered target, in steps [choice: the tuned A-CMOMMT's prediction horizon, 120 steps]."""
     local_target: LocalTarget = "furthest"
     """Target the 2-D local state points at [paper: furthest; once 'nearest']."""
 

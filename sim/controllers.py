@@ -19,6 +19,7 @@ import numpy as np
 
 from sim import _kernels
 from sim.config import ForceLawConfig, ScenarioConfig
+from sim.recall import Recall, forget_all, recall
 from sim.world import Observation, WorldState
 
 COMPASS_NAMES = ("N", "NE", "E", "SE", "S", "SW", "W", "NW")
@@ -258,9 +259,41 @@ class StateForceController:
         force = _pull(self.law, nearest, obs.n_seen >= 1, w_nearest, _f_target)
         force += _pull(self.law, furthest, obs.n_seen >= 2, w_furthest, _f_target)
         force += _pull(self.law, robot, obs.sees_robot, np.ones(obs.n_seen.shape), _g_robot)
+        if obs.remembers is not None and obs.memory is not None:
+            # A remembering state's view: the remembered target of a robot that also sees one pulls as A-CMOMMT's
+            # predictions do (beyond the sensing range, in the (do3, do4] band).
+            force += _pull(self.law, obs.memory.astype(np.float64), obs.remembers, np.ones(obs.n_seen.shape), _f_target)
         norm = np.linalg.norm(force, axis=-1, keepdims=True)
         heading = np.where(norm > 1e-12, force / np.maximum(norm, 1e-300), wander(cfg, world, memory))
         return cfg.robot_speed * heading, heading
+
+
+@dataclass(frozen=True, slots=True)
+class RecallForceController:
+    """A law on a remembering state's information: ``law`` (a :class:`StateForceController`) fed the view of
+    :func:`sim.recall.recall`, in which a robot's remembered target (one it lost, predicted from its own sightings,
+    that no teammate sees now) pulls from beyond the sensing range [choice: the state-limited reference of the
+    ``frame11d-recall`` state, as ``force-6d-shared`` is of ``frame9d``; its memory's reach and horizon are the tuned
+    A-CMOMMT's, do4 1000 and 120 steps, not tuned again]."""
+
+    name: str = "force-recall"
+    law: StateForceController = StateForceController(shared=True, name="force-6d-shared", law=STATE_FORCE_LAW)
+
+    def init(self, cfg: ScenarioConfig, world: WorldState, rng: np.random.Generator) -> tuple[np.ndarray, Recall]:
+        return self.law.init(cfg, world, rng), forget_all(cfg, (world.n_arenas, cfg.n_robots))
+
+    def act(
+        self,
+        cfg: ScenarioConfig,
+        world: WorldState,
+        obs: Observation,
+        memory: tuple[np.ndarray, Recall],
+        rng: np.random.Generator,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, Recall]]:
+        heading, tracks = memory
+        view, tracks = recall(cfg, world, obs, tracks)
+        velocity, heading = self.law.act(cfg, world, view, heading, rng)
+        return velocity, (heading, tracks)
 
 
 HAND_MADE: dict[str, Controller] = {
@@ -270,11 +303,12 @@ HAND_MADE: dict[str, Controller] = {
     "a-cmommt-public": ForceController(cooperative=True, name="a-cmommt-public", law=PUBLIC_FORCE_LAW),
     "force-6d": StateForceController(shared=False, name="force-6d"),
     "force-6d-shared": StateForceController(shared=True, name="force-6d-shared", law=STATE_FORCE_LAW),
+    "force-recall": RecallForceController(),
 }
 """The hand-made controllers a learned policy is compared with, by their CLI names, each on what its robots can sense
 or be told: the paper's baselines (A-CMOMMT tuned here, the public code's untuned A-CMOMMT, local), and the
 state-limited references (A-CMOMMT's force law on what the learned ``collab6d`` state holds, without and with the
-shared-observation flags, the latter tuned)."""
+shared-observation flags, the latter tuned, and that law on what ``frame11d-recall`` holds as well)."""
 ORACLES: dict[str, Controller] = {
     "a-cmommt-oracle": ForceController(cooperative=True, name="a-cmommt-oracle", oracle=True, law=PUBLIC_FORCE_LAW),
 }

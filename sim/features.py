@@ -15,10 +15,11 @@ Featurizers (:data:`FEATURIZER_REGISTRY`; :data:`FEATURIZERS` gives each one's d
   target, mirrored so that the furthest target lies at y >= 0): the nearest target's distance, the furthest
   target's and the robot's (x, y) with presence bits, the two shared flags [beyond the paper: one cell covers
   every rotation and reflection of a situation; with the ``relative`` action set the moves are named in it too].
-* ``frame10d-recall``: ``frame9d`` read from the view of :func:`sim.recall.recall`, in which a robot that lost every
-  target keeps the last one it saw as its nearest for ``recall_steps`` steps while no teammate sees it, and the
-  steps since it sensed that target [beyond the paper: the robot's own track of a target it lost, as the honest
-  A-CMOMMT keeps].
+* ``frame11d-recall``: ``frame9d`` read from the view of :func:`sim.recall.recall`, and the direction of the robot's
+  remembered target (a target it lost at most ``recall_steps`` steps ago and no teammate sees now, predicted from
+  its own sightings) as a unit vector in the target frame, (0, 0) when it has none; a robot that sees no target
+  reads its remembered one as its nearest instead [beyond the paper: the robot's own tracks of the targets it lost,
+  as the honest A-CMOMMT keeps].
 
 Rewards (:data:`REWARDS`), each given with the trial rules of :mod:`sim.trial`; a learning robot that loses every
 target gets ``lost_reward`` instead and, under the paper's rules (:class:`sim.formulation.TrialRules`), its trial
@@ -85,8 +86,8 @@ class Featurizer:
     """The frame its offsets are given in: ``world`` (x east, y north) or ``target``
     (:func:`sim.actions.target_frame`)."""
     recalls: bool = False
-    """It reads the view of :func:`sim.recall.recall` (a lost robot's remembered target as its nearest one), so a
-    caller keeps every robot's :class:`~sim.recall.Recall` from step to step; False: the observation alone."""
+    """It reads the view of :func:`sim.recall.recall` (a robot's remembered target), so a caller keeps every robot's
+    :class:`~sim.recall.Recall` from step to step; False: the observation alone."""
     view: tuple[int, int] = (0, 1)
     """The two columns its prototypes are drawn at in the viewer and the policy figure: the nearest target's (dx, dy)
     for the world-frame states; for the target-frame ones the furthest target's (x, y) in that frame (x towards the
@@ -163,11 +164,17 @@ def _frame9d(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
     return out
 
 
-def _frame10d_recall(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
-    out = np.empty((*obs.n_seen.shape, 10), np.float32)
-    _kernels.frame9d(obs.features, obs.n_seen, obs.sees_robot, obs.shared, target_frame(obs), out[..., :9])
-    age = np.zeros(obs.n_seen.shape) if obs.age is None else np.where(obs.n_seen >= 1, obs.age, 0)
-    out[..., 9] = age
+def _frame11d_recall(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
+    out = np.empty((*obs.n_seen.shape, 11), np.float32)
+    frame = target_frame(obs)
+    _kernels.frame9d(obs.features, obs.n_seen, obs.sees_robot, obs.shared, frame, out[..., :9])
+    if obs.memory is None:
+        out[..., 9:] = 0.0
+        return out
+    memory = obs.memory.astype(np.float64)
+    unit = memory / np.maximum(np.linalg.norm(memory, axis=-1, keepdims=True), 1e-300)
+    out[..., 9] = (frame[..., 0, :] * unit).sum(-1)
+    out[..., 10] = (frame[..., 1, :] * unit).sum(-1)
     return out
 
 
@@ -240,9 +247,9 @@ FEATURIZER_REGISTRY: dict[str, Featurizer] = {
             view=(1, 2),
         ),
         Featurizer(
-            "frame10d-recall",
-            (*_FRAME9D, "nearest_target_age"),
-            _frame10d_recall,
+            "frame11d-recall",
+            (*_FRAME9D, "remembered_target_x", "remembered_target_y"),
+            _frame11d_recall,
             "eq2",
             partial(_nearest_absent, slice(0, 1), 3),
             frame="target",

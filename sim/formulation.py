@@ -216,7 +216,7 @@ FORMULATIONS: dict[str, Formulation] = {
         "frame9d", "difference-redundancy", "relative", act_every=1, trial_rules="guided-search"
     ),
     "frame-recall": Formulation.of(
-        "frame10d-recall", "difference-redundancy", "relative", act_every=1, trial_rules="guided-search"
+        "frame11d-recall", "difference-redundancy", "relative", act_every=1, trial_rules="guided-search"
     ),
 }
 """Every formulation by name: ``paper`` is the paper's collaborative formulation [paper §4, Eq. 2];
@@ -226,8 +226,8 @@ decision; ``frame-cooperative`` the same with a redundant step charged (``differ
 trials in which a learner that loses every target searches and goes on learning (``lost-searches``) [beyond the
 paper, docs/learning-quality.md "Learning cooperation"]; ``frame-guided`` the same with exploration guided by the
 force law on the state's information (``guided-search``) [beyond the paper, the same document's "Seventh round"];
-``frame-recall`` ``frame-guided`` on a state that remembers the target a robot lost (:mod:`sim.recall`) [beyond
-the paper; 0.1–1.3 points under ``frame-guided`` in the same document's "Eighth round"]."""
+``frame-recall`` ``frame-guided`` on a state that remembers the targets a robot lost (:mod:`sim.recall`) [beyond
+the paper; the same document's "Ninth round"]."""
 DEFAULT_FORMULATION = "frame-guided"
 """The formulation of every process (``up``, ``learner``, ``actor``, compose's) unless another is named."""
 

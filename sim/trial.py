@@ -167,7 +167,7 @@ def reset_trial(
     else:
         world = dataclasses.replace(world, t=0)
     obs = sense(cfg, world, rng)
-    memory = forget_all(learner.shape) if formulation.featurizer.recalls else None
+    memory = forget_all(cfg, learner.shape) if formulation.featurizer.recalls else None
     view, memory = view_of(cfg, world, obs, memory)
     features = formulation.featurizer.compute(cfg, view)
     angle = rng.uniform(0.0, 2.0 * np.pi, learner.shape)

@@ -60,9 +60,12 @@ class Observation:
     n_only: np.ndarray
     """(E, m) int32: targets this robot observes and no other does, i.e. G(z) − G(z without robot i) of metric A's
     summand, the robot's difference [Agogino & Tumer]."""
-    age: np.ndarray | None = None
-    """(E, m) int64 or None: steps since the robot sensed the nearest target's pair, 0 for a sighting now; set only in
-    the view of a state that remembers (:func:`sim.recall.recall`), None as sensed."""
+    memory: np.ndarray | None = None
+    """(E, m, 2) float32 or None: the offset to the robot's remembered target where it also sees a target (0 where
+    ``remembers`` is False); set only in the view of a state that remembers (:func:`sim.recall.recall`, where a robot
+    that sees no target reads its remembered one as its nearest), None as sensed."""
+    remembers: np.ndarray | None = None
+    """(E, m) bool or None: ``memory`` holds a remembered target; None as sensed."""
 
 
 def uniform_in_disk(rng: np.random.Generator, radius: float, shape: tuple[int, ...]) -> np.ndarray:

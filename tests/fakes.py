@@ -50,7 +50,7 @@ def situation(
     )
     obs = sense(cfg, world)
     m = len(robots)
-    memory = forget_all((1, m)) if formulation.featurizer.recalls else None
+    memory = forget_all(cfg, (1, m)) if formulation.featurizer.recalls else None
     view, memory = view_of(cfg, world, obs, memory)
     features = formulation.featurizer.compute(cfg, view)
     mask = np.array([learner])

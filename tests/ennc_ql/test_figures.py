@@ -85,7 +85,7 @@ def test_map_is_read_from_the_named_robot_s_table_row() -> None:
     assert set(np.unique(move_map(two_rows, CFG, robot=1, cells=10).moves)) == {-1, 5}
 
 
-PANELS = {"local2d": 1, "collab6d": 1, "shared8d": 2, "present10d": 2, "frame7d": 4, "frame9d": 4, "frame10d-recall": 4}
+PANELS = {"local2d": 1, "collab6d": 1, "shared8d": 2, "present10d": 2, "frame7d": 4, "frame9d": 4, "frame11d-recall": 4}
 
 
 @pytest.mark.parametrize("name", sorted(FEATURIZER_REGISTRY))

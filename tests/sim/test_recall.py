@@ -1,6 +1,7 @@
-"""A robot's memory of the target it lost (:mod:`sim.recall`) and the state that reads it, on hand-built arenas whose
-views are known by hand: what is remembered, for how long, that nothing unsensed leaks in, and that a remembering
-learner decides where a forgetting one searches."""
+"""A robot's tracks of the targets it lost (:mod:`sim.recall`) and the state that reads them, on hand-built arenas whose
+views are known by hand: which target is remembered and where it is predicted, for how long, that nothing unsensed
+leaks in, that a target a teammate watches is left to it, and that a remembering learner decides where a forgetting
+one searches."""
 
 from __future__ import annotations
 
@@ -11,11 +12,12 @@ import numpy as np
 from algorithm.discretization import Discretization
 from algorithm.policy import Policy, PolicyController
 from sim import FORMULATIONS, WorldState, scenario, sense, step_trial
+from sim.controllers import HAND_MADE
 from sim.features import FEATURIZER_REGISTRY
 from sim.recall import NEVER, forget_all, recall
 from tests.fakes import situation
 
-RECALL = FEATURIZER_REGISTRY["frame10d-recall"]
+RECALL = FEATURIZER_REGISTRY["frame11d-recall"]
 TOWARD, AWAY = 0, 4  # relative action indices
 SPEED = 7.5
 
@@ -29,62 +31,81 @@ def world(robots: list[tuple[float, float]], *targets: tuple[float, float]) -> W
     )
 
 
-def test_a_lost_robot_sees_its_last_target_where_it_saw_it_for_recall_steps_and_no_longer() -> None:
+def test_a_lost_robot_sees_its_lost_target_where_its_own_sightings_predict_it_for_recall_steps() -> None:
     cfg = scenario(n_robots=2, n_targets=2, recall_steps=3)
-    memory = forget_all((1, 2))
-    # Robot 0 sees both targets, the nearer (index 1) 50 east; robot 1 sees neither.
-    seen = world([(0.0, 0.0), (0.0, 600.0)], (0.0, -120.0), (50.0, 0.0))
-    view, memory = recall(cfg, seen, sense(cfg, seen), memory)
-    np.testing.assert_array_equal(view.age, [[0, NEVER]])
-    np.testing.assert_allclose(memory.point[0, 0], (50.0, 0.0))
-    assert memory.target[0, 0] == 1
-    # Robot 0 drives 250 west of target 1, out of view of both; the targets move where no robot sees them.
-    ages = []
+    memory = forget_all(cfg, (1, 2))
+    # Robot 0 sees target 1 twice, 10 further east each step; robot 1 (far north) sees neither.
+    for x in (40.0, 50.0):
+        seen = world([(0.0, 0.0), (0.0, 600.0)], (0.0, -400.0), (x, 0.0))
+        view, memory = recall(cfg, seen, sense(cfg, seen), memory)
+    np.testing.assert_allclose(memory.position[0, 0, 1], (50.0, 0.0))
+    np.testing.assert_allclose(memory.velocity[0, 0, 1], (10.0, 0.0))
+    assert memory.age[0, 0, 1] == 0 and memory.age[0, 0, 0] == NEVER
+    assert not view.remembers.any()
+    # Robot 0 jumps 250 west, out of view; unseen, the target turns north instead of going on east.
     for step in range(1, 6):
-        away = world([(-200.0 - step, 0.0), (0.0, 600.0)], (0.0, -400.0), (50.0, 10.0 * step))
+        away = world([(-200.0, 0.0), (0.0, 600.0)], (0.0, -400.0), (50.0, 10.0 * step))
         obs = sense(cfg, away)
         assert obs.n_seen[0, 0] == 0
         view, memory = recall(cfg, away, obs, memory)
-        ages.append(int(view.age[0, 0]))
+        state = RECALL.compute(cfg, view)[0, 0]
         if step <= cfg.recall_steps:
-            assert view.n_seen[0, 0] == 1 and not view.shared[0, 0, 0]
-            # Where it saw the target, not where the target is now: nothing unsensed leaks in.
-            np.testing.assert_allclose(view.features[0, 0, 0:2], (250.0 + step, 0.0))
-            state = RECALL.compute(cfg, view)[0, 0]
-            np.testing.assert_allclose(state[[0, 7, 9]], (250.0 + step, 0.0, step))
+            assert view.n_seen[0, 0] == 1 and not view.shared[0, 0].any()
+            # Where its sightings predict it, not where the target is: nothing unsensed leaks in.
+            np.testing.assert_allclose(view.features[0, 0, 0:2], (250.0 + 10.0 * step, 0.0))
+            np.testing.assert_allclose(state[[0, 7, 9, 10]], (250.0 + 10.0 * step, 0.0, 0.0, 0.0))
             assert not RECALL.sees_none(cfg, state)
         else:
             assert view.n_seen[0, 0] == 0
-            state = RECALL.compute(cfg, view)[0, 0]
-            np.testing.assert_array_equal(state[[0, 3, 9]], 0.0)
+            np.testing.assert_array_equal(state[[0, 3, 9, 10]], 0.0)
             assert RECALL.sees_none(cfg, state)
         # The sensed observation is left as it was.
-        assert obs.age is None
-    assert ages == [1, 2, 3, 4, 5]
-    # A sighting again refreshes the memory.
-    back = world([(0.0, 0.0), (0.0, 600.0)], (0.0, 60.0), (500.0, 0.0))
-    view, memory = recall(cfg, back, sense(cfg, back), memory)
-    assert view.age[0, 0] == 0 and memory.age[0, 0] == 0 and memory.target[0, 0] == 0
-    np.testing.assert_allclose(memory.point[0, 0], (0.0, 60.0))
+        assert obs.memory is None and obs.n_seen[0, 0] == 0
+    np.testing.assert_array_equal(memory.age[0, 0], [NEVER, 5])
+
+
+def test_a_robot_that_sees_a_target_reads_the_nearest_remembered_one_beside_it() -> None:
+    cfg = scenario(n_robots=1, n_targets=4, recall_steps=10)
+    memory = forget_all(cfg, (1, 1))
+    seen = world([(0.0, 0.0)], (100.0, 0.0), (0.0, 120.0), (0.0, -140.0), (30.0, 0.0))
+    _, memory = recall(cfg, seen, sense(cfg, seen), memory)
+    # The robot moves 200 east. It sees target 3 (now 20 north-east of it); targets 0 and 2 are lost, target 1 is
+    # lost too but predicted (still) 100 from the robot's old spot, 224 from the new; target 0's prediction lies 100
+    # west, inside the sensing range, so it is known to be wrong and passed over.
+    moved = world([(200.0, 0.0)], (100.0, -500.0), (0.0, 120.0 + 500.0), (0.0, -640.0), (220.0, 0.0))
+    view, memory = recall(cfg, moved, sense(cfg, moved), memory)
+    assert view.n_seen[0, 0] == 1 and view.remembers[0, 0]
+    np.testing.assert_allclose(view.memory[0, 0], (-200.0, 120.0))
+    np.testing.assert_allclose(view.features[0, 0, 0:2], (20.0, 0.0))
+    # In the target frame (x east, towards target 3) the remembered target's direction is west and north.
+    state = RECALL.compute(cfg, view)[0, 0]
+    direction = np.array([-200.0, 120.0]) / np.hypot(200.0, 120.0)
+    np.testing.assert_allclose(abs(state[9:]), abs(direction), rtol=1e-6)
+    assert state[9] < 0
+    # The law on the state's information feels it: remembered, the robot's move turns from the target in view.
+    law = HAND_MADE["force-6d-shared"]
+    heading = np.array([[[0.0, 1.0]]])
+    with_memory, _ = law.act(cfg, moved, view, heading, np.random.default_rng(0))
+    without, _ = law.act(cfg, moved, sense(cfg, moved), heading, np.random.default_rng(0))
+    assert with_memory[0, 0, 0] < without[0, 0, 0]
 
 
 def test_a_remembered_target_a_teammate_sees_now_is_hidden_until_the_teammate_loses_it() -> None:
     cfg = scenario(n_robots=2, n_targets=2, recall_steps=10)
-    # Robot 0 sees target 0 (and so remembers it); robot 1, 300 north, sees target 1 only.
-    memory = forget_all((1, 2))
+    # Robot 0 sees target 0; robot 1, 300 north, sees target 1 only.
+    memory = forget_all(cfg, (1, 2))
     seen = world([(0.0, 0.0), (0.0, 300.0)], (40.0, 0.0), (0.0, 330.0))
     _, memory = recall(cfg, seen, sense(cfg, seen), memory)
-    np.testing.assert_array_equal(memory.target, [[0, 1]])
     hidden = []
     # Robot 0 leaves west; target 0 drifts north, into robot 1's view at steps 2 and 3, out of it again after.
-    for step, target_y in enumerate((0.0, 200.0, 220.0, 0.0), start=1):
+    for target_y in (0.0, 200.0, 220.0, 0.0):
         here = world([(-200.0, 0.0), (0.0, 300.0)], (40.0, target_y), (0.0, 330.0))
         obs = sense(cfg, here)
         view, memory = recall(cfg, here, obs, memory)
-        assert obs.n_seen[0, 0] == 0 and view.age[0, 0] == step
+        assert obs.n_seen[0, 0] == 0
         hidden.append(int(view.n_seen[0, 0]) == 0)
         if not hidden[-1]:
-            # Where robot 0 saw it, unshared: a teammate watching it would have hidden it.
+            # Where robot 0 saw it (a first sighting: no velocity), unshared.
             np.testing.assert_allclose(view.features[0, 0, 0:2], (240.0, 0.0))
             assert not view.shared[0, 0, 0]
         # Robot 1 sees target 1 and target 0 when it is near, read as sensed either way.
@@ -95,17 +116,18 @@ def test_a_remembered_target_a_teammate_sees_now_is_hidden_until_the_teammate_lo
 def test_a_robot_that_never_saw_a_target_remembers_nothing() -> None:
     cfg = scenario(n_robots=2, n_targets=1, recall_steps=10**6)
     blind = world([(-400.0, 0.0), (400.0, 0.0)], (0.0, 0.0))
-    view, memory = recall(cfg, blind, sense(cfg, blind), forget_all((1, 2)))
+    view, memory = recall(cfg, blind, sense(cfg, blind), forget_all(cfg, (1, 2)))
     np.testing.assert_array_equal(view.n_seen, 0)
+    assert not view.remembers.any()
     np.testing.assert_array_equal(memory.age, NEVER)
 
 
 def test_a_remembering_learner_decides_in_a_frame_pointing_back_where_a_forgetting_one_searches() -> None:
     cfg = scenario(n_robots=1, n_targets=1, action_steps=1, learning_steps=30, recall_steps=5, target_turn_prob=0.0)
-    # The target runs east at 20 per step from the robot 145 west of it, which follows at 7.5 and loses it on the
-    # first step; the robot remembers it where it last saw it, at the origin.
+    # The target runs east at 20 per step from the robot 100 west of it, which follows at 7.5: it sees the target
+    # for 4 steps (so knows its velocity) and loses it on the fifth; then its prediction, exact here, runs away east.
     common = {"target_vel": [(20.0, 0.0)], "heading": [(0.0, 1.0)]}
-    start = ([(-145.0, 0.0)], [(0.0, 0.0)], [True])
+    start = ([(-100.0, 0.0)], [(0.0, 0.0)], [True])
     forgetting = situation(cfg, *start, formulation=FORMULATIONS["frame-cooperative"], **common)
     remembering = situation(cfg, *start, formulation=FORMULATIONS["frame-recall"], **common)
     rng = np.random.default_rng(0)
@@ -113,17 +135,19 @@ def test_a_remembering_learner_decides_in_a_frame_pointing_back_where_a_forgetti
     for name, state in (("forgetting", forgetting), ("remembering", remembering)):
         decide = np.ones((1, 1), bool)
         trail = []
-        for _ in range(8):
+        for _ in range(14):
             state, out = step_trial(cfg, state, np.full((1, 1), TOWARD), decide, rng)
             decide = out.decide
             trail.append(state.world.robot_pos[0, 0].copy())
         positions[name] = np.array(trail)
-    # Forgetting: lost from the first step, it keeps its search heading north.
-    np.testing.assert_allclose(np.diff(positions["forgetting"][:, 0]), 0.0, atol=1e-9)
-    assert np.all(np.diff(positions["forgetting"][:, 1]) > 0)
-    # Remembering: "toward" is the remembered target, so it goes on east to it while its memory lasts, then searches.
-    np.testing.assert_allclose(np.diff(positions["remembering"][:6, 0]), SPEED)
-    np.testing.assert_allclose(np.diff(positions["remembering"][5:, 0]), 0.0, atol=1e-9)
+    # Both follow east while they see the target (steps 1-5); forgetting, the robot then keeps its search heading.
+    for name in positions:
+        np.testing.assert_allclose(np.diff(positions[name][:5, 0]), SPEED)
+    np.testing.assert_allclose(np.diff(positions["forgetting"][4:, 0]), 0.0, atol=1e-9)
+    assert np.all(np.diff(positions["forgetting"][4:, 1]) > 0)
+    # Remembering: "toward" is the predicted target, so it goes on east while its memory lasts, then searches.
+    np.testing.assert_allclose(np.diff(positions["remembering"][4:10, 0]), SPEED)
+    np.testing.assert_allclose(np.diff(positions["remembering"][10:, 0]), 0.0, atol=1e-9)
 
 
 def test_the_learned_policy_acts_on_a_remembered_target_in_test_trials() -> None:
@@ -143,9 +167,9 @@ def test_the_learned_policy_acts_on_a_remembered_target_in_test_trials() -> None
     seen = world([(100.0, 0.0)], (0.0, 0.0))
     memory = controller.init(cfg, seen, rng)
     _, memory = controller.act(cfg, seen, sense(cfg, seen), memory, rng)
-    gone = dataclasses.replace(world([(100.0, 0.0)], (-500.0, 0.0)), t=1)
+    gone = dataclasses.replace(world([(200.0, 0.0)], (-500.0, 0.0)), t=1)
     velocity, memory = controller.act(cfg, gone, sense(cfg, gone), memory, rng)
-    assert memory.recall is not None and memory.recall.age[0, 0] == 1
+    assert memory.recall is not None and memory.recall.age[0, 0, 0] == 1
     # The policy's move, "away" from the remembered target (west of the robot): east, not the search heading.
     np.testing.assert_allclose(velocity[0, 0], (cfg.robot_speed, 0.0), atol=1e-9)
     # Past its memory the robot searches.
