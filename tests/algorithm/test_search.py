@@ -12,6 +12,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from algorithm._search import search_line
 from algorithm.agent import Phase2Config, TabularAgent
 from algorithm.discretization import Discretization, nearest
 from algorithm.policy import Policy
@@ -99,7 +100,8 @@ def test_the_index_cuts_at_presence_flags_and_still_equals_brute_force() -> None
     states = frame_like(4000)
     np.testing.assert_array_equal(disc.cells(states), brute_cells(disc, states))
     searcher = disc._search_index()[0]
-    assert searcher.zero_sets == 3  # one pair absent, the other, both: searched in fewer dimensions
+    # One pair absent, the other: searched in fewer dimensions; both: the first coordinate alone, on a line index.
+    assert (searcher.zero_sets, searcher.lines) == (2, 1)
     index = searcher.full
     real = index.index >= 0
     assert real.sum() == disc.size
@@ -109,6 +111,30 @@ def test_the_index_cuts_at_presence_flags_and_still_equals_brute_force() -> None
     for flag in (3, 6):
         values = np.where(real, index.points[:, :, flag], np.nan)[groups]
         assert (np.nanmin(values, axis=1) == np.nanmax(values, axis=1)).all()
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_states_zero_in_all_dimensions_but_one_equal_brute_force_on_the_line_index(seed: int) -> None:
+    # Small integers in the free dimension and in the prototypes: distances are exact, so ties are exact too, and
+    # states fall on the cells' edges; some states lie beyond the line's cells and go to the reduced index.
+    rng = np.random.default_rng(seed)
+    dim, free = 5, 2
+    protos = [rng.integers(-3, 4, size=(size, dim)).astype(np.float32) for size in (1, 9, 70, 230)]
+    protos[3][:40] = protos[3][40:80]  # duplicates
+    protos[2][:, free] = rng.uniform(-30, 30, 70).astype(np.float32)
+    disc = Discretization.from_per_action(protos)
+    states = np.zeros((3000, dim), np.float32)
+    states[:1000, free] = rng.integers(-12, 13, 1000)
+    states[1000:2000, free] = rng.uniform(-40, 40, 1000)
+    states[2000:, free] = rng.uniform(-1e4, 1e4, 1000)
+    states = states[states[:, free] != 0]
+    np.testing.assert_array_equal(disc.cells(states), brute_cells(disc, states))
+    searcher = disc._search_index()[0]
+    assert searcher.lines == 1
+    line = searcher._lines[int(np.int64(31) ^ (1 << free))]
+    assert np.diff(line.starts).min() >= 1
+    far = states[np.abs(states[:, free]) > line.edges[-1]]
+    assert len(far) > 0 and (search_line(line, far) == -1).all()
 
 
 def test_cells_reject_states_of_the_wrong_shape() -> None:
