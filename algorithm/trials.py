@@ -125,21 +125,22 @@ class ExperienceSlice:
         parts: list[Transitions],
     ) -> None:
         """Append the tuples that end on this step to ``parts``; with ``updated``, apply Eq. 1 to them."""
-        emit = out.transition
-        if not emit.any():
+        # Rows of the (E·m) robots, found once for every array instead of once per boolean mask.
+        rows = np.flatnonzero(out.transition)
+        if rows.size == 0:
             return
-        robots = np.broadcast_to(np.arange(emit.shape[1]), emit.shape)[emit]
+        robots = rows % out.action.shape[1]
         batch = Transitions(
             robot=robots.astype(np.int16),
-            state=out.start_features[emit],
-            action=out.action[emit].astype(np.uint8),
-            reward=out.reward[emit],
-            next_state=out.next_features[emit],
-            done=out.done[emit],
+            state=_flat(out.start_features)[rows],
+            action=out.action.reshape(-1)[rows].astype(np.uint8),
+            reward=out.reward.reshape(-1)[rows],
+            next_state=_flat(out.next_features)[rows],
+            done=out.done.reshape(-1)[rows],
         )
         parts.append(batch)
         if updated is not None and cells is not None:
-            updated.update(robots, cell_sa[emit], cells[np.flatnonzero(emit)], batch.reward, batch.done)
+            updated.update(robots, cell_sa.reshape(-1)[rows], cells[rows], batch.reward, batch.done)
 
     def _decide(
         self,

@@ -250,14 +250,15 @@ def step_trial(
     # none in the batch the headings are never read.
     seeker = ~state.learner | (not rules.lost_ends_trial)
     heading = wander(cfg, state.world, state.heading) if seeker.any() else state.heading
-    move = moves.velocity(cfg, held_action, frame)
+    move = moves.velocity(cfg, held_action, frame)  # a new array: the rules below overwrite its robots' rows
     if velocity is not None:
         move = np.where(state.learner[..., None], move, velocity)
         seeker = seeker & state.learner
     searching = seeker & lost(state.view)
-    move = np.where(searching[..., None], cfg.robot_speed * heading, move)
+    if searching.any():
+        move[searching] = cfg.robot_speed * heading[searching]
     # A learner whose trial ended stays where it lost its targets [paper].
-    move = np.where((state.learner & ~state.active)[..., None], 0.0, move)
+    move[state.learner & ~state.active] = 0.0
     world = step(cfg, state.world, move, rng)
     obs = sense(cfg, world, rng)
     view, memory = view_of(cfg, world, obs, state.recall)
