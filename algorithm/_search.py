@@ -37,8 +37,16 @@ the candidates and the skipped groups are judged with. On ``frame-cooperative`` 
 14 zero sets, half of the states into the one with both pairs absent; the reduction took
 the search from 1.93 to 1.06 µs per state (195 prototypes per action).
 
-A zero set that leaves one dimension f free (on ``frame9d``: a robot that sees one target and nothing else, 42 % of a
-phase-2 trial's states) makes the search one-dimensional: |x − c|² = (x_f − c_f)² + r_c with r_c = Σ_{k≠f} c_k².
+A flag that is on fixes a dimension as well as one that is off: given each dimension's *flag value* (what a feature
+of 1 scales to), a state's fixed set F holds the dimensions where it is 0 or at that value, v_k the value it has
+there, and |x − c|² = Σ_{k∉F} (x_k − c_k)² + Σ_{k∈F} (v_k − c_k)²: the same reduction with the extra coordinate
+√(Σ_{k∈F} (v_k − c_k)²), and the same bounds (only the scanned coordinates of the state are rounded to float32, and
+|x|² of the margin is taken over them). On make run's ``frame-guided`` policy the second and third largest sets of a
+phase-2 trial's states (32 % and 9 %) scan 4 and 6 coordinates instead of 7 and 9, and the fourth (7 %: one target
+in view, seen by a teammate too) is a line (below).
+
+A fixed set that leaves one dimension f free (on ``frame9d``: a robot that sees one target and nothing else, 42 % of
+a phase-2 trial's states) makes the search one-dimensional: |x − c|² = (x_f − c_f)² + r_c, r_c = Σ_{k≠f} (v_k − c_k)².
 A *line index* cuts a range of x_f into ``LINE_CELLS`` equal cells and keeps, per action and cell [lo, hi], the
 prototypes whose smallest distance over the cell, L_c = (distance from c_f to the cell)² + r_c, is at most
 (1 + ``LINE_SLACK``) times the smallest largest distance over it, min_c′ U_c′ with U_c′ = max((lo − c′_f)²,
@@ -46,7 +54,7 @@ prototypes whose smallest distance over the cell, L_c = (distance from c_f to th
 beyond 1 + 10⁻⁹, far more than float64 rounding (≈ 10 ulp of the sums, and of L and U) can undo, so the nearest
 prototype under the float64 sums, and every prototype tying with it, is on the list. With one candidate it is the
 answer; with several, their float64 squared distances Σ_k (x_k − c_k)², summed as above, decide (the lists are in
-index order: the lowest index on a tie). A state outside the cut range goes to the zero set's reduced index. On
+index order: the lowest index on a tie). A state outside the cut range goes to the fixed set's reduced index. On
 make run's ``frame-guided`` policy (223 prototypes per action) the line index takes those states from 0.61 to
 ≈ 0.1 µs per state and 8 actions.
 
@@ -106,17 +114,23 @@ class SearchIndex:
     """(G, d′) float64: ... and upper corner."""
     groups: np.ndarray
     """(L + 1,) int64: action a owns groups groups[a]:groups[a+1]."""
-    zero: np.ndarray | None = None
-    """(d,) bool: the zero set this index serves (scanned: the other dimensions, then √Σ c_k² over the set); None:
-    every dimension, for any state."""
+    fixed: np.ndarray | None = None
+    """(d,) bool: the fixed set this index serves (scanned: the other dimensions, then √Σ (v_k − c_k)² over the set);
+    None: every dimension, for any state."""
 
 
-def build_index(prototypes: list[np.ndarray], offsets: np.ndarray, zero: np.ndarray | None = None) -> SearchIndex:
+def build_index(
+    prototypes: list[np.ndarray], offsets: np.ndarray, fixed: np.ndarray | None = None, value: np.ndarray | None = None
+) -> SearchIndex:
     """The groups of per-action float32 prototype arrays (P_a, d); action a's first global index is ``offsets[a]``.
 
-    ``zero`` (d,) bool: an index for states that are 0 in exactly those dimensions (module docstring)."""
+    ``fixed`` (d,) bool: an index for states that equal ``value`` (d,) (default 0) in exactly those dimensions
+    (module docstring)."""
     everything = np.concatenate(prototypes)
-    scanned = everything if zero is None else _reduced(everything, zero)
+    if fixed is None:
+        scanned = everything
+    else:
+        scanned = _reduced(everything, fixed, np.zeros(fixed.size) if value is None else value)
     members: list[np.ndarray] = []
     groups = [0]
     start = 0
@@ -140,14 +154,15 @@ def build_index(prototypes: list[np.ndarray], offsets: np.ndarray, zero: np.ndar
         low=np.array([b.min(axis=0) for b in boxes]),
         high=np.array([b.max(axis=0) for b in boxes]),
         groups=np.array(groups, np.int64),
-        zero=zero,
+        fixed=fixed,
     )
 
 
-def _reduced(points: np.ndarray, zero: np.ndarray) -> np.ndarray:
-    """(P, d − |Z| + 1) float32: the dimensions outside ``zero``, then √(Σ c_k² over it) (module docstring)."""
-    rest = np.sqrt(np.square(points[:, zero].astype(np.float64)).sum(axis=1))
-    return np.concatenate([points[:, ~zero], rest[:, None]], axis=1).astype(np.float32)
+def _reduced(points: np.ndarray, fixed: np.ndarray, value: np.ndarray) -> np.ndarray:
+    """(P, d − |F| + 1) float32: the dimensions outside ``fixed``, then √(Σ (v_k − c_k)² over it) (module
+    docstring)."""
+    rest = np.sqrt(np.square(value[fixed] - points[:, fixed].astype(np.float64)).sum(axis=1))
+    return np.concatenate([points[:, ~fixed], rest[:, None]], axis=1).astype(np.float32)
 
 
 def _cut(points: np.ndarray, idx: np.ndarray) -> list[np.ndarray]:
@@ -170,18 +185,19 @@ def _cut(points: np.ndarray, idx: np.ndarray) -> list[np.ndarray]:
 
 def search(index: SearchIndex, states: np.ndarray) -> np.ndarray:
     """(N, L) int64 global index of the nearest prototype of each action to each of ``states`` (N, d), finite; with
-    ``index.zero``, every state must be 0 in those dimensions."""
+    ``index.fixed``, every state must have the index's values in those dimensions."""
     x = np.ascontiguousarray(states, dtype=np.float64)
     out = np.empty((x.shape[0], index.groups.size - 1), np.int64)
-    zero = index.zero
-    scanned = x if zero is None else np.concatenate([x[:, ~zero], np.zeros((x.shape[0], 1))], axis=1)
+    fixed = index.fixed
+    scanned = x if fixed is None else np.concatenate([x[:, ~fixed], np.zeros((x.shape[0], 1))], axis=1)
     _search(scanned, x, index.soa, index.points, index.index, index.low, index.high, index.groups, out)
     return out
 
 
 @dataclass(frozen=True, slots=True)
 class LineIndex:
-    """The candidate lists of the states that are 0 in every dimension but ``free`` (module docstring)."""
+    """The candidate lists of the states that have given values in every dimension but ``free`` (module
+    docstring)."""
 
     free: int
     """The one dimension such a state may be nonzero in."""
@@ -197,11 +213,16 @@ class LineIndex:
     """The global index of the first prototype."""
 
 
-def build_line(prototypes: list[np.ndarray], offsets: np.ndarray, free: int) -> LineIndex:
-    """The line index of dimension ``free`` over per-action float32 prototype arrays (P_a, d) (float32 values: their
-    squares and the distances over the cells stay finite in float64)."""
+def build_line(
+    prototypes: list[np.ndarray], offsets: np.ndarray, free: int, value: np.ndarray | None = None
+) -> LineIndex:
+    """The line index of dimension ``free`` over per-action float32 prototype arrays (P_a, d), for states whose other
+    dimensions equal ``value`` (d,) (default 0; float32 values: the squares and the distances over the cells stay
+    finite in float64)."""
     points = np.concatenate(prototypes).astype(np.float64)
-    rest = np.square(np.delete(points, free, axis=1)).sum(axis=1)
+    fixed = np.arange(points.shape[1]) != free
+    at = np.zeros(points.shape[1]) if value is None else np.asarray(value, np.float64)
+    rest = np.square(at[fixed] - points[:, fixed]).sum(axis=1)
     along = points[:, free]
     low, high = float(along.min()), float(along.max())
     pad = LINE_PAD * (high - low) if high > low else 1.0
@@ -228,8 +249,8 @@ def build_line(prototypes: list[np.ndarray], offsets: np.ndarray, free: int) -> 
 
 
 def search_line(line: LineIndex, states: np.ndarray) -> np.ndarray:
-    """(N, L) int64 as :func:`search` for ``states`` (N, d) that are 0 in every dimension but ``line.free``; a row
-    whose free coordinate lies outside the line's cells is -1 throughout."""
+    """(N, L) int64 as :func:`search` for ``states`` (N, d) that have the line's values in every dimension but
+    ``line.free``; a row whose free coordinate lies outside the line's cells is -1 throughout."""
     x = np.ascontiguousarray(states, dtype=np.float64)
     out = np.empty((x.shape[0], (line.starts.size - 1) // (line.edges.size - 1)), np.int64)
     _search_line(x, line.free, line.edges, line.starts, line.members, line.points, line.first, out)
@@ -237,12 +258,16 @@ def search_line(line: LineIndex, states: np.ndarray) -> np.ndarray:
 
 
 class Searcher:
-    """The nearest-prototype search of one prototype set: the full index, and a reduced index per zero set met, or
-    a line index for a zero set of all dimensions but one (built on first use, module docstring)."""
+    """The nearest-prototype search of one prototype set: the full index, and a reduced index per fixed set met, or
+    a line index for a fixed set of all dimensions but one (built on first use, module docstring).
 
-    def __init__(self, prototypes: list[np.ndarray], offsets: np.ndarray) -> None:
+    ``flags`` (d,): each dimension's flag value (module docstring); None: only zeros fix a dimension."""
+
+    def __init__(self, prototypes: list[np.ndarray], offsets: np.ndarray, flags: np.ndarray | None = None) -> None:
         self._prototypes = prototypes
         self._offsets = offsets
+        # A flag value of 0 is a zero already (NaN: no state equals it), so every dimension has at most one bit set.
+        self._flags = None if flags is None else np.where(np.asarray(flags) == 0, np.nan, flags).astype(np.float64)
         self.full = build_index(prototypes, offsets)
         self._reduced: dict[int, SearchIndex] = {}
         self._lines: dict[int, LineIndex] = {}
@@ -251,9 +276,13 @@ class Searcher:
         """(N, L) int64 as :func:`search` over the full index."""
         x = np.ascontiguousarray(states, dtype=np.float64)
         dim = x.shape[1]
-        if x.shape[0] < REDUCE_MIN or dim > 62:  # a zero set is keyed by its bits in one int64
+        # A fixed set is keyed by its bits in one int64: bit k, dimension k is 0; bit d + k, it is at its flag value.
+        if x.shape[0] < REDUCE_MIN or dim > (31 if self._flags is not None else 62):
             return search(self.full, x)
-        keys = (x == 0.0) @ (np.int64(1) << np.arange(dim, dtype=np.int64))
+        bits = np.int64(1) << np.arange(dim, dtype=np.int64)
+        keys = (x == 0.0) @ bits
+        if self._flags is not None:
+            keys += (x == self._flags) @ (bits << dim)
         order = np.argsort(keys, kind="stable")
         ranked = keys[order]
         starts = np.flatnonzero(np.r_[True, ranked[1:] != ranked[:-1]])
@@ -278,7 +307,7 @@ class Searcher:
 
     @property
     def zero_sets(self) -> int:
-        """Reduced indexes built so far."""
+        """Reduced indexes (of fixed sets) built so far."""
         return len(self._reduced)
 
     @property
@@ -287,11 +316,11 @@ class Searcher:
         return len(self._lines)
 
     def _search_line(self, key: int, dim: int, x: np.ndarray, rows: np.ndarray, out: np.ndarray) -> np.ndarray:
-        """Search ``rows`` of ``x`` (all in zero set ``key``, every dimension but one) on its line index into
+        """Search ``rows`` of ``x`` (all in fixed set ``key``, every dimension but one) on its line index into
         ``out``; returns the rows left for another index (those outside the line's cells)."""
         if key not in self._lines:
-            free = int(np.flatnonzero((key >> np.arange(dim)) & 1 == 0)[0])
-            self._lines[key] = build_line(self._prototypes, self._offsets, free)
+            fixed, value = self._fixed(key, dim)
+            self._lines[key] = build_line(self._prototypes, self._offsets, int(np.flatnonzero(~fixed)[0]), value)
         line = self._lines[key]
         found = search_line(line, x[rows])
         inside = found[:, 0] >= 0
@@ -299,15 +328,21 @@ class Searcher:
         return rows[~inside]
 
     def _index(self, key: int, dim: int) -> SearchIndex | None:
-        """The reduced index of zero set ``key`` (bit k: dimension k), None to use the full one."""
+        """The reduced index of fixed set ``key``, None to use the full one."""
         if key == 0:
             return None
         if key not in self._reduced:
             if len(self._reduced) >= REDUCED_CACHE:
                 return None
-            zero = (key >> np.arange(dim)) & 1 == 1
-            self._reduced[key] = build_index(self._prototypes, self._offsets, zero)
+            self._reduced[key] = build_index(self._prototypes, self._offsets, *self._fixed(key, dim))
         return self._reduced[key]
+
+    def _fixed(self, key: int, dim: int) -> tuple[np.ndarray, np.ndarray]:
+        """(d,) bool the dimensions that fixed set ``key`` fixes, (d,) float64 their values (0 elsewhere)."""
+        zero = (key >> np.arange(dim)) & 1 == 1
+        on = (key >> (dim + np.arange(dim))) & 1 == 1
+        values = np.zeros(dim) if self._flags is None else np.where(on, np.nan_to_num(self._flags), 0.0)
+        return zero | on, values
 
 
 # The helpers index whole arrays instead of taking row views (each view costs numba a reference-count increment and

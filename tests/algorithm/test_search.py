@@ -96,12 +96,17 @@ def test_the_index_cuts_at_presence_flags_and_still_equals_brute_force() -> None
         x[:, 3], x[:, 6] = flags[:, 0], flags[:, 1]
         return x.astype(np.float32)
 
-    disc = Discretization.from_per_action([frame_like(size) for size in (300, 140, 65)])
+    protos = [frame_like(size) for size in (300, 140, 65)]
     states = frame_like(4000)
+    scaled = Discretization.from_per_action(protos, scale=rng.uniform(0.3, 3.0, 7).astype(np.float32))
+    np.testing.assert_array_equal(scaled.cells(states), brute_cells(scaled, states))
+    disc = Discretization.from_per_action(protos)
     np.testing.assert_array_equal(disc.cells(states), brute_cells(disc, states))
+    # Each flag fixes its dimension, on or off. Three patterns of the flags: searched in fewer dimensions; both
+    # pairs absent: the first coordinate alone, on a line index.
+    for searcher in (scaled._search_index()[0], disc._search_index()[0]):
+        assert (searcher.zero_sets, searcher.lines) == (3, 1)
     searcher = disc._search_index()[0]
-    # One pair absent, the other: searched in fewer dimensions; both: the first coordinate alone, on a line index.
-    assert (searcher.zero_sets, searcher.lines) == (2, 1)
     index = searcher.full
     real = index.index >= 0
     assert real.sum() == disc.size
@@ -129,8 +134,11 @@ def test_states_zero_in_all_dimensions_but_one_equal_brute_force_on_the_line_ind
     states[2000:, free] = rng.uniform(-1e4, 1e4, 1000)
     states = states[states[:, free] != 0]
     np.testing.assert_array_equal(disc.cells(states), brute_cells(disc, states))
+    flags_on = states.copy()
+    flags_on[:, np.arange(dim) != free] = 1.0  # the other dimensions at the flag value: a line as well
+    np.testing.assert_array_equal(disc.cells(flags_on), brute_cells(disc, flags_on))
     searcher = disc._search_index()[0]
-    assert searcher.lines == 1
+    assert searcher.lines == 2
     line = searcher._lines[int(np.int64(31) ^ (1 << free))]
     assert np.diff(line.starts).min() >= 1
     far = states[np.abs(states[:, free]) > line.edges[-1]]
