@@ -43,20 +43,23 @@ there, and |x − c|² = Σ_{k∉F} (x_k − c_k)² + Σ_{k∈F} (v_k − c_k)²
 √(Σ_{k∈F} (v_k − c_k)²), and the same bounds (only the scanned coordinates of the state are rounded to float32, and
 |x|² of the margin is taken over them). On make run's ``frame-guided`` policy the second and third largest sets of a
 phase-2 trial's states (32 % and 9 %) scan 4 and 6 coordinates instead of 7 and 9, and the fourth (7 %: one target
-in view, seen by a teammate too) is a line (below).
+in view, seen by a teammate too) has one free dimension (below).
 
-A fixed set that leaves one dimension f free (on ``frame9d``: a robot that sees one target and nothing else, 42 % of
-a phase-2 trial's states) makes the search one-dimensional: |x − c|² = (x_f − c_f)² + r_c, r_c = Σ_{k≠f} (v_k − c_k)².
-A *line index* cuts a range of x_f into ``LINE_CELLS`` equal cells and keeps, per action and cell [lo, hi], the
-prototypes whose smallest distance over the cell, L_c = (distance from c_f to the cell)² + r_c, is at most
-(1 + ``LINE_SLACK``) times the smallest largest distance over it, min_c′ U_c′ with U_c′ = max((lo − c′_f)²,
-(hi − c′_f)²) + r_c′. Any other prototype is further than that prototype c′ at every point of the cell by a factor
-beyond 1 + 10⁻⁹, far more than float64 rounding (≈ 10 ulp of the sums, and of L and U) can undo, so the nearest
-prototype under the float64 sums, and every prototype tying with it, is on the list. With one candidate it is the
-answer; with several, their float64 squared distances Σ_k (x_k − c_k)², summed as above, decide (the lists are in
-index order: the lowest index on a tie). A state outside the cut range goes to the fixed set's reduced index. On
-make run's ``frame-guided`` policy (223 prototypes per action) the line index takes those states from 0.61 to
-≈ 0.1 µs per state and 8 actions.
+A fixed set that leaves one to three dimensions free (on ``frame9d``: a robot that sees one target and nothing else,
+42 % of a phase-2 trial's states, one free; one target and a robot, 32 %, three) is searched on a *grid index*:
+|x − c|² = Σ_{k free} (x_k − c_k)² + r_c with r_c = Σ_{k fixed} (v_k − c_k)². The grid cuts a range of each free
+coordinate into ``GRID_SIDES`` equal intervals and keeps, per action and cell (a box B), the prototypes whose smallest
+distance over the box, L_c = Σ_{k free} (distance from c_k to B's interval)² + r_c, is at most (1 + ``GRID_SLACK``)
+times the smallest largest distance over it, min_c′ U_c′ with U_c′ = Σ_{k free} max((lo_k − c′_k)², (hi_k − c′_k)²)
++ r_c′. Any other prototype is further than that prototype c′ at every point of the box by a factor beyond 1 + 10⁻⁹,
+far more than float64 rounding (≈ 10 ulp of the sums, and of L and U) can undo, so the nearest prototype under the
+float64 sums, and every prototype tying with it, is on the list. With one candidate it is the answer; with several,
+their float64 squared distances Σ_k (x_k − c_k)², summed as above, decide (the lists are in index order: the lowest
+index on a tie). A state outside the grid's range goes to the fixed set's reduced index. On make run's
+``frame-guided`` policy (223 prototypes per action, the states of two phase-2 trials), per state and 8 actions: one
+free dimension 0.61 µs on the reduced index, 0.14 µs on a grid of 256 cells, 0.04 µs on 4 096; three free 0.79 µs on
+the reduced index, 0.81 / 0.49 / 0.39 / 0.26 µs on grids of 8 / 12 / 16 / 24 intervals a side (built in 8 / 24 / 56 /
+181 ms); five free, 6³ cells and more, slower than the reduced index.
 
 Shapes: N states, L actions, G groups (all actions), d dimensions (d′ scanned: d, or d − |Z| + 1).
 """
@@ -87,13 +90,14 @@ once, and each set one more kernel call) [choice]."""
 REDUCED_CACHE = 64
 """Reduced indexes kept per prototype set; beyond it, new zero sets use the full index [choice: a frame9d policy
 meets 14]."""
-LINE_CELLS = 256
-"""Cells of a line index (module docstring) [choice: on make run's policy almost every cell lists one prototype
-per action]."""
-LINE_SLACK = 1e-9
-"""Relative margin of a line index's candidate lists (10⁶ times float64 rounding of a 10-term sum)."""
-LINE_PAD = 0.25
-"""A line index covers the prototypes' range of the free coordinate widened by this share of it on each side."""
+GRID_SIDES = (2048, 48, 16)
+"""Intervals a side of the grid index of a fixed set with 1, 2, 3 free dimensions; one with more uses its reduced
+index [choice, from the module docstring's measurements; a grid is built once per discretization and fixed set:
+14 ms for one free dimension, 56 ms for three on make run's policy; two free dimensions do not occur in frame9d]."""
+GRID_SLACK = 1e-9
+"""Relative margin of a grid index's candidate lists (10⁶ times float64 rounding of a 10-term sum)."""
+GRID_PAD = 0.25
+"""A grid covers the prototypes' range of each free coordinate widened by this share of it on each side."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -195,16 +199,17 @@ def search(index: SearchIndex, states: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True, slots=True)
-class LineIndex:
+class GridIndex:
     """The candidate lists of the states that have given values in every dimension but ``free`` (module
     docstring)."""
 
-    free: int
-    """The one dimension such a state may be nonzero in."""
+    free: np.ndarray
+    """(k,) int64: the dimensions such a state is free in."""
     edges: np.ndarray
-    """(LINE_CELLS + 1,) float64 ascending: cell j covers edges[j] ≤ x_free ≤ edges[j + 1]."""
+    """(k, n + 1) float64 ascending: interval j of free dimension q is edges[q, j] ≤ x ≤ edges[q, j + 1]."""
     starts: np.ndarray
-    """(L · LINE_CELLS + 1,) int64: the list of action a in cell j is members[starts[a·K + j] : starts[a·K + j + 1]]."""
+    """(L · nᵏ + 1,) int64: the list of action a in cell c (row-major over the intervals) is
+    members[starts[a·nᵏ + c] : starts[a·nᵏ + c + 1]]."""
     members: np.ndarray
     """(M,) int64 global indexes of the prototypes, ascending within each list."""
     points: np.ndarray
@@ -213,53 +218,41 @@ class LineIndex:
     """The global index of the first prototype."""
 
 
-def build_line(
-    prototypes: list[np.ndarray], offsets: np.ndarray, free: int, value: np.ndarray | None = None
-) -> LineIndex:
-    """The line index of dimension ``free`` over per-action float32 prototype arrays (P_a, d), for states whose other
-    dimensions equal ``value`` (d,) (default 0; float32 values: the squares and the distances over the cells stay
+def build_grid(prototypes: list[np.ndarray], offsets: np.ndarray, free: np.ndarray, value: np.ndarray) -> GridIndex:
+    """The grid index of the dimensions ``free`` (0–3) over per-action float32 prototype arrays (P_a, d), for states
+    whose other dimensions equal ``value`` (d,) (float32 values: the squares and the distances over the cells stay
     finite in float64)."""
     points = np.concatenate(prototypes).astype(np.float64)
-    fixed = np.arange(points.shape[1]) != free
-    at = np.zeros(points.shape[1]) if value is None else np.asarray(value, np.float64)
-    rest = np.square(at[fixed] - points[:, fixed]).sum(axis=1)
-    along = points[:, free]
-    low, high = float(along.min()), float(along.max())
-    pad = LINE_PAD * (high - low) if high > low else 1.0
-    edges = np.linspace(low - pad, high + pad, LINE_CELLS + 1)
-    lo, hi = edges[:-1, None], edges[1:, None]
-    lists: list[np.ndarray] = []
-    start = 0
-    for protos in prototypes:
-        c, r = along[start : start + len(protos)], rest[start : start + len(protos)]
-        nearest = np.square(np.maximum(np.maximum(lo - c, c - hi), 0.0)) + r
-        furthest = np.maximum(np.square(lo - c), np.square(hi - c)) + r
-        keep = nearest <= furthest.min(axis=1, keepdims=True) * (1.0 + LINE_SLACK)
-        lists.extend(offsets[0] + start + np.flatnonzero(row) for row in keep)
-        start += len(protos)
-    sizes = np.array([part.size for part in lists], np.int64)
-    return LineIndex(
-        free=free,
-        edges=edges,
-        starts=np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
-        members=np.concatenate(lists).astype(np.int64),
-        points=points,
-        first=int(offsets[0]),
+    free = np.asarray(free, np.int64)
+    fixed = np.ones(points.shape[1], bool)
+    fixed[free] = False
+    rest = np.square(np.asarray(value, np.float64)[fixed] - points[:, fixed]).sum(axis=1)
+    side = GRID_SIDES[free.size - 1] if free.size else 1  # no free dimension: one cell
+    edges = np.empty((free.size, side + 1))
+    for q, k in enumerate(free):
+        low, high = float(points[:, k].min()), float(points[:, k].max())
+        pad = GRID_PAD * (high - low) if high > low else 1.0
+        edges[q] = np.linspace(low - pad, high + pad, side + 1)
+    bounds = np.asarray(offsets, np.int64) - offsets[0]
+    starts, members = _grid_lists(points, free, rest, edges, bounds, GRID_SLACK)
+    return GridIndex(
+        free=free, edges=edges, starts=starts, members=members + offsets[0], points=points, first=int(offsets[0])
     )
 
 
-def search_line(line: LineIndex, states: np.ndarray) -> np.ndarray:
-    """(N, L) int64 as :func:`search` for ``states`` (N, d) that have the line's values in every dimension but
-    ``line.free``; a row whose free coordinate lies outside the line's cells is -1 throughout."""
+def search_grid(grid: GridIndex, states: np.ndarray) -> np.ndarray:
+    """(N, L) int64 as :func:`search` for ``states`` (N, d) that have the grid's values in every dimension but
+    ``grid.free``; a row outside the grid's range is -1 throughout."""
     x = np.ascontiguousarray(states, dtype=np.float64)
-    out = np.empty((x.shape[0], (line.starts.size - 1) // (line.edges.size - 1)), np.int64)
-    _search_line(x, line.free, line.edges, line.starts, line.members, line.points, line.first, out)
+    cells = (grid.edges.shape[1] - 1) ** grid.free.size
+    out = np.empty((x.shape[0], (grid.starts.size - 1) // cells), np.int64)
+    _search_grid(x, grid.free, grid.edges, grid.starts, grid.members, grid.points, grid.first, out)
     return out
 
 
 class Searcher:
-    """The nearest-prototype search of one prototype set: the full index, and a reduced index per fixed set met, or
-    a line index for a fixed set of all dimensions but one (built on first use, module docstring).
+    """The nearest-prototype search of one prototype set: the full index, and per fixed set met a grid index (0–3
+    free dimensions) or a reduced index (built on first use, module docstring).
 
     ``flags`` (d,): each dimension's flag value (module docstring); None: only zeros fix a dimension."""
 
@@ -270,7 +263,7 @@ class Searcher:
         self._flags = None if flags is None else np.where(np.asarray(flags) == 0, np.nan, flags).astype(np.float64)
         self.full = build_index(prototypes, offsets)
         self._reduced: dict[int, SearchIndex] = {}
-        self._lines: dict[int, LineIndex] = {}
+        self._grids: dict[int, GridIndex] = {}
 
     def search(self, states: np.ndarray) -> np.ndarray:
         """(N, L) int64 as :func:`search` over the full index."""
@@ -291,8 +284,8 @@ class Searcher:
         for begin, end in zip(starts, [*starts[1:], ranked.size], strict=True):
             rows = order[begin:end]
             key = int(ranked[begin])
-            if rows.size >= REDUCE_MIN and key.bit_count() == dim - 1:
-                rows = self._search_line(key, dim, x, rows, out)
+            if rows.size >= REDUCE_MIN and dim - key.bit_count() <= len(GRID_SIDES):
+                rows = self._search_grid(key, dim, x, rows, out)
                 if rows.size == 0:
                     continue
             index = self._index(key, dim) if rows.size >= REDUCE_MIN else None
@@ -311,18 +304,17 @@ class Searcher:
         return len(self._reduced)
 
     @property
-    def lines(self) -> int:
-        """Line indexes built so far."""
-        return len(self._lines)
+    def grids(self) -> int:
+        """Grid indexes built so far."""
+        return len(self._grids)
 
-    def _search_line(self, key: int, dim: int, x: np.ndarray, rows: np.ndarray, out: np.ndarray) -> np.ndarray:
-        """Search ``rows`` of ``x`` (all in fixed set ``key``, every dimension but one) on its line index into
-        ``out``; returns the rows left for another index (those outside the line's cells)."""
-        if key not in self._lines:
+    def _search_grid(self, key: int, dim: int, x: np.ndarray, rows: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """Search ``rows`` of ``x`` (all in fixed set ``key``, 0–3 free dimensions) on its grid index into ``out``;
+        returns the rows left for another index (those outside the grid's range)."""
+        if key not in self._grids:
             fixed, value = self._fixed(key, dim)
-            self._lines[key] = build_line(self._prototypes, self._offsets, int(np.flatnonzero(~fixed)[0]), value)
-        line = self._lines[key]
-        found = search_line(line, x[rows])
+            self._grids[key] = build_grid(self._prototypes, self._offsets, np.flatnonzero(~fixed), value)
+        found = search_grid(self._grids[key], x[rows])
         inside = found[:, 0] >= 0
         out[rows[inside]] = found[inside]
         return rows[~inside]
@@ -482,9 +474,53 @@ def _decide(
 
 
 @njit(cache=True)
-def _search_line(
+def _grid_lists(
+    points: np.ndarray,  # (P, d) float64
+    free: np.ndarray,  # (k,) int64
+    rest: np.ndarray,  # (P,) float64: Σ over the fixed dimensions of (v − c)²
+    edges: np.ndarray,  # (k, n + 1) float64
+    bounds: np.ndarray,  # (L + 1,) int64: action a owns rows bounds[a]:bounds[a + 1] of points
+    slack: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`build_grid`'s lists: (L · nᵏ + 1,) starts and the members as rows of ``points``."""
+    k = free.size
+    side = edges.shape[1] - 1
+    cells = side**k
+    members = [0 for _ in range(0)]  # an empty list of int64, typed for numba
+    starts = np.zeros((bounds.size - 1) * cells + 1, np.int64)
+    lo = np.empty(k)
+    hi = np.empty(k)
+    for a in range(bounds.size - 1):
+        for c in range(cells):
+            at = c
+            for q in range(k - 1, -1, -1):
+                lo[q] = edges[q, at % side]
+                hi[q] = edges[q, at % side + 1]
+                at //= side
+            limit = np.inf
+            for p in range(bounds[a], bounds[a + 1]):
+                far = rest[p]
+                for q in range(k):
+                    v = points[p, free[q]]
+                    far += max((lo[q] - v) ** 2, (hi[q] - v) ** 2)
+                limit = min(limit, far)
+            limit *= 1.0 + slack
+            for p in range(bounds[a], bounds[a + 1]):
+                near = rest[p]
+                for q in range(k):
+                    v = points[p, free[q]]
+                    t = max(lo[q] - v, v - hi[q], 0.0)
+                    near += t * t
+                if near <= limit:
+                    members.append(p)
+            starts[a * cells + c + 1] = len(members)
+    return starts, np.array(members, np.int64)
+
+
+@njit(cache=True)
+def _search_grid(
     x: np.ndarray,
-    free: int,
+    free: np.ndarray,
     edges: np.ndarray,
     starts: np.ndarray,
     members: np.ndarray,
@@ -492,25 +528,31 @@ def _search_line(
     first: int,
     out: np.ndarray,
 ) -> None:
-    """:func:`search_line`'s loop: the cell of each state, then per action its list (one: the answer; several: the
+    """:func:`search_grid`'s loop: the cell of each state, then per action its list (one: the answer; several: the
     float64 sums decide, the first of equal ones being the lowest index)."""
     n, dim = x.shape
-    cells = edges.size - 1
-    low, high = edges[0], edges[cells]
-    width = (high - low) / cells
+    side = edges.shape[1] - 1
+    cells = side**free.size
     for i in range(n):
-        u = x[i, free]
-        if not (low <= u <= high):
+        c = 0
+        for q in range(free.size):
+            u = x[i, free[q]]
+            low, high = edges[q, 0], edges[q, side]
+            if not (low <= u <= high):
+                c = -1
+                break
+            # The division may round across an edge; the stored edges decide.
+            j = min(int((u - low) / ((high - low) / side)), side - 1)
+            while j > 0 and u < edges[q, j]:
+                j -= 1
+            while j < side - 1 and u > edges[q, j + 1]:
+                j += 1
+            c = c * side + j
+        if c < 0:
             out[i, :] = -1
             continue
-        # The division may round across an edge; the stored edges decide.
-        j = min(int((u - low) / width), cells - 1)
-        while j > 0 and u < edges[j]:
-            j -= 1
-        while j < cells - 1 and u > edges[j + 1]:
-            j += 1
         for a in range(out.shape[1]):
-            begin, end = starts[a * cells + j], starts[a * cells + j + 1]
+            begin, end = starts[a * cells + c], starts[a * cells + c + 1]
             found = members[begin]
             if end - begin > 1:
                 best = np.inf

@@ -12,7 +12,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from algorithm._search import search_line
+from algorithm._search import search_grid
 from algorithm.agent import Phase2Config, TabularAgent
 from algorithm.discretization import Discretization, nearest
 from algorithm.policy import Policy
@@ -102,10 +102,10 @@ def test_the_index_cuts_at_presence_flags_and_still_equals_brute_force() -> None
     np.testing.assert_array_equal(scaled.cells(states), brute_cells(scaled, states))
     disc = Discretization.from_per_action(protos)
     np.testing.assert_array_equal(disc.cells(states), brute_cells(disc, states))
-    # Each flag fixes its dimension, on or off. Three patterns of the flags: searched in fewer dimensions; both
-    # pairs absent: the first coordinate alone, on a line index.
+    # Each flag fixes its dimension, on or off: both pairs present, searched in fewer dimensions (5 free); one pair
+    # present (3 free) or none (1 free), on a grid.
     for searcher in (scaled._search_index()[0], disc._search_index()[0]):
-        assert (searcher.zero_sets, searcher.lines) == (3, 1)
+        assert (searcher.zero_sets, searcher.grids) == (1, 3)
     searcher = disc._search_index()[0]
     index = searcher.full
     real = index.index >= 0
@@ -119,9 +119,9 @@ def test_the_index_cuts_at_presence_flags_and_still_equals_brute_force() -> None
 
 
 @pytest.mark.parametrize("seed", range(3))
-def test_states_zero_in_all_dimensions_but_one_equal_brute_force_on_the_line_index(seed: int) -> None:
+def test_states_fixed_in_all_dimensions_but_one_equal_brute_force_on_the_grid_index(seed: int) -> None:
     # Small integers in the free dimension and in the prototypes: distances are exact, so ties are exact too, and
-    # states fall on the cells' edges; some states lie beyond the line's cells and go to the reduced index.
+    # states fall on the cells' edges; some states lie beyond the grid and go to the reduced index.
     rng = np.random.default_rng(seed)
     dim, free = 5, 2
     protos = [rng.integers(-3, 4, size=(size, dim)).astype(np.float32) for size in (1, 9, 70, 230)]
@@ -135,14 +135,14 @@ def test_states_zero_in_all_dimensions_but_one_equal_brute_force_on_the_line_ind
     states = states[states[:, free] != 0]
     np.testing.assert_array_equal(disc.cells(states), brute_cells(disc, states))
     flags_on = states.copy()
-    flags_on[:, np.arange(dim) != free] = 1.0  # the other dimensions at the flag value: a line as well
+    flags_on[:, np.arange(dim) != free] = 1.0  # the other dimensions at the flag value: a grid as well
     np.testing.assert_array_equal(disc.cells(flags_on), brute_cells(disc, flags_on))
     searcher = disc._search_index()[0]
-    assert searcher.lines == 2
-    line = searcher._lines[int(np.int64(31) ^ (1 << free))]
-    assert np.diff(line.starts).min() >= 1
-    far = states[np.abs(states[:, free]) > line.edges[-1]]
-    assert len(far) > 0 and (search_line(line, far) == -1).all()
+    assert searcher.grids == 4  # 0 or 1 in the other dimensions; with 1 in the free one as well, a single cell
+    grid = searcher._grids[int(np.int64(31) ^ (1 << free))]
+    assert np.diff(grid.starts).min() >= 1
+    far = states[np.abs(states[:, free]) > grid.edges[0, -1]]
+    assert len(far) > 0 and (search_grid(grid, far) == -1).all()
 
 
 def test_cells_reject_states_of_the_wrong_shape() -> None:
