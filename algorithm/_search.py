@@ -45,21 +45,24 @@ there, and |x − c|² = Σ_{k∉F} (x_k − c_k)² + Σ_{k∈F} (v_k − c_k)²
 phase-2 trial's states (32 % and 9 %) scan 4 and 6 coordinates instead of 7 and 9, and the fourth (7 %: one target
 in view, seen by a teammate too) has one free dimension (below).
 
-A fixed set that leaves one to three dimensions free (on ``frame9d``: a robot that sees one target and nothing else,
-42 % of a phase-2 trial's states, one free; one target and a robot, 32 %, three) is searched on a *grid index*:
-|x − c|² = Σ_{k free} (x_k − c_k)² + r_c with r_c = Σ_{k fixed} (v_k − c_k)². The grid cuts a range of each free
-coordinate into ``GRID_SIDES`` equal intervals and keeps, per action and cell (a box B), the prototypes whose smallest
-distance over the box, L_c = Σ_{k free} (distance from c_k to B's interval)² + r_c, is at most (1 + ``GRID_SLACK``)
-times the smallest largest distance over it, min_c′ U_c′ with U_c′ = Σ_{k free} max((lo_k − c′_k)², (hi_k − c′_k)²)
-+ r_c′. Any other prototype is further than that prototype c′ at every point of the box by a factor beyond 1 + 10⁻⁹,
-far more than float64 rounding (≈ 10 ulp of the sums, and of L and U) can undo, so the nearest prototype under the
-float64 sums, and every prototype tying with it, is on the list. With one candidate it is the answer; with several,
-their float64 squared distances Σ_k (x_k − c_k)², summed as above, decide (the lists are in index order: the lowest
-index on a tie). A state outside the grid's range goes to the fixed set's reduced index. On make run's
-``frame-guided`` policy (223 prototypes per action, the states of two phase-2 trials), per state and 8 actions: one
-free dimension 0.61 µs on the reduced index, 0.14 µs on a grid of 256 cells, 0.04 µs on 4 096; three free 0.79 µs on
-the reduced index, 0.81 / 0.49 / 0.39 / 0.26 µs on grids of 8 / 12 / 16 / 24 intervals a side (built in 8 / 24 / 56 /
-181 ms); five free, 6³ cells and more, slower than the reduced index.
+A fixed set that leaves at most one dimension free (on ``frame9d``: a robot that sees one target and nothing else,
+42 % of a phase-2 trial's states, and one that sees one target a teammate sees too, 7 %) is searched on a *grid
+index*: |x − c|² = Σ_{k free} (x_k − c_k)² + r_c with r_c = Σ_{k fixed} (v_k − c_k)². The grid cuts a range of each
+free coordinate into ``GRID_SIDES`` equal intervals and keeps, per action and cell (a box B), the prototypes whose
+smallest distance over the box, L_c = Σ_{k free} (distance from c_k to B's interval)² + r_c, is at most
+(1 + ``GRID_SLACK``) times the smallest largest distance over it, min_c′ U_c′ with U_c′ = Σ_{k free}
+max((lo_k − c′_k)², (hi_k − c′_k)²) + r_c′. Any other prototype is further than that prototype c′ at every point of
+the box by a factor beyond 1 + 10⁻⁹, far more than float64 rounding (≈ 10 ulp of the sums, and of L and U) can undo,
+so the nearest prototype under the float64 sums, and every prototype tying with it, is on the list. With one
+candidate it is the answer; with several, their float64 squared distances Σ_k (x_k − c_k)², summed as above, decide
+(the lists are in index order: the lowest index on a tie). A state outside the grid's range goes to the fixed set's
+reduced index. On make run's ``frame-guided`` policy (223 prototypes per action, the states of two phase-2 trials
+searched in one call), per state and 8 actions: one free dimension 0.61 µs on the reduced index, 0.14 µs on a grid of
+256 cells, 0.04 µs on 4 096; three free (a target and a robot in view, 32 %) 0.79 µs on the reduced index, 0.81 /
+0.49 / 0.39 / 0.26 µs on grids of 8 / 12 / 16 / 24 intervals a side (built in 8 / 24 / 56 / 181 ms). Inside a
+phase-2 slice, where each call searches a step's few thousand states and the simulator runs between calls, grids
+of three free dimensions (their lists take megabytes) made the slice no faster, 2.91–2.97 M robot-steps/s against
+2.99–3.09 M without them on the loaded machine, so only fixed sets with one free dimension or none are gridded.
 
 Shapes: N states, L actions, G groups (all actions), d dimensions (d′ scanned: d, or d − |Z| + 1).
 """
@@ -90,10 +93,10 @@ once, and each set one more kernel call) [choice]."""
 REDUCED_CACHE = 64
 """Reduced indexes kept per prototype set; beyond it, new zero sets use the full index [choice: a frame9d policy
 meets 14]."""
-GRID_SIDES = (2048, 48, 16)
-"""Intervals a side of the grid index of a fixed set with 1, 2, 3 free dimensions; one with more uses its reduced
-index [choice, from the module docstring's measurements; a grid is built once per discretization and fixed set:
-14 ms for one free dimension, 56 ms for three on make run's policy; two free dimensions do not occur in frame9d]."""
+GRID_SIDES = (256,)
+"""Intervals a side of the grid index of a fixed set with 1, 2, … free dimensions; one with more uses its reduced
+index [measured, module docstring: one free dimension only; 256 and 2048 intervals gave the same slice speed, and
+256 builds in 2 ms]."""
 GRID_SLACK = 1e-9
 """Relative margin of a grid index's candidate lists (10⁶ times float64 rounding of a 10-term sum)."""
 GRID_PAD = 0.25

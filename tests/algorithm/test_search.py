@@ -102,10 +102,10 @@ def test_the_index_cuts_at_presence_flags_and_still_equals_brute_force() -> None
     np.testing.assert_array_equal(scaled.cells(states), brute_cells(scaled, states))
     disc = Discretization.from_per_action(protos)
     np.testing.assert_array_equal(disc.cells(states), brute_cells(disc, states))
-    # Each flag fixes its dimension, on or off: both pairs present, searched in fewer dimensions (5 free); one pair
-    # present (3 free) or none (1 free), on a grid.
+    # Each flag fixes its dimension, on or off: both pairs present (5 free) or one (3 free), searched in fewer
+    # dimensions; none (1 free), on a grid.
     for searcher in (scaled._search_index()[0], disc._search_index()[0]):
-        assert (searcher.zero_sets, searcher.grids) == (1, 3)
+        assert (searcher.zero_sets, searcher.grids) == (3, 1)
     searcher = disc._search_index()[0]
     index = searcher.full
     real = index.index >= 0
