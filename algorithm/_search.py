@@ -236,7 +236,8 @@ def build_grid(prototypes: list[np.ndarray], offsets: np.ndarray, free: np.ndarr
         low, high = float(points[:, k].min()), float(points[:, k].max())
         pad = GRID_PAD * (high - low) if high > low else 1.0
         edges[q] = np.linspace(low - pad, high + pad, side + 1)
-    bounds = np.asarray(offsets, np.int64) - offsets[0]
+    # Rows of each action's prototypes (a shared codebook passes one set; ``offsets`` still names every action).
+    bounds = np.concatenate([[0], np.cumsum([len(protos) for protos in prototypes])]).astype(np.int64)
     starts, members = _grid_lists(points, free, rest, edges, bounds, GRID_SLACK)
     return GridIndex(
         free=free, edges=edges, starts=starts, members=members + offsets[0], points=points, first=int(offsets[0])

@@ -76,6 +76,9 @@ def test_masked_states_large_values_and_shared_codebooks() -> None:
         np.testing.assert_array_equal(disc.cells(states), brute_cells(disc, states))
     shared = Discretization.shared(protos[0], 8)
     np.testing.assert_array_equal(shared.cells(states), brute_cells(shared, states))
+    lone = np.where(np.arange(6) == 2, states, 0.0).astype(np.float32)  # all but one dimension 0: a grid index
+    np.testing.assert_array_equal(shared.cells(lone), brute_cells(shared, lone))
+    assert shared._search_index()[0].grids == 1
     huge = Discretization.from_per_action([np.array([[0.0, 0.0], [3e19, 0.0], [-3e19, 1.0]])])
     points = np.array([[2.9e19, 0.0], [-1e25, 0.0], [0.0, 1e-30]])
     np.testing.assert_array_equal(huge.cells(points), brute_cells(huge, points))
