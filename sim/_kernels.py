@@ -533,3 +533,24 @@ def frame_velocity(
             lx, ly = directions[actions[e, i], 0], directions[actions[e, i], 1]
             for d in range(2):
                 out[e, i, d] = speed * (lx * frame[e, i, 0, d] + ly * frame[e, i, 1, d])
+
+
+@njit(cache=True)
+def override_moves(
+    move: np.ndarray,  # (E, m, 2) float64, overwritten in place
+    searching: np.ndarray,  # (E, m) bool: robots that search instead
+    heading: np.ndarray,  # (E, m, 2) float64 unit search headings
+    speed: float,
+    stopped: np.ndarray,  # (E, m) bool: robots that do not move (wins over searching)
+) -> None:
+    """The trial step's two overrides of the held actions' moves in one pass: two masked numpy writes over (E, m, 2)
+    cost ≈ 40 µs each per step of 5 000 robots."""
+    n_arenas, m, _ = move.shape
+    for e in range(n_arenas):
+        for i in range(m):
+            if stopped[e, i]:
+                move[e, i, 0] = 0.0
+                move[e, i, 1] = 0.0
+            elif searching[e, i]:
+                move[e, i, 0] = speed * heading[e, i, 0]
+                move[e, i, 1] = speed * heading[e, i, 1]

@@ -43,6 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim import _kernels
 from sim.config import ScenarioConfig
 from sim.controllers import N_ACTIONS, wander
 from sim.features import lost, step_value, trial_reward
@@ -255,10 +256,8 @@ def step_trial(
         move = np.where(state.learner[..., None], move, velocity)
         seeker = seeker & state.learner
     searching = seeker & lost(state.view)
-    if searching.any():
-        move[searching] = cfg.robot_speed * heading[searching]
-    # A learner whose trial ended stays where it lost its targets [paper].
-    move[state.learner & ~state.active] = 0.0
+    # Searchers move along their heading; a learner whose trial ended stays where it lost its targets [paper].
+    _kernels.override_moves(move, searching, heading, cfg.robot_speed, state.learner & ~state.active)
     world = step(cfg, state.world, move, rng)
     obs = sense(cfg, world, rng)
     view, memory = view_of(cfg, world, obs, state.recall)

@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sim import FORMULATIONS, Formulation, ScenarioConfig, reset_trial, scenario, step_trial
+from sim import FORMULATIONS, Formulation, ScenarioConfig, _kernels, reset_trial, scenario, step_trial
 from sim.features import trial_reward
 from tests.fakes import situation
 
@@ -197,3 +197,15 @@ def test_step_trial_leaves_its_inputs_as_they_were_and_checks_actions() -> None:
         step_trial(cfg, state, np.full((1, 2), 8), decide, np.random.default_rng(0))
     with pytest.raises(ValueError, match="decide"):
         step_trial(cfg, state, action, np.ones((2, 2), bool), np.random.default_rng(0))
+
+
+def test_override_moves_equals_the_masked_numpy_rules() -> None:
+    rng = np.random.default_rng(4)
+    move = rng.normal(size=(50, 10, 2))
+    heading = rng.normal(size=(50, 10, 2))
+    searching, stopped = rng.random((50, 10)) < 0.4, rng.random((50, 10)) < 0.3
+    want = np.where(searching[..., None], 7.5 * heading, move)
+    want = np.where(stopped[..., None], 0.0, want)  # a stopped robot stays, searching or not
+    _kernels.override_moves(move, searching, heading, 7.5, stopped)
+    np.testing.assert_array_equal(move, want)
+    assert (searching & stopped).any() and (searching & ~stopped).any()
