@@ -89,9 +89,13 @@ class ExperienceSlice:
             if on_step is not None:
                 on_step(state.world, state.obs)
             if agent is not None and cells is not None:
-                # Robots that decide next, and learners whose tuple ends here and bootstraps from s′ (VQQL: all,
-                # for the cell-change boundary). Rows of ended trials keep older cells that Eq. 1 does not read.
-                need = np.ones(state.shape, bool) if until_change else out.decide | (out.transition & ~out.done)
+                # Robots that decide next (none after the last step), and learners whose tuple ends here and
+                # bootstraps from s′ (VQQL: all, for the cell-change boundary). Rows of ended trials keep older cells
+                # that Eq. 1 does not read.
+                if until_change:
+                    need = np.ones(state.shape, bool)
+                else:
+                    need = (out.transition & ~out.done) | (out.decide & (not out.trial_over))
                 rows = np.flatnonzero(need)
                 cells[rows] = agent.cells(_flat(state.features)[rows])
                 if until_change:
