@@ -554,3 +554,34 @@ def override_moves(
             elif searching[e, i]:
                 move[e, i, 0] = speed * heading[e, i, 0]
                 move[e, i, 1] = speed * heading[e, i, 1]
+
+
+@njit(cache=True)
+def decision_rewards(
+    decide: np.ndarray,  # (E, m) bool: robots that chose their action before this step
+    earned: np.ndarray,  # (E, m) float32: the value summed over the held action's earlier steps
+    value: np.ndarray,  # (E, m) float32: this step's value
+    held: np.ndarray,  # (E, m) int64: steps the action has lasted, this one included
+    lost: np.ndarray,  # (E, m) bool: tuples that end because the learner lost every target
+    ends: np.ndarray,  # (E, m) bool: tuples that end on this step
+    lost_reward: np.float32,
+    out_earned: np.ndarray,  # out (E, m) float32
+    out_mean: np.ndarray,  # out (E, m) float32: the mean value over the action's steps
+    out_reward: np.ndarray,  # out (E, m) float32: the reward of the tuples that end, 0 elsewhere
+) -> None:
+    """A per-decision reward's bookkeeping of :func:`sim.trial.step_trial` in one pass, with numpy's arithmetic
+    (float32 sums; the mean divided in float64, then rounded to float32): seven (E, m) numpy calls were 3 % of a
+    phase-2 slice."""
+    n_arenas, m = decide.shape
+    for e in range(n_arenas):
+        for i in range(m):
+            total = (np.float32(0.0) if decide[e, i] else earned[e, i]) + value[e, i]
+            mean = np.float32(np.float64(total) / np.float64(held[e, i]))
+            out_earned[e, i] = total
+            out_mean[e, i] = mean
+            if not ends[e, i]:
+                out_reward[e, i] = np.float32(0.0)
+            elif lost[e, i]:
+                out_reward[e, i] = lost_reward
+            else:
+                out_reward[e, i] = mean

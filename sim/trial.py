@@ -275,10 +275,22 @@ def step_trial(
     boundary = held >= (cfg.action_steps if hold is None else hold)
     earned, action_mean = state.earned, None
     if per_decision:
-        earned = np.where(decide, np.float32(0.0), earned) + step_value(cfg, state.obs, obs, formulation.reward)
-        action_mean = (earned / held).astype(np.float32)
-        pay = np.where(done & lost_ends, np.float32(cfg.lost_reward), action_mean)
-        reward = np.where(done | truncated | (active & boundary), pay, np.float32(0.0)).astype(np.float32)
+        # The value summed over the held action's steps (restarted where a robot decided), its mean, and the reward
+        # of the tuples that end here: the mean, or lost_reward for a learner whose losing ends its trial.
+        value = step_value(cfg, state.obs, obs, formulation.reward)
+        earned, action_mean, reward = (np.empty(state.shape, np.float32) for _ in range(3))
+        _kernels.decision_rewards(
+            decide,
+            state.earned,
+            value,
+            held,
+            done & lost_ends,
+            done | truncated | (active & boundary),
+            np.float32(cfg.lost_reward),
+            earned,
+            action_mean,
+            reward,
+        )
     elif done.any():
         reward = np.where(done, trial_reward(cfg, obs, formulation.reward), 0.0).astype(np.float32)
     else:
