@@ -276,10 +276,8 @@ class Searcher:
         # A fixed set is keyed by its bits in one int64: bit k, dimension k is 0; bit d + k, it is at its flag value.
         if x.shape[0] < REDUCE_MIN or dim > (31 if self._flags is not None else 62):
             return search(self.full, x)
-        bits = np.int64(1) << np.arange(dim, dtype=np.int64)
-        keys = (x == 0.0) @ bits
-        if self._flags is not None:
-            keys += (x == self._flags) @ (bits << dim)
+        keys = np.empty(x.shape[0], np.int64)
+        _fixed_keys(x, np.full(dim, np.nan) if self._flags is None else self._flags, keys)
         order = np.argsort(keys, kind="stable")
         ranked = keys[order]
         starts = np.flatnonzero(np.r_[True, ranked[1:] != ranked[:-1]])
@@ -475,6 +473,21 @@ def _decide(
                 best = d
                 found = index[g, p]
     return found
+
+
+@njit(cache=True)
+def _fixed_keys(x: np.ndarray, flags: np.ndarray, out: np.ndarray) -> None:
+    """:meth:`Searcher.search`'s key of each state's fixed set (``flags`` NaN: no flag value in that dimension); one
+    pass instead of two (N, d) comparisons and products with the bits (3 % of a search)."""
+    n, dim = x.shape
+    for i in range(n):
+        key = 0
+        for k in range(dim):
+            if x[i, k] == 0.0:
+                key |= 1 << k
+            elif x[i, k] == flags[k]:
+                key |= 1 << (dim + k)
+        out[i] = key
 
 
 @njit(cache=True)
