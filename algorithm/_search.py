@@ -222,9 +222,9 @@ class GridIndex:
 
 
 def build_grid(prototypes: list[np.ndarray], offsets: np.ndarray, free: np.ndarray, value: np.ndarray) -> GridIndex:
-    """The grid index of the dimensions ``free`` (0–3) over per-action float32 prototype arrays (P_a, d), for states
-    whose other dimensions equal ``value`` (d,) (float32 values: the squares and the distances over the cells stay
-    finite in float64)."""
+    """The grid index of the dimensions ``free`` (at most ``len(GRID_SIDES)``) over per-action float32 prototype
+    arrays (P_a, d), for states whose other dimensions equal ``value`` (d,) (float32 values: the squares and the
+    distances over the cells stay finite in float64)."""
     points = np.concatenate(prototypes).astype(np.float64)
     free = np.asarray(free, np.int64)
     fixed = np.ones(points.shape[1], bool)
@@ -255,8 +255,8 @@ def search_grid(grid: GridIndex, states: np.ndarray) -> np.ndarray:
 
 
 class Searcher:
-    """The nearest-prototype search of one prototype set: the full index, and per fixed set met a grid index (0–3
-    free dimensions) or a reduced index (built on first use, module docstring).
+    """The nearest-prototype search of one prototype set: the full index, and per fixed set met a grid index (at
+    most ``len(GRID_SIDES)`` free dimensions) or a reduced index (built on first use, module docstring).
 
     ``flags`` (d,): each dimension's flag value (module docstring); None: only zeros fix a dimension."""
 
@@ -311,8 +311,8 @@ class Searcher:
         return len(self._grids)
 
     def _search_grid(self, key: int, dim: int, x: np.ndarray, rows: np.ndarray, out: np.ndarray) -> np.ndarray:
-        """Search ``rows`` of ``x`` (all in fixed set ``key``, 0–3 free dimensions) on its grid index into ``out``;
-        returns the rows left for another index (those outside the grid's range)."""
+        """Search ``rows`` of ``x`` (all in fixed set ``key``, at most ``len(GRID_SIDES)`` free dimensions) on its
+        grid index into ``out``; returns the rows left for another index (those outside the grid's range)."""
         if key not in self._grids:
             fixed, value = self._fixed(key, dim)
             self._grids[key] = build_grid(self._prototypes, self._offsets, np.flatnonzero(~fixed), value)
