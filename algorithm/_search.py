@@ -37,6 +37,33 @@ the candidates and the skipped groups are judged with. On ``frame-cooperative`` 
 14 zero sets, half of the states into the one with both pairs absent; the reduction took
 the search from 1.93 to 1.06 µs per state (195 prototypes per action).
 
+A flag that is on fixes a dimension as well as one that is off: given each dimension's *flag value* (what a feature
+of 1 scales to), a state's fixed set F holds the dimensions where it is 0 or at that value, v_k the value it has
+there, and |x − c|² = Σ_{k∉F} (x_k − c_k)² + Σ_{k∈F} (v_k − c_k)²: the same reduction with the extra coordinate
+√(Σ_{k∈F} (v_k − c_k)²), and the same bounds (only the scanned coordinates of the state are rounded to float32, and
+|x|² of the margin is taken over them). On make run's ``frame-guided`` policy the second and third largest sets of a
+phase-2 trial's states (32 % and 9 %) scan 4 and 6 coordinates instead of 7 and 9, and the fourth (7 %: one target
+in view, seen by a teammate too) has one free dimension (below).
+
+A fixed set that leaves at most one dimension free (on ``frame9d``: a robot that sees one target and nothing else,
+42 % of a phase-2 trial's states, and one that sees one target a teammate sees too, 7 %) is searched on a *grid
+index*: |x − c|² = Σ_{k free} (x_k − c_k)² + r_c with r_c = Σ_{k fixed} (v_k − c_k)². The grid cuts a range of each
+free coordinate into ``GRID_SIDES`` equal intervals and keeps, per action and cell (a box B), the prototypes whose
+smallest distance over the box, L_c = Σ_{k free} (distance from c_k to B's interval)² + r_c, is at most
+(1 + ``GRID_SLACK``) times the smallest largest distance over it, min_c′ U_c′ with U_c′ = Σ_{k free}
+max((lo_k − c′_k)², (hi_k − c′_k)²) + r_c′. Any other prototype is further than that prototype c′ at every point of
+the box by a factor beyond 1 + 10⁻⁹, far more than float64 rounding (≈ 10 ulp of the sums, and of L and U) can undo,
+so the nearest prototype under the float64 sums, and every prototype tying with it, is on the list. With one
+candidate it is the answer; with several, their float64 squared distances Σ_k (x_k − c_k)², summed as above, decide
+(the lists are in index order: the lowest index on a tie). A state outside the grid's range goes to the fixed set's
+reduced index. On make run's ``frame-guided`` policy (223 prototypes per action, the states of two phase-2 trials
+searched in one call), per state and 8 actions: one free dimension 0.61 µs on the reduced index, 0.14 µs on a grid of
+256 cells, 0.04 µs on 4 096; three free (a target and a robot in view, 32 %) 0.79 µs on the reduced index, 0.81 /
+0.49 / 0.39 / 0.26 µs on grids of 8 / 12 / 16 / 24 intervals a side (built in 8 / 24 / 56 / 181 ms). Inside a
+phase-2 slice, where each call searches a step's few thousand states and the simulator runs between calls, grids
+of three free dimensions (their lists take megabytes) made the slice no faster, 2.91–2.97 M robot-steps/s against
+2.99–3.09 M without them on the loaded machine, so only fixed sets with one free dimension or none are gridded.
+
 Shapes: N states, L actions, G groups (all actions), d dimensions (d′ scanned: d, or d − |Z| + 1).
 """
 
@@ -66,6 +93,14 @@ once, and each set one more kernel call) [choice]."""
 REDUCED_CACHE = 64
 """Reduced indexes kept per prototype set; beyond it, new zero sets use the full index [choice: a frame9d policy
 meets 14]."""
+GRID_SIDES = (256,)
+"""Intervals a side of the grid index of a fixed set with 1, 2, … free dimensions; one with more uses its reduced
+index [measured, module docstring: one free dimension only; 256 and 2048 intervals gave the same slice speed, and
+256 builds in 2 ms]."""
+GRID_SLACK = 1e-9
+"""Relative margin of a grid index's candidate lists (10⁶ times float64 rounding of a 10-term sum)."""
+GRID_PAD = 0.25
+"""A grid covers the prototypes' range of each free coordinate widened by this share of it on each side."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -86,17 +121,23 @@ class SearchIndex:
     """(G, d′) float64: ... and upper corner."""
     groups: np.ndarray
     """(L + 1,) int64: action a owns groups groups[a]:groups[a+1]."""
-    zero: np.ndarray | None = None
-    """(d,) bool: the zero set this index serves (scanned: the other dimensions, then √Σ c_k² over the set); None:
-    every dimension, for any state."""
+    fixed: np.ndarray | None = None
+    """(d,) bool: the fixed set this index serves (scanned: the other dimensions, then √Σ (v_k − c_k)² over the set);
+    None: every dimension, for any state."""
 
 
-def build_index(prototypes: list[np.ndarray], offsets: np.ndarray, zero: np.ndarray | None = None) -> SearchIndex:
+def build_index(
+    prototypes: list[np.ndarray], offsets: np.ndarray, fixed: np.ndarray | None = None, value: np.ndarray | None = None
+) -> SearchIndex:
     """The groups of per-action float32 prototype arrays (P_a, d); action a's first global index is ``offsets[a]``.
 
-    ``zero`` (d,) bool: an index for states that are 0 in exactly those dimensions (module docstring)."""
+    ``fixed`` (d,) bool: an index for states that equal ``value`` (d,) (default 0) in exactly those dimensions
+    (module docstring)."""
     everything = np.concatenate(prototypes)
-    scanned = everything if zero is None else _reduced(everything, zero)
+    if fixed is None:
+        scanned = everything
+    else:
+        scanned = _reduced(everything, fixed, np.zeros(fixed.size) if value is None else value)
     members: list[np.ndarray] = []
     groups = [0]
     start = 0
@@ -120,14 +161,15 @@ def build_index(prototypes: list[np.ndarray], offsets: np.ndarray, zero: np.ndar
         low=np.array([b.min(axis=0) for b in boxes]),
         high=np.array([b.max(axis=0) for b in boxes]),
         groups=np.array(groups, np.int64),
-        zero=zero,
+        fixed=fixed,
     )
 
 
-def _reduced(points: np.ndarray, zero: np.ndarray) -> np.ndarray:
-    """(P, d − |Z| + 1) float32: the dimensions outside ``zero``, then √(Σ c_k² over it) (module docstring)."""
-    rest = np.sqrt(np.square(points[:, zero].astype(np.float64)).sum(axis=1))
-    return np.concatenate([points[:, ~zero], rest[:, None]], axis=1).astype(np.float32)
+def _reduced(points: np.ndarray, fixed: np.ndarray, value: np.ndarray) -> np.ndarray:
+    """(P, d − |F| + 1) float32: the dimensions outside ``fixed``, then √(Σ (v_k − c_k)² over it) (module
+    docstring)."""
+    rest = np.sqrt(np.square(value[fixed] - points[:, fixed].astype(np.float64)).sum(axis=1))
+    return np.concatenate([points[:, ~fixed], rest[:, None]], axis=1).astype(np.float32)
 
 
 def _cut(points: np.ndarray, idx: np.ndarray) -> list[np.ndarray]:
@@ -150,32 +192,92 @@ def _cut(points: np.ndarray, idx: np.ndarray) -> list[np.ndarray]:
 
 def search(index: SearchIndex, states: np.ndarray) -> np.ndarray:
     """(N, L) int64 global index of the nearest prototype of each action to each of ``states`` (N, d), finite; with
-    ``index.zero``, every state must be 0 in those dimensions."""
+    ``index.fixed``, every state must have the index's values in those dimensions."""
     x = np.ascontiguousarray(states, dtype=np.float64)
     out = np.empty((x.shape[0], index.groups.size - 1), np.int64)
-    zero = index.zero
-    scanned = x if zero is None else np.concatenate([x[:, ~zero], np.zeros((x.shape[0], 1))], axis=1)
+    fixed = index.fixed
+    scanned = x if fixed is None else np.concatenate([x[:, ~fixed], np.zeros((x.shape[0], 1))], axis=1)
     _search(scanned, x, index.soa, index.points, index.index, index.low, index.high, index.groups, out)
     return out
 
 
-class Searcher:
-    """The nearest-prototype search of one prototype set: the full index, and a reduced index per zero set met
-    (built on first use, module docstring)."""
+@dataclass(frozen=True, slots=True)
+class GridIndex:
+    """The candidate lists of the states that have given values in every dimension but ``free`` (module
+    docstring)."""
 
-    def __init__(self, prototypes: list[np.ndarray], offsets: np.ndarray) -> None:
+    free: np.ndarray
+    """(k,) int64: the dimensions such a state is free in."""
+    edges: np.ndarray
+    """(k, n + 1) float64 ascending: interval j of free dimension q is edges[q, j] ≤ x ≤ edges[q, j + 1]."""
+    starts: np.ndarray
+    """(L · nᵏ + 1,) int64: the list of action a in cell c (row-major over the intervals) is
+    members[starts[a·nᵏ + c] : starts[a·nᵏ + c + 1]]."""
+    members: np.ndarray
+    """(M,) int64 global indexes of the prototypes, ascending within each list."""
+    points: np.ndarray
+    """(P, d) float64 every prototype, row = global index − ``first``."""
+    first: int
+    """The global index of the first prototype."""
+
+
+def build_grid(prototypes: list[np.ndarray], offsets: np.ndarray, free: np.ndarray, value: np.ndarray) -> GridIndex:
+    """The grid index of the dimensions ``free`` (at most ``len(GRID_SIDES)``) over per-action float32 prototype
+    arrays (P_a, d), for states whose other dimensions equal ``value`` (d,) (float32 values: the squares and the
+    distances over the cells stay finite in float64)."""
+    points = np.concatenate(prototypes).astype(np.float64)
+    free = np.asarray(free, np.int64)
+    fixed = np.ones(points.shape[1], bool)
+    fixed[free] = False
+    rest = np.square(np.asarray(value, np.float64)[fixed] - points[:, fixed]).sum(axis=1)
+    side = GRID_SIDES[free.size - 1] if free.size else 1  # no free dimension: one cell
+    edges = np.empty((free.size, side + 1))
+    for q, k in enumerate(free):
+        low, high = float(points[:, k].min()), float(points[:, k].max())
+        pad = GRID_PAD * (high - low) if high > low else 1.0
+        edges[q] = np.linspace(low - pad, high + pad, side + 1)
+    # Rows of each action's prototypes (a shared codebook passes one set; ``offsets`` still names every action).
+    bounds = np.concatenate([[0], np.cumsum([len(protos) for protos in prototypes])]).astype(np.int64)
+    starts, members = _grid_lists(points, free, rest, edges, bounds, GRID_SLACK)
+    return GridIndex(
+        free=free, edges=edges, starts=starts, members=members + offsets[0], points=points, first=int(offsets[0])
+    )
+
+
+def search_grid(grid: GridIndex, states: np.ndarray) -> np.ndarray:
+    """(N, L) int64 as :func:`search` for ``states`` (N, d) that have the grid's values in every dimension but
+    ``grid.free``; a row outside the grid's range is -1 throughout."""
+    x = np.ascontiguousarray(states, dtype=np.float64)
+    cells = (grid.edges.shape[1] - 1) ** grid.free.size
+    out = np.empty((x.shape[0], (grid.starts.size - 1) // cells), np.int64)
+    _search_grid(x, grid.free, grid.edges, grid.starts, grid.members, grid.points, grid.first, out)
+    return out
+
+
+class Searcher:
+    """The nearest-prototype search of one prototype set: the full index, and per fixed set met a grid index (at
+    most ``len(GRID_SIDES)`` free dimensions) or a reduced index (built on first use, module docstring).
+
+    ``flags`` (d,): each dimension's flag value (module docstring); None: only zeros fix a dimension."""
+
+    def __init__(self, prototypes: list[np.ndarray], offsets: np.ndarray, flags: np.ndarray | None = None) -> None:
         self._prototypes = prototypes
         self._offsets = offsets
+        # A flag value of 0 is a zero already (NaN: no state equals it), so every dimension has at most one bit set.
+        self._flags = None if flags is None else np.where(np.asarray(flags) == 0, np.nan, flags).astype(np.float64)
         self.full = build_index(prototypes, offsets)
         self._reduced: dict[int, SearchIndex] = {}
+        self._grids: dict[int, GridIndex] = {}
 
     def search(self, states: np.ndarray) -> np.ndarray:
         """(N, L) int64 as :func:`search` over the full index."""
         x = np.ascontiguousarray(states, dtype=np.float64)
         dim = x.shape[1]
-        if x.shape[0] < REDUCE_MIN or dim > 62:  # a zero set is keyed by its bits in one int64
+        # A fixed set is keyed by its bits in one int64: bit k, dimension k is 0; bit d + k, it is at its flag value.
+        if x.shape[0] < REDUCE_MIN or dim > (31 if self._flags is not None else 62):
             return search(self.full, x)
-        keys = (x == 0.0) @ (np.int64(1) << np.arange(dim, dtype=np.int64))
+        keys = np.empty(x.shape[0], np.int64)
+        _fixed_keys(x, np.full(dim, np.nan) if self._flags is None else self._flags, keys)
         order = np.argsort(keys, kind="stable")
         ranked = keys[order]
         starts = np.flatnonzero(np.r_[True, ranked[1:] != ranked[:-1]])
@@ -183,7 +285,12 @@ class Searcher:
         rest: list[np.ndarray] = []
         for begin, end in zip(starts, [*starts[1:], ranked.size], strict=True):
             rows = order[begin:end]
-            index = self._index(int(ranked[begin]), dim) if rows.size >= REDUCE_MIN else None
+            key = int(ranked[begin])
+            if rows.size >= REDUCE_MIN and dim - key.bit_count() <= len(GRID_SIDES):
+                rows = self._search_grid(key, dim, x, rows, out)
+                if rows.size == 0:
+                    continue
+            index = self._index(key, dim) if rows.size >= REDUCE_MIN else None
             if index is None:
                 rest.append(rows)
             else:
@@ -195,19 +302,41 @@ class Searcher:
 
     @property
     def zero_sets(self) -> int:
-        """Reduced indexes built so far."""
+        """Reduced indexes (of fixed sets) built so far."""
         return len(self._reduced)
 
+    @property
+    def grids(self) -> int:
+        """Grid indexes built so far."""
+        return len(self._grids)
+
+    def _search_grid(self, key: int, dim: int, x: np.ndarray, rows: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """Search ``rows`` of ``x`` (all in fixed set ``key``, at most ``len(GRID_SIDES)`` free dimensions) on its
+        grid index into ``out``; returns the rows left for another index (those outside the grid's range)."""
+        if key not in self._grids:
+            fixed, value = self._fixed(key, dim)
+            self._grids[key] = build_grid(self._prototypes, self._offsets, np.flatnonzero(~fixed), value)
+        found = search_grid(self._grids[key], x[rows])
+        inside = found[:, 0] >= 0
+        out[rows[inside]] = found[inside]
+        return rows[~inside]
+
     def _index(self, key: int, dim: int) -> SearchIndex | None:
-        """The reduced index of zero set ``key`` (bit k: dimension k), None to use the full one."""
+        """The reduced index of fixed set ``key``, None to use the full one."""
         if key == 0:
             return None
         if key not in self._reduced:
             if len(self._reduced) >= REDUCED_CACHE:
                 return None
-            zero = (key >> np.arange(dim)) & 1 == 1
-            self._reduced[key] = build_index(self._prototypes, self._offsets, zero)
+            self._reduced[key] = build_index(self._prototypes, self._offsets, *self._fixed(key, dim))
         return self._reduced[key]
+
+    def _fixed(self, key: int, dim: int) -> tuple[np.ndarray, np.ndarray]:
+        """(d,) bool the dimensions that fixed set ``key`` fixes, (d,) float64 their values (0 elsewhere)."""
+        zero = (key >> np.arange(dim)) & 1 == 1
+        on = (key >> (dim + np.arange(dim))) & 1 == 1
+        values = np.zeros(dim) if self._flags is None else np.where(on, np.nan_to_num(self._flags), 0.0)
+        return zero | on, values
 
 
 # The helpers index whole arrays instead of taking row views (each view costs numba a reference-count increment and
@@ -344,3 +473,113 @@ def _decide(
                 best = d
                 found = index[g, p]
     return found
+
+
+@njit(cache=True)
+def _fixed_keys(x: np.ndarray, flags: np.ndarray, out: np.ndarray) -> None:
+    """:meth:`Searcher.search`'s key of each state's fixed set (``flags`` NaN: no flag value in that dimension); one
+    pass instead of two (N, d) comparisons and products with the bits (3 % of a search)."""
+    n, dim = x.shape
+    for i in range(n):
+        key = 0
+        for k in range(dim):
+            if x[i, k] == 0.0:
+                key |= 1 << k
+            elif x[i, k] == flags[k]:
+                key |= 1 << (dim + k)
+        out[i] = key
+
+
+@njit(cache=True)
+def _grid_lists(
+    points: np.ndarray,  # (P, d) float64
+    free: np.ndarray,  # (k,) int64
+    rest: np.ndarray,  # (P,) float64: Σ over the fixed dimensions of (v − c)²
+    edges: np.ndarray,  # (k, n + 1) float64
+    bounds: np.ndarray,  # (L + 1,) int64: action a owns rows bounds[a]:bounds[a + 1] of points
+    slack: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`build_grid`'s lists: (L · nᵏ + 1,) starts and the members as rows of ``points``."""
+    k = free.size
+    side = edges.shape[1] - 1
+    cells = side**k
+    members = [0 for _ in range(0)]  # an empty list of int64, typed for numba
+    starts = np.zeros((bounds.size - 1) * cells + 1, np.int64)
+    lo = np.empty(k)
+    hi = np.empty(k)
+    for a in range(bounds.size - 1):
+        for c in range(cells):
+            at = c
+            for q in range(k - 1, -1, -1):
+                lo[q] = edges[q, at % side]
+                hi[q] = edges[q, at % side + 1]
+                at //= side
+            limit = np.inf
+            for p in range(bounds[a], bounds[a + 1]):
+                far = rest[p]
+                for q in range(k):
+                    v = points[p, free[q]]
+                    far += max((lo[q] - v) ** 2, (hi[q] - v) ** 2)
+                limit = min(limit, far)
+            limit *= 1.0 + slack
+            for p in range(bounds[a], bounds[a + 1]):
+                near = rest[p]
+                for q in range(k):
+                    v = points[p, free[q]]
+                    t = max(lo[q] - v, v - hi[q], 0.0)
+                    near += t * t
+                if near <= limit:
+                    members.append(p)
+            starts[a * cells + c + 1] = len(members)
+    return starts, np.array(members, np.int64)
+
+
+@njit(cache=True)
+def _search_grid(
+    x: np.ndarray,
+    free: np.ndarray,
+    edges: np.ndarray,
+    starts: np.ndarray,
+    members: np.ndarray,
+    points: np.ndarray,
+    first: int,
+    out: np.ndarray,
+) -> None:
+    """:func:`search_grid`'s loop: the cell of each state, then per action its list (one: the answer; several: the
+    float64 sums decide, the first of equal ones being the lowest index)."""
+    n, dim = x.shape
+    side = edges.shape[1] - 1
+    cells = side**free.size
+    for i in range(n):
+        c = 0
+        for q in range(free.size):
+            u = x[i, free[q]]
+            low, high = edges[q, 0], edges[q, side]
+            if not (low <= u <= high):
+                c = -1
+                break
+            # The division may round across an edge; the stored edges decide.
+            j = min(int((u - low) / ((high - low) / side)), side - 1)
+            while j > 0 and u < edges[q, j]:
+                j -= 1
+            while j < side - 1 and u > edges[q, j + 1]:
+                j += 1
+            c = c * side + j
+        if c < 0:
+            out[i, :] = -1
+            continue
+        for a in range(out.shape[1]):
+            begin, end = starts[a * cells + c], starts[a * cells + c + 1]
+            found = members[begin]
+            if end - begin > 1:
+                best = np.inf
+                for s in range(begin, end):
+                    p = members[s] - first
+                    d = 0.0
+                    for k in range(dim):
+                        t = x[i, k] - points[p, k]
+                        d += t * t
+                    if d < best:
+                        best = d
+                        found = members[s]
+            out[i, a] = found

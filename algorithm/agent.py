@@ -19,7 +19,7 @@ import numpy as np
 
 from algorithm.discretization import Discretization
 from algorithm.policy import Policy
-from algorithm.qtable import q_targets, q_update
+from algorithm.qtable import q_targets, q_update, row_best
 from sim import N_ACTIONS
 
 
@@ -70,7 +70,7 @@ class TabularAgent:
 
     def act(self, robots: np.ndarray, cells: np.ndarray, rng: np.random.Generator, explore: bool) -> np.ndarray:
         """(N,) greedy actions on each robot's table; with ``explore`` a fraction ε is replaced by random ones."""
-        actions = np.argmax(self._lookup(robots, cells), axis=1)
+        actions = row_best(self.tables, self.template.rows(robots), cells)[1]
         return self.explore(actions, rng) if explore else actions
 
     def explore(
@@ -103,8 +103,8 @@ class TabularAgent:
         """Eq. 1 for N tuples: ``cell_sa`` (N,) cell of (s, a), ``next_cells`` (N, L) cells of s′."""
         if robots.size == 0:
             return
-        targets = q_targets(self._lookup(robots, next_cells).max(axis=1), rewards, dones, self.config.gamma)
         rows = self.template.rows(robots)
+        targets = q_targets(row_best(self.tables, rows, next_cells)[0], rewards, dones, self.config.gamma)
         size = self.tables.shape[1]
         q_update(
             self.tables.reshape(-1),
@@ -114,11 +114,6 @@ class TabularAgent:
             self.config.alpha,
             self.config.alpha_floor,
         )
-
-    def _lookup(self, robots: np.ndarray, cells: np.ndarray) -> np.ndarray:
-        """(N, L) Q values of each robot's own table at ``cells`` (N, L), without copying whole table rows."""
-        rows = self.template.rows(robots)
-        return self.tables.reshape(-1)[rows[:, None] * self.tables.shape[1] + cells]
 
     def policy(self, **changes: object) -> Policy:
         """A snapshot of the current tables as an immutable policy."""

@@ -134,7 +134,9 @@ class Discretization:
         if self._index is None:
             shared = self.is_shared()
             actions = 1 if shared else self.n_actions
-            index = Searcher([self._scaled(a) for a in range(actions)], self.offsets)
+            # What a feature of 1 (a flag that is on) scales to, exactly as a float32 state's does in ``cells``.
+            flags = np.ones(self.dim, np.float32) if self.scale is None else np.ones(self.dim, np.float32) / self.scale
+            index = Searcher([self._scaled(a) for a in range(actions)], self.offsets, flags)
             # Frozen for callers; the index is derived from the fields, so caching it changes nothing they see.
             object.__setattr__(self, "_index", (index, shared))
         assert self._index is not None

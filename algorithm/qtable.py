@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+from numba import njit
 
 
 def q_targets(bootstrap: np.ndarray, rewards: np.ndarray, dones: np.ndarray, gamma: float) -> np.ndarray:
@@ -74,6 +75,34 @@ def greedy(table: np.ndarray, cells: np.ndarray) -> np.ndarray:
     if table.ndim == 1:
         return np.argmax(table[cells], axis=1)
     return np.argmax(np.take_along_axis(table, cells, axis=1), axis=1)
+
+
+def row_best(tables: np.ndarray, rows: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) max_a and (N,) argmax_a of ``tables[rows[n], cells[n, a]]``, ``tables`` (R, Σ P_a), as numpy's max and
+    argmax give them (the lowest action on a tie; a NaN wins, the first one). One pass instead of gathering an
+    (N, L) array and reducing it twice: these were 6 % of a phase-2 slice."""
+    flat = np.ascontiguousarray(tables).reshape(-1)
+    best = np.empty(len(cells), flat.dtype)
+    action = np.empty(len(cells), np.int64)
+    _row_best(flat, tables.shape[1], np.asarray(rows, np.int64), np.asarray(cells, np.int64), best, action)
+    return best, action
+
+
+@njit(cache=True)
+def _row_best(
+    flat: np.ndarray, size: int, rows: np.ndarray, cells: np.ndarray, best: np.ndarray, action: np.ndarray
+) -> None:
+    for n in range(cells.shape[0]):
+        base = rows[n] * size
+        top = flat[base + cells[n, 0]]
+        arg = 0
+        for a in range(1, cells.shape[1]):
+            v = flat[base + cells[n, a]]
+            if v > top or (v != v and top == top):
+                top = v
+                arg = a
+        best[n] = top
+        action[n] = arg
 
 
 def merge_increments(

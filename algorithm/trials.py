@@ -89,9 +89,13 @@ class ExperienceSlice:
             if on_step is not None:
                 on_step(state.world, state.obs)
             if agent is not None and cells is not None:
-                # Robots that decide next, and learners whose tuple ends here and bootstraps from s′ (VQQL: all,
-                # for the cell-change boundary). Rows of ended trials keep older cells that Eq. 1 does not read.
-                need = np.ones(state.shape, bool) if until_change else out.decide | (out.transition & ~out.done)
+                # Robots that decide next (none after the last step), and learners whose tuple ends here and
+                # bootstraps from s′ (VQQL: all, for the cell-change boundary). Rows of ended trials keep older cells
+                # that Eq. 1 does not read.
+                if until_change:
+                    need = np.ones(state.shape, bool)
+                else:
+                    need = (out.transition & ~out.done) | (out.decide & (not out.trial_over))
                 rows = np.flatnonzero(need)
                 cells[rows] = agent.cells(_flat(state.features)[rows])
                 if until_change:
@@ -125,21 +129,22 @@ class ExperienceSlice:
         parts: list[Transitions],
     ) -> None:
         """Append the tuples that end on this step to ``parts``; with ``updated``, apply Eq. 1 to them."""
-        emit = out.transition
-        if not emit.any():
+        # Rows of the (E·m) robots, found once for every array instead of once per boolean mask.
+        rows = np.flatnonzero(out.transition)
+        if rows.size == 0:
             return
-        robots = np.broadcast_to(np.arange(emit.shape[1]), emit.shape)[emit]
+        robots = rows % out.action.shape[1]
         batch = Transitions(
             robot=robots.astype(np.int16),
-            state=out.start_features[emit],
-            action=out.action[emit].astype(np.uint8),
-            reward=out.reward[emit],
-            next_state=out.next_features[emit],
-            done=out.done[emit],
+            state=_flat(out.start_features)[rows],
+            action=out.action.reshape(-1)[rows].astype(np.uint8),
+            reward=out.reward.reshape(-1)[rows],
+            next_state=_flat(out.next_features)[rows],
+            done=out.done.reshape(-1)[rows],
         )
         parts.append(batch)
         if updated is not None and cells is not None:
-            updated.update(robots, cell_sa[emit], cells[np.flatnonzero(emit)], batch.reward, batch.done)
+            updated.update(robots, cell_sa.reshape(-1)[rows], cells[rows], batch.reward, batch.done)
 
     def _decide(
         self,

@@ -170,6 +170,58 @@ def move(
             out_target_vel[e, j, 1] = vy
 
 
+@njit(cache=True)
+def override_moves(
+    move: np.ndarray,  # (E, m, 2) float64, overwritten in place
+    searching: np.ndarray,  # (E, m) bool: robots that search instead
+    heading: np.ndarray,  # (E, m, 2) float64 unit search headings
+    speed: float,
+    stopped: np.ndarray,  # (E, m) bool: robots that do not move (wins over searching)
+) -> None:
+    """The trial step's two overrides of the held actions' moves in one pass: two masked numpy writes over (E, m, 2)
+    cost ≈ 40 µs each per step of 5 000 robots."""
+    n_arenas, m, _ = move.shape
+    for e in range(n_arenas):
+        for i in range(m):
+            if stopped[e, i]:
+                move[e, i, 0] = 0.0
+                move[e, i, 1] = 0.0
+            elif searching[e, i]:
+                move[e, i, 0] = speed * heading[e, i, 0]
+                move[e, i, 1] = speed * heading[e, i, 1]
+
+
+@njit(cache=True)
+def decision_rewards(
+    decide: np.ndarray,  # (E, m) bool: robots that chose their action before this step
+    earned: np.ndarray,  # (E, m) float32: the value summed over the held action's earlier steps
+    value: np.ndarray,  # (E, m) float32: this step's value
+    held: np.ndarray,  # (E, m) int64: steps the action has lasted, this one included
+    lost: np.ndarray,  # (E, m) bool: tuples that end because the learner lost every target
+    ends: np.ndarray,  # (E, m) bool: tuples that end on this step
+    lost_reward: np.float32,
+    out_earned: np.ndarray,  # out (E, m) float32
+    out_mean: np.ndarray,  # out (E, m) float32: the mean value over the action's steps
+    out_reward: np.ndarray,  # out (E, m) float32: the reward of the tuples that end, 0 elsewhere
+) -> None:
+    """A per-decision reward's bookkeeping of :func:`sim.trial.step_trial` in one pass, with numpy's arithmetic
+    (float32 sums; the mean divided in float64, then rounded to float32): seven (E, m) numpy calls were 3 % of a
+    phase-2 slice."""
+    n_arenas, m = decide.shape
+    for e in range(n_arenas):
+        for i in range(m):
+            total = (np.float32(0.0) if decide[e, i] else earned[e, i]) + value[e, i]
+            mean = np.float32(np.float64(total) / np.float64(held[e, i]))
+            out_earned[e, i] = total
+            out_mean[e, i] = mean
+            if not ends[e, i]:
+                out_reward[e, i] = np.float32(0.0)
+            elif lost[e, i]:
+                out_reward[e, i] = lost_reward
+            else:
+                out_reward[e, i] = mean
+
+
 @njit(cache=True, inline="always")
 def _f_target(d: float, do1: float, do2: float, do3: float, do4: float) -> float:
     if d <= do1:

@@ -43,6 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim import _kernels
 from sim.config import ScenarioConfig
 from sim.controllers import N_ACTIONS, wander
 from sim.features import lost, step_value, trial_reward
@@ -250,14 +251,13 @@ def step_trial(
     # none in the batch the headings are never read.
     seeker = ~state.learner | (not rules.lost_ends_trial)
     heading = wander(cfg, state.world, state.heading) if seeker.any() else state.heading
-    move = moves.velocity(cfg, held_action, frame)
+    move = moves.velocity(cfg, held_action, frame)  # a new array: the rules below overwrite its robots' rows
     if velocity is not None:
         move = np.where(state.learner[..., None], move, velocity)
         seeker = seeker & state.learner
     searching = seeker & lost(state.view)
-    move = np.where(searching[..., None], cfg.robot_speed * heading, move)
-    # A learner whose trial ended stays where it lost its targets [paper].
-    move = np.where((state.learner & ~state.active)[..., None], 0.0, move)
+    # Searchers move along their heading; a learner whose trial ended stays where it lost its targets [paper].
+    _kernels.override_moves(move, searching, heading, cfg.robot_speed, state.learner & ~state.active)
     world = step(cfg, state.world, move, rng)
     obs = sense(cfg, world, rng)
     view, memory = view_of(cfg, world, obs, state.recall)
@@ -275,10 +275,22 @@ def step_trial(
     boundary = held >= (cfg.action_steps if hold is None else hold)
     earned, action_mean = state.earned, None
     if per_decision:
-        earned = np.where(decide, np.float32(0.0), earned) + step_value(cfg, state.obs, obs, formulation.reward)
-        action_mean = (earned / held).astype(np.float32)
-        pay = np.where(done & lost_ends, np.float32(cfg.lost_reward), action_mean)
-        reward = np.where(done | truncated | (active & boundary), pay, np.float32(0.0)).astype(np.float32)
+        # The value summed over the held action's steps (restarted where a robot decided), its mean, and the reward
+        # of the tuples that end here: the mean, or lost_reward for a learner whose losing ends its trial.
+        value = step_value(cfg, state.obs, obs, formulation.reward)
+        earned, action_mean, reward = (np.empty(state.shape, np.float32) for _ in range(3))
+        _kernels.decision_rewards(
+            decide,
+            state.earned,
+            value,
+            held,
+            done & lost_ends,
+            done | truncated | (active & boundary),
+            np.float32(cfg.lost_reward),
+            earned,
+            action_mean,
+            reward,
+        )
     elif done.any():
         reward = np.where(done, trial_reward(cfg, obs, formulation.reward), 0.0).astype(np.float32)
     else:

@@ -168,6 +168,13 @@ def test_policy_client_keeps_the_newest_and_the_learning_not_handed_in() -> None
     adopted: TabularAgent = client.adopt(newer, agent)
     assert adopted.tables[0, 0] == 1.5 and adopted.tables[2, 0] == 1.0  # robot 2 is not learned here
     assert [(r, c[0], v[0]) for r, c, v in tracker.take(adopted)] == [(0, 0.5, 1)]
+    # The same discretization is kept as one object, with the search indexes it built; a new one replaces it.
+    assert adopted.discretization is agent.discretization
+    refit = one_cell_policy(4, 0.0)
+    refit = dataclasses.replace(refit, discretization=dataclasses.replace(refit.discretization, labels=np.ones(8)))
+    client.offer(policy_update(refit, "cmommt-v1"))
+    after_refit = client.take()
+    assert after_refit is not None and client.adopt(after_refit, adopted).discretization is not agent.discretization
 
 
 def test_policy_client_refuses_a_broadcast_over_another_formulation_and_counts_it(

@@ -7,7 +7,7 @@ import pytest
 
 from algorithm.discretization import Discretization, nearest
 from algorithm.phase1 import Phase1Config, phase1, to_classes
-from algorithm.qtable import greedy, merge_increments, q_targets, q_update
+from algorithm.qtable import greedy, merge_increments, q_targets, q_update, row_best
 from algorithm.transitions import Transitions
 
 GAMMA = 0.9
@@ -278,3 +278,19 @@ def test_phase1_can_draw_its_classes_from_the_lost_signal_alone() -> None:
     assert np.mean(predicted == np.where(bad, -1.0, 0.0)) > 0.9
     with pytest.raises(ValueError, match="targets"):
         Phase1Config(targets="money")  # type: ignore[arg-type]
+
+
+def test_row_best_equals_numpy_max_and_argmax_with_ties_and_nans() -> None:
+    rng = np.random.default_rng(5)
+    tables = rng.integers(-2, 3, size=(4, 30)).astype(np.float64)  # small integers: many exact ties
+    tables[1, 3] = tables[2, 7] = np.nan
+    rows = rng.integers(0, 4, 500)
+    cells = rng.integers(0, 30, size=(500, 8))
+    cells[:5] = 3  # one cell for every action: an all-NaN row for table 1, all equal for the others
+    gathered = tables[rows[:, None], cells]
+    best, action = row_best(tables, rows, cells)
+    np.testing.assert_array_equal(best, gathered.max(axis=1))
+    np.testing.assert_array_equal(action, np.argmax(gathered, axis=1))
+    assert np.isnan(best).any() and (action[:5] == 0).all()
+    empty = row_best(tables, rows[:0], cells[:0])
+    assert empty[0].shape == empty[1].shape == (0,)

@@ -12,6 +12,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from algorithm._search import search_grid
 from algorithm.agent import Phase2Config, TabularAgent
 from algorithm.discretization import Discretization, nearest
 from algorithm.policy import Policy
@@ -75,6 +76,9 @@ def test_masked_states_large_values_and_shared_codebooks() -> None:
         np.testing.assert_array_equal(disc.cells(states), brute_cells(disc, states))
     shared = Discretization.shared(protos[0], 8)
     np.testing.assert_array_equal(shared.cells(states), brute_cells(shared, states))
+    lone = np.where(np.arange(6) == 2, states, 0.0).astype(np.float32)  # all but one dimension 0: a grid index
+    np.testing.assert_array_equal(shared.cells(lone), brute_cells(shared, lone))
+    assert shared._search_index()[0].grids == 1
     huge = Discretization.from_per_action([np.array([[0.0, 0.0], [3e19, 0.0], [-3e19, 1.0]])])
     points = np.array([[2.9e19, 0.0], [-1e25, 0.0], [0.0, 1e-30]])
     np.testing.assert_array_equal(huge.cells(points), brute_cells(huge, points))
@@ -95,11 +99,17 @@ def test_the_index_cuts_at_presence_flags_and_still_equals_brute_force() -> None
         x[:, 3], x[:, 6] = flags[:, 0], flags[:, 1]
         return x.astype(np.float32)
 
-    disc = Discretization.from_per_action([frame_like(size) for size in (300, 140, 65)])
+    protos = [frame_like(size) for size in (300, 140, 65)]
     states = frame_like(4000)
+    scaled = Discretization.from_per_action(protos, scale=rng.uniform(0.3, 3.0, 7).astype(np.float32))
+    np.testing.assert_array_equal(scaled.cells(states), brute_cells(scaled, states))
+    disc = Discretization.from_per_action(protos)
     np.testing.assert_array_equal(disc.cells(states), brute_cells(disc, states))
+    # Each flag fixes its dimension, on or off: both pairs present (5 free) or one (3 free), searched in fewer
+    # dimensions; none (1 free), on a grid.
+    for searcher in (scaled._search_index()[0], disc._search_index()[0]):
+        assert (searcher.zero_sets, searcher.grids) == (3, 1)
     searcher = disc._search_index()[0]
-    assert searcher.zero_sets == 3  # one pair absent, the other, both: searched in fewer dimensions
     index = searcher.full
     real = index.index >= 0
     assert real.sum() == disc.size
@@ -109,6 +119,33 @@ def test_the_index_cuts_at_presence_flags_and_still_equals_brute_force() -> None
     for flag in (3, 6):
         values = np.where(real, index.points[:, :, flag], np.nan)[groups]
         assert (np.nanmin(values, axis=1) == np.nanmax(values, axis=1)).all()
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_states_fixed_in_all_dimensions_but_one_equal_brute_force_on_the_grid_index(seed: int) -> None:
+    # Small integers in the free dimension and in the prototypes: distances are exact, so ties are exact too, and
+    # states fall on the cells' edges; some states lie beyond the grid and go to the reduced index.
+    rng = np.random.default_rng(seed)
+    dim, free = 5, 2
+    protos = [rng.integers(-3, 4, size=(size, dim)).astype(np.float32) for size in (1, 9, 70, 230)]
+    protos[3][:40] = protos[3][40:80]  # duplicates
+    protos[2][:, free] = rng.uniform(-30, 30, 70).astype(np.float32)
+    disc = Discretization.from_per_action(protos)
+    states = np.zeros((3000, dim), np.float32)
+    states[:1000, free] = rng.integers(-12, 13, 1000)
+    states[1000:2000, free] = rng.uniform(-40, 40, 1000)
+    states[2000:, free] = rng.uniform(-1e4, 1e4, 1000)
+    states = states[states[:, free] != 0]
+    np.testing.assert_array_equal(disc.cells(states), brute_cells(disc, states))
+    flags_on = states.copy()
+    flags_on[:, np.arange(dim) != free] = 1.0  # the other dimensions at the flag value: a grid as well
+    np.testing.assert_array_equal(disc.cells(flags_on), brute_cells(disc, flags_on))
+    searcher = disc._search_index()[0]
+    assert searcher.grids == 4  # 0 or 1 in the other dimensions; with 1 in the free one as well, a single cell
+    grid = searcher._grids[int(np.int64(31) ^ (1 << free))]
+    assert np.diff(grid.starts).min() >= 1
+    far = states[np.abs(states[:, free]) > grid.edges[0, -1]]
+    assert len(far) > 0 and (search_grid(grid, far) == -1).all()
 
 
 def test_cells_reject_states_of_the_wrong_shape() -> None:

@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sim import FORMULATIONS, Formulation, ScenarioConfig, reset_trial, scenario, step_trial
+from sim import FORMULATIONS, Formulation, ScenarioConfig, _kernels, reset_trial, scenario, step_trial
 from sim.features import trial_reward
 from tests.fakes import situation
 
@@ -197,3 +197,32 @@ def test_step_trial_leaves_its_inputs_as_they_were_and_checks_actions() -> None:
         step_trial(cfg, state, np.full((1, 2), 8), decide, np.random.default_rng(0))
     with pytest.raises(ValueError, match="decide"):
         step_trial(cfg, state, action, np.ones((2, 2), bool), np.random.default_rng(0))
+
+
+def test_override_moves_equals_the_masked_numpy_rules() -> None:
+    rng = np.random.default_rng(4)
+    move = rng.normal(size=(50, 10, 2))
+    heading = rng.normal(size=(50, 10, 2))
+    searching, stopped = rng.random((50, 10)) < 0.4, rng.random((50, 10)) < 0.3
+    want = np.where(searching[..., None], 7.5 * heading, move)
+    want = np.where(stopped[..., None], 0.0, want)  # a stopped robot stays, searching or not
+    _kernels.override_moves(move, searching, heading, 7.5, stopped)
+    np.testing.assert_array_equal(move, want)
+    assert (searching & stopped).any() and (searching & ~stopped).any()
+
+
+def test_decision_rewards_equal_the_numpy_arithmetic() -> None:
+    rng = np.random.default_rng(8)
+    shape = (60, 10)
+    decide, lost, ends = (rng.random(shape) < p for p in (0.3, 0.2, 0.5))
+    earned = rng.normal(size=shape).astype(np.float32)
+    value = rng.integers(-1, 3, shape).astype(np.float32) - np.float32(0.5) * (rng.random(shape) < 0.3)
+    held = rng.integers(1, 8, shape)
+    want_earned = np.where(decide, np.float32(0.0), earned) + value
+    want_mean = (want_earned / held).astype(np.float32)
+    want_reward = np.where(ends, np.where(lost, np.float32(-1.0), want_mean), np.float32(0.0)).astype(np.float32)
+    got = [np.empty(shape, np.float32) for _ in range(3)]
+    _kernels.decision_rewards(decide, earned, value, held, lost, ends, np.float32(-1.0), *got)
+    for have, want in zip(got, (want_earned, want_mean, want_reward), strict=True):
+        assert have.dtype == np.float32
+        np.testing.assert_array_equal(have, want)
