@@ -13,6 +13,7 @@ Usage::
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -74,12 +75,17 @@ class TabularAgent:
         return self.explore(actions, rng) if explore else actions
 
     def explore(
-        self, greedy: np.ndarray, rng: np.random.Generator, guided: np.ndarray | None = None, share: float = 0.0
+        self,
+        greedy: np.ndarray,
+        rng: np.random.Generator,
+        guided: Callable[[np.ndarray], np.ndarray] | None = None,
+        share: float = 0.0,
     ) -> np.ndarray:
         """``greedy`` (N,) actions with a fraction ε replaced by random ones (what ``act`` does with ``explore``).
 
-        With ``guided`` (N,) actions (a guide's moves, :class:`sim.guide.Guide`), a replaced action is the guided one
-        with probability ``share`` and a uniform one otherwise.
+        With ``guided``, which gives a guide's moves (:class:`sim.guide.Guide`) at (k,) indices into the N, a replaced
+        action is the guided one with probability ``share`` and a uniform one otherwise; the guide is asked only for
+        the actions it replaces.
         """
         n = greedy.size
         if guided is None or share <= 0:
@@ -90,7 +96,11 @@ class TabularAgent:
         flip = rng.random(n) < self.config.epsilon
         take = rng.random(n) < share
         uniform = rng.integers(0, N_ACTIONS, n)
-        return np.where(flip, np.where(take, guided, uniform), greedy)
+        out = np.where(flip, uniform, greedy)
+        led = np.flatnonzero(flip & take)
+        if led.size:
+            out[led] = guided(led)
+        return out
 
     def update(
         self,

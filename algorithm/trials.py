@@ -18,6 +18,7 @@ Usage::
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -26,6 +27,7 @@ from algorithm.policy import ActionMode
 from algorithm.transitions import Transitions
 from sim import ScenarioConfig
 from sim.formulation import Formulation
+from sim.guide import Guide
 from sim.rollout import StepHook
 from sim.trial import TrialState, TrialStep, explore_actions, reset_trial, step_trial
 from sim.world import WorldState, reset
@@ -172,8 +174,8 @@ class ExperienceSlice:
         chosen = agent.act(robots, cells, self.rng, explore=False)
         guide = state.formulation.trial_rules.guide
         if explore and learner_rows.any() and guide is not None and guide.epsilon > 0:
-            guided = guide.actions(self.cfg, state).reshape(-1)[who]
-            chosen = np.where(learner_rows, agent.explore(chosen, self.rng, guided, guide.epsilon), chosen)
+            led_by = partial(_guided, guide, self.cfg, state, who)
+            chosen = np.where(learner_rows, agent.explore(chosen, self.rng, led_by, guide.epsilon), chosen)
         elif explore and learner_rows.any():
             chosen[learner_rows] = agent.explore(chosen[learner_rows], self.rng)
         action = state.action.reshape(-1).copy()
@@ -181,6 +183,11 @@ class ExperienceSlice:
         new_cell_sa = cell_sa.reshape(-1).copy()
         new_cell_sa[who] = cells[np.arange(who.size), chosen]
         return action.reshape(state.shape), new_cell_sa.reshape(state.shape)
+
+
+def _guided(guide: Guide, cfg: ScenarioConfig, state: TrialState, who: np.ndarray, led: np.ndarray) -> np.ndarray:
+    """(k,) the guide's moves of the deciding robots ``who[led]``."""
+    return guide.actions(cfg, state, who[led])
 
 
 def _flat(features: np.ndarray) -> np.ndarray:

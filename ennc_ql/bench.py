@@ -14,7 +14,7 @@ from algorithm.policy_file import PolicyFileError, load_policy
 from ennc_ql.command import emit, fail
 from ennc_ql.parser import CommandHelp, add_command, add_commands
 from monitor import add_rerun_args, open_monitor, sink_from_args
-from sim import SCENARIOS
+from sim import FORMULATIONS, SCENARIOS
 from tools.config import non_negative, positive
 
 Figures = tuple[dict[str, Any], str]
@@ -56,7 +56,11 @@ def _actor(args: argparse.Namespace) -> Figures:
             policy = load_policy(args.policy)[0]
         except PolicyFileError as exc:
             fail("bench actor", f"--policy {args.policy}: {str(exc).removeprefix(f'{args.policy}: ')}")
-    out = bench_actor(args.scenario, args.arenas, args.seconds, policy=policy)
+    formulation = None if args.formulation is None else FORMULATIONS[args.formulation]
+    try:
+        out = bench_actor(args.scenario, args.arenas, args.seconds, policy=policy, formulation=formulation)
+    except ValueError as exc:
+        fail("bench actor", f"--formulation {args.formulation}: {exc}")
     return out, actor_table(out)
 
 
@@ -207,6 +211,12 @@ def add_bench_parser(sub: Any) -> None:
     parsers["actor"].add_argument("--arenas", type=positive(int), default=500, help="arenas of the slice, as up's")
     parsers["actor"].add_argument(
         "--policy", help="a policy file to act on (default: learn one by phase 1 on exploration)"
+    )
+    parsers["actor"].add_argument(
+        "--formulation",
+        choices=sorted(FORMULATIONS),
+        help="the formulation the actor runs the policy in, for its trial rules (default: the run's default "
+        "formulation when the policy's state, reward and moves are its own, else the paper's trial rules)",
     )
     parsers["broadcast"].add_argument(
         "--prototypes",

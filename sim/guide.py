@@ -9,6 +9,7 @@ learning trials only; the learned policy acts on its tables alone::
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -16,6 +17,7 @@ import numpy as np
 
 from sim.config import ScenarioConfig
 from sim.controllers import HAND_MADE, StateForceController
+from sim.world import Observation, WorldState
 
 if TYPE_CHECKING:
     from sim.trial import TrialState
@@ -58,10 +60,32 @@ class Guide:
             if not 0.0 <= share <= 1.0:
                 raise ValueError(f"guide {name} share must lie in [0, 1], got {share}")
 
-    def actions(self, cfg: ScenarioConfig, state: TrialState) -> np.ndarray:
+    def actions(self, cfg: ScenarioConfig, state: TrialState, rows: np.ndarray | None = None) -> np.ndarray:
         """(E, m) the law's move of every robot now, as an action of the formulation's set (a robot the law pulls
-        nowhere: its search heading's). The law reads the state's view: a remembering state's remembered target
-        pulls as a sensed one (:mod:`sim.recall`)."""
-        velocity, _ = GUIDES[self.law].act(cfg, state.world, state.view, state.heading, _NO_RNG)
+        nowhere: its search heading's); given ``rows`` (k,) flat robot indices (arena · m + robot), (k,) the moves of
+        those robots only. The law reads the state's view: a remembering state's remembered target pulls as a sensed
+        one (:mod:`sim.recall`)."""
+        world, view, heading = state.world, state.view, state.heading
+        if rows is not None:
+            world, view, heading = _only(world, view, heading, rows)
+        velocity, _ = GUIDES[self.law].act(cfg, world, view, heading, _NO_RNG)
         moves = state.formulation.actions
-        return moves.closest(velocity, moves.frame(state.view))
+        chosen = moves.closest(velocity, moves.frame(view))
+        return chosen if rows is None else chosen[0]
+
+
+def _only(
+    world: WorldState, view: Observation, heading: np.ndarray, rows: np.ndarray
+) -> tuple[WorldState, Observation, np.ndarray]:
+    """The robots ``rows`` laid out as one arena of k robots. A state law reads each robot's own sensing, memory,
+    position and heading, never another robot's nor a target's position, so their moves there are their moves in
+    their arenas: exploration asks the law only for the few robots that take its move, not for every robot."""
+
+    def pick(a: np.ndarray) -> np.ndarray:
+        return a.reshape(-1, *a.shape[2:])[rows][None]
+
+    no_targets = np.zeros((1, 0, 2))
+    alone = WorldState(pick(world.robot_pos), no_targets, no_targets, np.zeros((1, 0)), world.t)
+    fields = ("features", "n_seen", "sees_robot", "shared", "n_only", "memory", "remembers")
+    picked = {name: pick(getattr(view, name)) for name in fields if getattr(view, name) is not None}
+    return alone, dataclasses.replace(view, covered=view.covered[:1], **picked), pick(heading)

@@ -207,8 +207,9 @@ def explore_actions(cfg: ScenarioConfig, state: TrialState, rng: np.random.Gener
     actions = random_actions(state, rng)
     guide = state.formulation.trial_rules.guide
     if guide is not None and guide.explore > 0:
-        take = rng.random(state.shape) < guide.explore
-        actions = np.where(take, guide.actions(cfg, state), actions)
+        take = np.flatnonzero(rng.random(state.shape) < guide.explore)
+        if take.size:
+            actions.reshape(-1)[take] = guide.actions(cfg, state, take)
     return actions
 
 

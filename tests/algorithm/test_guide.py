@@ -13,10 +13,11 @@ from algorithm.policy import Policy
 from algorithm.trials import ExperienceSlice, SliceConfig
 from sim import FORMULATIONS, N_ACTIONS, Formulation, scenario
 from sim.actions import ACTION_SETS
+from sim.config import ScenarioConfig
 from sim.controllers import HAND_MADE
 from sim.formulation import TRIAL_RULES, TrialRules
 from sim.guide import GUIDES, Guide
-from sim.trial import reset_trial, step_trial
+from sim.trial import TrialState, random_actions, reset_trial, step_trial
 from tests.fakes import situation
 
 COOPERATIVE = FORMULATIONS["frame-cooperative"]
@@ -65,7 +66,30 @@ def test_the_guides_move_is_the_action_nearest_the_laws_velocity() -> None:
 
 def _constant_guide(monkeypatch: pytest.MonkeyPatch, action: int) -> None:
     """Every guide's move becomes ``action``, so a tuple shows whether exploration took the guide's move."""
-    monkeypatch.setattr(Guide, "actions", lambda self, cfg, state: np.full(state.shape, action))
+
+    def constant(self: Guide, cfg: ScenarioConfig, state: TrialState, rows: np.ndarray | None = None) -> np.ndarray:
+        return np.full(state.shape if rows is None else rows.shape, action)
+
+    monkeypatch.setattr(Guide, "actions", constant)
+
+
+@pytest.mark.parametrize("name", ["frame-guided", "frame-recall"])
+def test_the_guides_moves_of_some_robots_are_their_moves_among_all(name: str) -> None:
+    # Exploration asks the law for the few robots that take its move; each must get the move it gets among all.
+    cfg = scenario()
+    formulation = FORMULATIONS[name]
+    rng = np.random.default_rng(3)
+    state = reset_trial(cfg, n_arenas=50, learners=True, formulation=formulation, rng=rng)
+    decide = np.ones(state.shape, bool)
+    for _ in range(40):  # some robots lose their targets, and remembering ones then read a memory
+        state, out = step_trial(cfg, state, random_actions(state, rng), decide, rng)
+        decide = out.decide
+    guide = formulation.trial_rules.guide
+    assert guide is not None
+    every = guide.actions(cfg, state).reshape(-1)
+    rows = np.random.default_rng(0).choice(every.size, 37, replace=False)
+    np.testing.assert_array_equal(guide.actions(cfg, state, rows), every[rows])
+    assert len(set(every[rows].tolist())) > 1
 
 
 @pytest.mark.parametrize("share", [0.0, 0.5, 1.0])

@@ -44,3 +44,34 @@ def test_bench_actor_prints_a_table_without_json(capsys: pytest.CaptureFixture[s
     assert main(["bench", "actor", "--policy", str(policy_file), "--arenas", "2", "--seconds", "0.01"]) == 0
     text = capsys.readouterr().out
     assert "robot-steps/s" in text and "ratio" in text
+
+
+def _frame_policy(tmp_path: Path) -> Path:
+    cfg = scenario()
+    rng = np.random.default_rng(0)
+    disc = Discretization.from_per_action([rng.uniform(-1, 1, (size, 9)) for size in (3, 5, 2, 7, 1, 4, 6, 2)])
+    tables = np.zeros((cfg.n_robots, disc.size), np.float32)
+    policy = Policy(Formulation.of("frame9d", "difference-redundancy", "relative"), disc, tables, np.arange(10))
+    return save_policy(policy, cfg, tmp_path / "policy.npz")
+
+
+@pytest.mark.parametrize(
+    ("flags", "rules"),
+    [((), "guided-search"), (("--formulation", "frame-cooperative"), "lost-searches")],
+    ids=["run-default", "named"],
+)
+def test_bench_actor_runs_the_policy_under_the_trial_rules_an_actor_would(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path, flags: tuple[str, ...], rules: str
+) -> None:
+    # A policy file carries no trial rules; an actor of the default formulation learns with the guide.
+    argv = ["bench", "actor", "--policy", str(_frame_policy(tmp_path)), "--arenas", "2", "--seconds", "0.01"]
+    assert main([*argv, *flags, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["trial_rules"] == rules
+
+
+def test_bench_actor_refuses_a_formulation_over_other_parts(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    argv = ["bench", "actor", "--policy", str(_frame_policy(tmp_path)), "--formulation", "paper", "--arenas", "2"]
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code != 0
+    assert "are not the policy's" in capsys.readouterr().err

@@ -6,6 +6,7 @@ built) against the bare simulator, measured in the same run::
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from typing import Any
 
@@ -19,7 +20,7 @@ from algorithm.trials import ExperienceSlice, SliceConfig
 from algorithm.wire import experience_batches
 from protocol import Header
 from sim import N_ACTIONS, ScenarioConfig, scenario
-from sim.formulation import FORMULATIONS
+from sim.formulation import FORMULATIONS, Formulation, default_formulation
 from tools.bench.sim import sim_rate
 from tools.progress import ProgressBar
 
@@ -45,6 +46,19 @@ def bench_policy(cfg: ScenarioConfig, arenas: int = 500, explore_trials: int = 2
         action_steps=cfg.action_steps,
         method="ennc-ql-collab-option2",
     )
+
+
+def _as_actor_runs(policy: Policy, formulation: Formulation | None) -> Policy:
+    """``policy`` under the formulation an actor would run it in (:func:`bench_actor`)."""
+    if formulation is None:
+        default = default_formulation()
+        formulation = default if default.names == policy.formulation.names else policy.formulation
+    elif formulation.names != policy.formulation.names:
+        raise ValueError(
+            f"the formulation's state, reward and moves {formulation.names} are not the policy's "
+            f"{policy.formulation.names}"
+        )
+    return dataclasses.replace(policy, formulation=formulation)
 
 
 def _actor_trials(
@@ -81,18 +95,22 @@ def bench_actor(
     rounds: int = 3,
     policy: Policy | None = None,
     batch_size: int = 16384,
+    formulation: Formulation | None = None,
 ) -> dict[str, Any]:
     """An actor's phase-2 slice against the bare simulator, measured in the same run.
 
     ``rounds`` alternations of ``seconds`` of the simulator (random controller, the same ``arenas``) and of at least
     ``seconds`` (whole trials) of the actor's learning trials (ε-greedy on per-robot tables, on-line Eq. 1,
     experience messages built as the actor builds them), so that a machine whose load changes meanwhile slows both
-    alike. ``policy`` None learns a realistic one (:func:`bench_policy`).
+    alike. ``policy`` None learns a realistic one (:func:`bench_policy`). ``formulation`` is the one the actor runs
+    (its trial rules, e.g. a guide, are not in a policy file; as an actor does, its policy takes it): by default the
+    run's default formulation when the policy's state, reward and moves are its own, else the policy's parts under
+    the paper's trial rules. ValueError if it names other parts than the policy's.
     """
     cfg = scenario(scenario_name)
     with ProgressBar("bench actor", total=2 * rounds + 1, unit="phases") as bar:
         bar.show(status="learning a policy (exploration + phase 1)" if policy is None else "policy given")
-        policy = policy or bench_policy(cfg, arenas)
+        policy = _as_actor_runs(policy or bench_policy(cfg, arenas), formulation)
         sizes = [int(s) for s in policy.discretization.sizes()]
         agent = TabularAgent(policy, Phase2Config())
         sim_rate(cfg, "random", 8, 0.05)  # compile (or load the numba cache) outside the measurement
@@ -116,6 +134,7 @@ def bench_actor(
     return {
         "benchmark": "actor",
         "scenario": cfg.name,
+        "trial_rules": policy.formulation.trial_rules.name,
         "arenas": arenas,
         "robots": cfg.n_robots,
         "robot_steps_per_s": round(actor_rate),
@@ -135,7 +154,8 @@ def actor_table(out: dict[str, Any]) -> str:
     met = "met" if out["meets_target"]["ratio"] else "NOT met"
     return (
         f"actor slice: {out['robot_steps_per_s'] / 1e3:.0f} k robot-steps/s, {out['tuples_per_s'] / 1e3:.0f} k "
-        f"tuples/s ({out['arenas']} arenas, {sum(sizes) / len(sizes):.0f} prototypes per action)\n"
+        f"tuples/s ({out['arenas']} arenas, {sum(sizes) / len(sizes):.0f} prototypes per action, trial rules "
+        f"{out['trial_rules']})\n"
         f"simulator:   {out['sim_robot_steps_per_s'] / 1e6:.2f} M robot-steps/s (random controller, same arenas)\n"
         f"ratio {out['ratio']:.3f} (target >= {out['target']['ratio']}: {met})"
     )
