@@ -73,10 +73,10 @@ class LearnerConfig:
     """Validation trials of each periodic evaluation when ``keep_best`` (the same trials every time)."""
     eval_steps: int = 1000
     """Steps of each test trial [paper]."""
-    checkpoint_interval: float = 2.0
+    checkpoint_interval: float = 1.0
     """Seconds between checkpoints; acknowledgements follow each checkpoint, so an actor's outbox holds about this
-    long of its experience (≈ 17 MB/s for 500 arenas): 2 s keeps an actor under ~300 MB, while a checkpoint of a
-    full 1 M-tuple store costs ≈ 0.15–0.35 s."""
+    long of its experience (≈ 40 MB/s for 500 arenas at ≈ 490 k tuples/s): 1 s keeps an actor under 300 MB (2 s:
+    334–350 MB at that rate, docs/performance.md), while a checkpoint of a full 1 M-tuple store costs ≈ 0.15–0.35 s."""
     status_interval: float = 2.0
     """Seconds between status messages."""
     duration: float | None = None
