@@ -43,7 +43,7 @@ REFERENCES: dict[str, tuple[str, Rgb]] = {
     "a-cmommt-oracle": ("A-CMOMMT oracle (true positions)", BLUE),
     "force-6d": ("force law on the 6-D state", BLUISH_GREEN),
     "force-6d-shared": ("force law, 6-D state + shared flags", VERMILLION),
-    "force-recall": ("force law, 6-D state + shared flags + memory", DARK_VERMILLION),
+    "force-recall": ("force law + shared flags + memory", DARK_VERMILLION),
 }
 """Legend name and colour of each hand-made controller (by its ``sim.CONTROLLERS`` name) drawn as a reference level
 on the learning curve."""
