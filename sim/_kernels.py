@@ -348,6 +348,62 @@ NEVER_SEEN = 1 << 40
 """Track age of a target a robot has never observed."""
 
 
+@njit(cache=True, inline="always")
+def _sightings(
+    robot_pos: np.ndarray, target_pos: np.ndarray, e: int, r2: float, in_view: np.ndarray, watchers: np.ndarray
+) -> None:
+    """Arena ``e``: ``in_view[i, j]`` robot i senses target j, ``watchers[j]`` how many robots do."""
+    m, n = in_view.shape
+    watchers[:] = 0
+    for i in range(m):
+        for j in range(n):
+            dx = target_pos[e, j, 0] - robot_pos[e, i, 0]
+            dy = target_pos[e, j, 1] - robot_pos[e, i, 1]
+            in_view[i, j] = dx * dx + dy * dy <= r2
+            if in_view[i, j]:
+                watchers[j] += 1
+
+
+@njit(cache=True, inline="always")
+def _track(
+    target_pos: np.ndarray,
+    track_pos: np.ndarray,
+    track_vel: np.ndarray,
+    track_age: np.ndarray,
+    e: int,
+    i: int,
+    j: int,
+    seen: bool,
+    out_pos: np.ndarray,
+    out_vel: np.ndarray,
+    out_age: np.ndarray,
+) -> int:
+    """Robot i's track of target j after this step, and its age: a sighting takes the position now and the mean
+    displacement since the last one (0 on a first); otherwise the track is kept and ages by one."""
+    age = track_age[e, i, j]
+    if seen:
+        px = target_pos[e, j, 0]
+        py = target_pos[e, j, 1]
+        if age < NEVER_SEEN:
+            gap = float(age + 1)
+            out_vel[e, i, j, 0] = (px - track_pos[e, i, j, 0]) / gap
+            out_vel[e, i, j, 1] = (py - track_pos[e, i, j, 1]) / gap
+        else:
+            out_vel[e, i, j, 0] = 0.0
+            out_vel[e, i, j, 1] = 0.0
+        out_pos[e, i, j, 0] = px
+        out_pos[e, i, j, 1] = py
+        out_age[e, i, j] = 0
+        return 0
+    out_pos[e, i, j, 0] = track_pos[e, i, j, 0]
+    out_pos[e, i, j, 1] = track_pos[e, i, j, 1]
+    out_vel[e, i, j, 0] = track_vel[e, i, j, 0]
+    out_vel[e, i, j, 1] = track_vel[e, i, j, 1]
+    age = age + 1 if age < NEVER_SEEN else NEVER_SEEN
+    out_age[e, i, j] = age
+    return age
+
+
 # Over 60 lines: A-CMOMMT's whole force law per robot in one numba pass (targets in view, tracked ones in the band,
 # teammates' reports, robot repulsion); its parts share the per-robot accumulators.
 @njit(cache=True)
@@ -396,36 +452,19 @@ def tracked_force_heading(
     in_view = np.zeros((m, n), dtype=np.bool_)
     watchers = np.zeros(n, dtype=np.int64)
     for e in range(n_arenas):
-        watchers[:] = 0
-        for i in range(m):
-            for j in range(n):
-                dx = target_pos[e, j, 0] - robot_pos[e, i, 0]
-                dy = target_pos[e, j, 1] - robot_pos[e, i, 1]
-                in_view[i, j] = dx * dx + dy * dy <= r2
-                if in_view[i, j]:
-                    watchers[j] += 1
+        _sightings(robot_pos, target_pos, e, r2, in_view, watchers)
         for i in range(m):
             rx = robot_pos[e, i, 0]
             ry = robot_pos[e, i, 1]
             fx = 0.0
             fy = 0.0
             for j in range(n):
-                age = track_age[e, i, j]
+                age = _track(
+                    target_pos, track_pos, track_vel, track_age, e, i, j, in_view[i, j], out_pos, out_vel, out_age
+                )
                 if in_view[i, j]:
-                    px = target_pos[e, j, 0]
-                    py = target_pos[e, j, 1]
-                    if age < NEVER_SEEN:
-                        gap = float(age + 1)
-                        out_vel[e, i, j, 0] = (px - track_pos[e, i, j, 0]) / gap
-                        out_vel[e, i, j, 1] = (py - track_pos[e, i, j, 1]) / gap
-                    else:
-                        out_vel[e, i, j, 0] = 0.0
-                        out_vel[e, i, j, 1] = 0.0
-                    out_pos[e, i, j, 0] = px
-                    out_pos[e, i, j, 1] = py
-                    out_age[e, i, j] = 0
-                    dx = px - rx
-                    dy = py - ry
+                    dx = target_pos[e, j, 0] - rx
+                    dy = target_pos[e, j, 1] - ry
                     d = math.sqrt(dx * dx + dy * dy)
                     if d < _EPS:
                         continue
@@ -434,12 +473,6 @@ def tracked_force_heading(
                     fx += f * dx
                     fy += f * dy
                     continue
-                out_pos[e, i, j, 0] = track_pos[e, i, j, 0]
-                out_pos[e, i, j, 1] = track_pos[e, i, j, 1]
-                out_vel[e, i, j, 0] = track_vel[e, i, j, 0]
-                out_vel[e, i, j, 1] = track_vel[e, i, j, 1]
-                age = age + 1 if age < NEVER_SEEN else NEVER_SEEN
-                out_age[e, i, j] = age
                 w = 0.0
                 if cooperative and watchers[j] > 0:
                     # Another robot reports it now: the report replaces any prediction (with weight 0 the robot
@@ -587,8 +620,6 @@ def frame_velocity(
                 out[e, i, d] = speed * (lx * frame[e, i, 0, d] + ly * frame[e, i, 1, d])
 
 
-# Over 60 lines: one pass per arena that updates every robot's tracks and picks its remembered target in the same
-# pair loop (split, each part would repeat the loop and keep an (E, m, n) in-view array between them).
 @njit(cache=True)
 def track_targets(
     robot_pos: np.ndarray,  # (E, m, 2) float64
@@ -616,44 +647,19 @@ def track_targets(
     n = target_pos.shape[1]
     r2 = sensing_range * sensing_range
     in_view = np.zeros((m, n), dtype=np.bool_)
-    watched = np.zeros(n, dtype=np.bool_)
+    watchers = np.zeros(n, dtype=np.int64)
     for e in range(n_arenas):
-        watched[:] = False
-        for i in range(m):
-            for j in range(n):
-                dx = target_pos[e, j, 0] - robot_pos[e, i, 0]
-                dy = target_pos[e, j, 1] - robot_pos[e, i, 1]
-                in_view[i, j] = dx * dx + dy * dy <= r2
-                if in_view[i, j]:
-                    watched[j] = True
+        _sightings(robot_pos, target_pos, e, r2, in_view, watchers)
         for i in range(m):
             rx = robot_pos[e, i, 0]
             ry = robot_pos[e, i, 1]
             best = np.inf
             mx = my = 0.0
             for j in range(n):
-                age = track_age[e, i, j]
-                if in_view[i, j]:
-                    px = target_pos[e, j, 0]
-                    py = target_pos[e, j, 1]
-                    if age < NEVER_SEEN:
-                        gap = float(age + 1)
-                        out_vel[e, i, j, 0] = (px - track_pos[e, i, j, 0]) / gap
-                        out_vel[e, i, j, 1] = (py - track_pos[e, i, j, 1]) / gap
-                    else:
-                        out_vel[e, i, j, 0] = 0.0
-                        out_vel[e, i, j, 1] = 0.0
-                    out_pos[e, i, j, 0] = px
-                    out_pos[e, i, j, 1] = py
-                    out_age[e, i, j] = 0
-                    continue
-                out_pos[e, i, j, 0] = track_pos[e, i, j, 0]
-                out_pos[e, i, j, 1] = track_pos[e, i, j, 1]
-                out_vel[e, i, j, 0] = track_vel[e, i, j, 0]
-                out_vel[e, i, j, 1] = track_vel[e, i, j, 1]
-                age = age + 1 if age < NEVER_SEEN else NEVER_SEEN
-                out_age[e, i, j] = age
-                if watched[j] or age > recall_steps:
+                age = _track(
+                    target_pos, track_pos, track_vel, track_age, e, i, j, in_view[i, j], out_pos, out_vel, out_age
+                )
+                if in_view[i, j] or watchers[j] > 0 or age > recall_steps:
                     continue
                 dx = track_pos[e, i, j, 0] + age * track_vel[e, i, j, 0] - rx
                 dy = track_pos[e, i, j, 1] + age * track_vel[e, i, j, 1] - ry
