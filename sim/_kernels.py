@@ -348,7 +348,7 @@ NEVER_SEEN = 1 << 40
 """Track age of a target a robot has never observed."""
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _sightings(
     robot_pos: np.ndarray, target_pos: np.ndarray, e: int, r2: float, in_view: np.ndarray, watchers: np.ndarray
 ) -> None:
@@ -364,44 +364,45 @@ def _sightings(
                 watchers[j] += 1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _track(
     target_pos: np.ndarray,
     track_pos: np.ndarray,
     track_vel: np.ndarray,
     track_age: np.ndarray,
     e: int,
-    i: int,
-    j: int,
-    seen: bool,
+    in_view: np.ndarray,
     out_pos: np.ndarray,
     out_vel: np.ndarray,
     out_age: np.ndarray,
-) -> int:
-    """Robot i's track of target j after this step, and its age: a sighting takes the position now and the mean
-    displacement since the last one (0 on a first); otherwise the track is kept and ages by one."""
-    age = track_age[e, i, j]
-    if seen:
-        px = target_pos[e, j, 0]
-        py = target_pos[e, j, 1]
-        if age < NEVER_SEEN:
-            gap = float(age + 1)
-            out_vel[e, i, j, 0] = (px - track_pos[e, i, j, 0]) / gap
-            out_vel[e, i, j, 1] = (py - track_pos[e, i, j, 1]) / gap
-        else:
-            out_vel[e, i, j, 0] = 0.0
-            out_vel[e, i, j, 1] = 0.0
-        out_pos[e, i, j, 0] = px
-        out_pos[e, i, j, 1] = py
-        out_age[e, i, j] = 0
-        return 0
-    out_pos[e, i, j, 0] = track_pos[e, i, j, 0]
-    out_pos[e, i, j, 1] = track_pos[e, i, j, 1]
-    out_vel[e, i, j, 0] = track_vel[e, i, j, 0]
-    out_vel[e, i, j, 1] = track_vel[e, i, j, 1]
-    age = age + 1 if age < NEVER_SEEN else NEVER_SEEN
-    out_age[e, i, j] = age
-    return age
+) -> None:
+    """Arena ``e``: every robot's track of every target after this step's sightings ``in_view`` (m, n), its age in
+    ``out_age``: a sighting takes the position now and the mean displacement since the last one (0 on a first);
+    otherwise the track is kept and ages by one. One call per arena, not per pair: a call per pair passed seven
+    arrays each time and made the tracks 12 times slower (3.2 ms against 0.26 ms a step for 500 arenas)."""
+    m, n = in_view.shape
+    for i in range(m):
+        for j in range(n):
+            age = track_age[e, i, j]
+            if in_view[i, j]:
+                px = target_pos[e, j, 0]
+                py = target_pos[e, j, 1]
+                if age < NEVER_SEEN:
+                    gap = float(age + 1)
+                    out_vel[e, i, j, 0] = (px - track_pos[e, i, j, 0]) / gap
+                    out_vel[e, i, j, 1] = (py - track_pos[e, i, j, 1]) / gap
+                else:
+                    out_vel[e, i, j, 0] = 0.0
+                    out_vel[e, i, j, 1] = 0.0
+                out_pos[e, i, j, 0] = px
+                out_pos[e, i, j, 1] = py
+                out_age[e, i, j] = 0
+                continue
+            out_pos[e, i, j, 0] = track_pos[e, i, j, 0]
+            out_pos[e, i, j, 1] = track_pos[e, i, j, 1]
+            out_vel[e, i, j, 0] = track_vel[e, i, j, 0]
+            out_vel[e, i, j, 1] = track_vel[e, i, j, 1]
+            out_age[e, i, j] = age + 1 if age < NEVER_SEEN else NEVER_SEEN
 
 
 # Over 60 lines: A-CMOMMT's whole force law per robot in one numba pass (targets in view, tracked ones in the band,
@@ -453,15 +454,14 @@ def tracked_force_heading(
     watchers = np.zeros(n, dtype=np.int64)
     for e in range(n_arenas):
         _sightings(robot_pos, target_pos, e, r2, in_view, watchers)
+        _track(target_pos, track_pos, track_vel, track_age, e, in_view, out_pos, out_vel, out_age)
         for i in range(m):
             rx = robot_pos[e, i, 0]
             ry = robot_pos[e, i, 1]
             fx = 0.0
             fy = 0.0
             for j in range(n):
-                age = _track(
-                    target_pos, track_pos, track_vel, track_age, e, i, j, in_view[i, j], out_pos, out_vel, out_age
-                )
+                age = out_age[e, i, j]
                 if in_view[i, j]:
                     dx = target_pos[e, j, 0] - rx
                     dy = target_pos[e, j, 1] - ry
@@ -650,15 +650,14 @@ def track_targets(
     watchers = np.zeros(n, dtype=np.int64)
     for e in range(n_arenas):
         _sightings(robot_pos, target_pos, e, r2, in_view, watchers)
+        _track(target_pos, track_pos, track_vel, track_age, e, in_view, out_pos, out_vel, out_age)
         for i in range(m):
             rx = robot_pos[e, i, 0]
             ry = robot_pos[e, i, 1]
             best = np.inf
             mx = my = 0.0
             for j in range(n):
-                age = _track(
-                    target_pos, track_pos, track_vel, track_age, e, i, j, in_view[i, j], out_pos, out_vel, out_age
-                )
+                age = out_age[e, i, j]
                 if in_view[i, j] or watchers[j] > 0 or age > recall_steps:
                     continue
                 dx = track_pos[e, i, j, 0] + age * track_vel[e, i, j, 0] - rx
@@ -671,3 +670,38 @@ def track_targets(
             out_memory[e, i, 0] = mx
             out_memory[e, i, 1] = my
             out_remembers[e, i] = best < np.inf
+
+
+@njit(cache=True)
+def remembered_view(
+    features: np.ndarray,  # (E, m, 6) float32: the sensed features
+    n_seen: np.ndarray,  # (E, m) int32
+    memory: np.ndarray,  # (E, m, 2) float64 from track_targets: offset to the remembered target
+    remembers: np.ndarray,  # (E, m) bool from track_targets
+    out_features: np.ndarray,  # out (E, m, 6) float32
+    out_n_seen: np.ndarray,  # out (E, m) int32
+    out_memory: np.ndarray,  # out (E, m, 2) float32
+    out_remembers: np.ndarray,  # out (E, m) bool
+) -> None:
+    """The view of :func:`sim.recall.recall` in one pass: a robot that sees no target and remembers one reads the
+    remembered offset as its nearest target (one target in view); one that sees a target keeps its features and
+    gets the remembered offset beside them."""
+    n_arenas, m, k = features.shape
+    for e in range(n_arenas):
+        for i in range(m):
+            for c in range(k):
+                out_features[e, i, c] = features[e, i, c]
+            out_n_seen[e, i] = n_seen[e, i]
+            out_memory[e, i, 0] = 0.0
+            out_memory[e, i, 1] = 0.0
+            out_remembers[e, i] = False
+            if not remembers[e, i]:
+                continue
+            if n_seen[e, i] == 0:
+                out_features[e, i, 0] = np.float32(memory[e, i, 0])
+                out_features[e, i, 1] = np.float32(memory[e, i, 1])
+                out_n_seen[e, i] = 1
+            else:
+                out_memory[e, i, 0] = np.float32(memory[e, i, 0])
+                out_memory[e, i, 1] = np.float32(memory[e, i, 1])
+                out_remembers[e, i] = True

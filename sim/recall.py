@@ -86,21 +86,13 @@ def recall(cfg: ScenarioConfig, world: WorldState, obs: Observation, memory: Rec
         offset,
         remembers,
     )
-    lost_one = remembers & (obs.n_seen == 0)
     # A robot that sees no target has both shared flags off already, so its remembered target reads as unshared.
-    features, n_seen = obs.features, obs.n_seen
-    if lost_one.any():
-        features = obs.features.copy()
-        features[..., 0:2] = np.where(lost_one[..., None], offset.astype(np.float32), obs.features[..., 0:2])
-        n_seen = np.where(lost_one, 1, obs.n_seen).astype(np.int32)
-    also = remembers & ~lost_one
-    view = dataclasses.replace(
-        obs,
-        features=features,
-        n_seen=n_seen,
-        memory=np.where(also[..., None], offset, 0.0).astype(np.float32),
-        remembers=also,
-    )
+    features = np.empty_like(obs.features)
+    n_seen = np.empty_like(obs.n_seen)
+    memory_now = np.empty(offset.shape, np.float32)
+    also = np.empty_like(remembers)
+    _kernels.remembered_view(obs.features, obs.n_seen, offset, remembers, features, n_seen, memory_now, also)
+    view = dataclasses.replace(obs, features=features, n_seen=n_seen, memory=memory_now, remembers=also)
     return view, after
 
 
