@@ -36,6 +36,7 @@ from algorithm.discretization import Discretization
 from algorithm.files import save_npz_atomic
 from algorithm.policy import Policy
 from sim import ScenarioConfig
+from sim.actions import ActionSet
 from sim.formulation import Formulation
 
 FRAMES = {
@@ -70,10 +71,7 @@ def header_for(policy: Policy, cfg: ScenarioConfig) -> dict[str, Any]:
             "mask_value": cfg.mask_value,
             "local_target": cfg.local_target,
         },
-        "action_set": {
-            "name": moves.name,
-            "frame": "target" if moves.relative else "world",
-        },
+        "action_set": _action_set(moves),
         "actions": [
             {"index": i, "name": name, "direction": [float(v) for v in moves.directions[i]]}
             for i, name in enumerate(moves.moves)
@@ -86,6 +84,15 @@ def header_for(policy: Policy, cfg: ScenarioConfig) -> dict[str, Any]:
         "prototypes_per_action": [int(s) for s in policy.discretization.sizes()],
         "meta": policy.meta,
     }
+
+
+def _action_set(moves: ActionSet) -> dict[str, Any]:
+    """The header's ``action_set``: the frame the moves are named in, and the law whose pull a law frame follows."""
+    if moves.law is None:
+        return {"name": moves.name, "frame": "target" if moves.relative else "world"}
+    law = moves.law
+    fields = ("do1", "do2", "do3", "do4", "dr1", "dr2", "shared_target_weight")
+    return {"name": moves.name, "frame": "law", "law": {name: float(getattr(law, name)) for name in fields}}
 
 
 def save_policy(policy: Policy, cfg: ScenarioConfig, path: str | os.PathLike[str]) -> Path:

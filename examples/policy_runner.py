@@ -211,6 +211,44 @@ def target_frame(obs: Observation) -> Floats:
     return np.stack([x_axis, y_axis], axis=-2)
 
 
+def law_frame(obs: Observation, law: dict[str, float]) -> Floats:
+    """(E, m, 2, 2) every robot's law frame (section "The law frame"): x along the pull of the force law ``law`` on
+    the six numbers, the shared flags and a remembered target beside one in view; y a quarter turn counter-clockwise
+    from it, mirrored where the target frame is; the target frame where the law pulls nowhere."""
+    f = obs.full_state.astype(np.float64)
+
+    def profile(d: Floats) -> Floats:
+        do1, do2, do3, do4 = law["do1"], law["do2"], law["do3"], law["do4"]
+        rise = np.where(d <= do1, -1.0 + d / do1, (d - do1) / (do2 - do1))
+        fall = np.where(d <= do3, 1.0, 1.0 - (d - do3) / (do4 - do3))
+        return np.where(d <= do2, rise, np.where(d <= do4, fall, 0.0))
+
+    def repulsion(d: Floats) -> Floats:
+        dr1, dr2 = law["dr1"], law["dr2"]
+        return np.where(d <= dr1, -1.0, np.where(d <= dr2, -1.0 + (d - dr1) / (dr2 - dr1), 0.0))
+
+    def pull(offset: Floats, present: Bools, weight: Floats, size) -> Floats:
+        d = np.sqrt(offset[..., 0] * offset[..., 0] + offset[..., 1] * offset[..., 1])
+        on = present & (d > 1e-12)
+        safe = np.where(on, d, 1.0)
+        return np.where(on[..., None], (weight * size(safe) / safe)[..., None] * offset, 0.0)
+
+    w = law["shared_target_weight"]
+    force = pull(f[..., 0:2], obs.n_seen >= 1, np.where(obs.shared[..., 0] > 0, w, 1.0), profile)
+    force = force + pull(f[..., 2:4], obs.n_seen >= 2, np.where(obs.shared[..., 1] > 0, w, 1.0), profile)
+    force = force + pull(f[..., 4:6], obs.sees_robot, np.ones(obs.lost.shape), repulsion)
+    if obs.remembers is not None and obs.memory is not None:
+        force = force + pull(obs.memory.astype(np.float64), obs.remembers, np.ones(obs.lost.shape), profile)
+    target = target_frame(obs)
+    norm = np.sqrt(force[..., 0] * force[..., 0] + force[..., 1] * force[..., 1])
+    pulls = norm > 1e-12
+    x_axis = force / np.where(pulls, norm, 1.0)[..., None]
+    # The target frame's handedness: +1 where its y is its x turned counter-clockwise, -1 where it is mirrored.
+    turned = target[..., 1, 0] * -target[..., 0, 1] + target[..., 1, 1] * target[..., 0, 0]
+    y_axis = np.stack([-x_axis[..., 1], x_axis[..., 0]], axis=-1) * np.where(turned >= 0.0, 1.0, -1.0)[..., None]
+    return np.where(pulls[..., None, None], np.stack([x_axis, y_axis], axis=-2), target)
+
+
 def featurize(policy: PolicyFile, obs: Observation) -> NDArray[np.float32]:
     """(E·m, d) states by the featurizer's name (section "The state")."""
     full = obs.full_state.reshape(-1, 6)
@@ -317,7 +355,8 @@ def run(policy: PolicyFile, trials: int, steps: int, seed: int, violate: str | N
         heading = np.zeros_like(heading)
     directions = np.array([a["direction"] for a in sorted(head["actions"], key=lambda a: a["index"])])
     # Files without an action set name their moves in the world's frame (section "Header").
-    relative = head.get("action_set", {"frame": "world"})["frame"] == "target"
+    action_set = head.get("action_set", {"frame": "world"})
+    relative = action_set["frame"] in ("target", "law")
     frame = np.broadcast_to(np.eye(2), (trials, m, 2, 2))  # each robot's frame as of its last decision
     # Table row of every state: robot i of arena e is state e·m + i.
     rows = np.tile(policy.robot_table[np.arange(m) % policy.robot_table.size], trials)
@@ -347,7 +386,8 @@ def run(policy: PolicyFile, trials: int, steps: int, seed: int, violate: str | N
         else:
             raise SystemExit(f"unknown action_mode {mode!r}")
         if relative:  # the frame of a relative move is fixed when the robot decides
-            frame = np.where(decide[..., None, None], target_frame(obs), frame)
+            now = law_frame(obs, action_set["law"]) if action_set["frame"] == "law" else target_frame(obs)
+            frame = np.where(decide[..., None, None], now, frame)
         # Lost robots: the heading is reflected for every robot, every step; lost-ness is checked every step.
         if violate != "no-reflect":
             heading = reflect(heading, robots, radius)

@@ -533,6 +533,75 @@ def target_frames(
             out_frame[e, i, 1, 1] = yy
 
 
+@njit(cache=True, inline="always")
+def _state_pull(
+    x: float, y: float, weight: float, do1: float, do2: float, do3: float, do4: float
+) -> tuple[float, float]:
+    """The pull of one target pair of a state's features, as :func:`sim.controllers._pull` computes it."""
+    d = math.sqrt(x * x + y * y)
+    if d <= 1e-12:
+        return 0.0, 0.0
+    s = weight * _f_target(d, do1, do2, do3, do4) / d
+    return s * x, s * y
+
+
+@njit(cache=True)
+def law_frames(
+    features: np.ndarray,  # (E, m, 6) float32: nearest target, furthest target, nearest robot (dx, dy), masked
+    n_seen: np.ndarray,  # (E, m) int32
+    sees_robot: np.ndarray,  # (E, m) bool
+    shared: np.ndarray,  # (E, m, 2) bool
+    memory: np.ndarray,  # (E, m, 2) offset of the remembered target (zeros without a memory)
+    remembers: np.ndarray,  # (E, m) bool
+    law: np.ndarray,  # (7,) do1, do2, do3, do4, dr1, dr2, shared_target_weight
+    target: np.ndarray,  # (E, m, 2, 2) float64 from target_frames
+    out_frame: np.ndarray,  # out (E, m, 2, 2) float64: rows are the frame's x and y axes in world coordinates
+) -> None:
+    """The law frame of :class:`sim.actions.ActionSet` (``law`` set): x along the pull of
+    :class:`sim.controllers.StateForceController` (shared) on the same features, y a quarter turn counter-clockwise,
+    mirrored as the target frame is; the target frame where the law pulls nowhere."""
+    do1, do2, do3, do4, dr1, dr2, w_shared = law[0], law[1], law[2], law[3], law[4], law[5], law[6]
+    n_arenas, m, _ = features.shape
+    for e in range(n_arenas):
+        for i in range(m):
+            fx = fy = 0.0
+            if n_seen[e, i] >= 1:
+                w = w_shared if shared[e, i, 0] else 1.0
+                px, py = _state_pull(float(features[e, i, 0]), float(features[e, i, 1]), w, do1, do2, do3, do4)
+                fx += px
+                fy += py
+            if n_seen[e, i] >= 2:
+                w = w_shared if shared[e, i, 1] else 1.0
+                px, py = _state_pull(float(features[e, i, 2]), float(features[e, i, 3]), w, do1, do2, do3, do4)
+                fx += px
+                fy += py
+            if sees_robot[e, i]:
+                x = float(features[e, i, 4])
+                y = float(features[e, i, 5])
+                d = math.sqrt(x * x + y * y)
+                if d > 1e-12:
+                    s = _g_robot(d, dr1, dr2) / d
+                    fx += s * x
+                    fy += s * y
+            if remembers[e, i]:
+                px, py = _state_pull(float(memory[e, i, 0]), float(memory[e, i, 1]), 1.0, do1, do2, do3, do4)
+                fx += px
+                fy += py
+            norm = math.sqrt(fx * fx + fy * fy)
+            if norm <= 1e-12:
+                out_frame[e, i] = target[e, i]
+                continue
+            xx = fx / norm
+            xy = fy / norm
+            # +1 where the target frame's y is its x turned counter-clockwise, -1 where it is mirrored.
+            turned = target[e, i, 1, 0] * -target[e, i, 0, 1] + target[e, i, 1, 1] * target[e, i, 0, 0]
+            side = 1.0 if turned >= 0.0 else -1.0
+            out_frame[e, i, 0, 0] = xx
+            out_frame[e, i, 0, 1] = xy
+            out_frame[e, i, 1, 0] = -xy * side
+            out_frame[e, i, 1, 1] = xx * side
+
+
 @njit(cache=True)
 def frame9d(
     features: np.ndarray,  # (E, m, 6) float32: nearest target, furthest target, nearest robot (dx, dy), masked

@@ -23,8 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim import _kernels
-from sim.config import ScenarioConfig
-from sim.controllers import COMPASS, COMPASS_NAMES
+from sim.config import ForceLawConfig, ScenarioConfig
+from sim.controllers import COMPASS, COMPASS_NAMES, STATE_FORCE_LAW
 from sim.world import Observation
 
 _EIGHTHS = np.arange(8) * np.pi / 4
@@ -41,10 +41,15 @@ class ActionSet:
     directions: np.ndarray
     """(8, 2) unit vectors of the moves in their frame."""
     relative: bool
-    """Directions are in the target frame (:func:`target_frame`), fixed when the robot decides."""
+    """Directions are in a robot's own frame, fixed when the robot decides: the target frame (:func:`target_frame`),
+    or with ``law`` the law frame (:func:`law_frame`)."""
+    law: ForceLawConfig | None = None
+    """The force law whose pull is the frame's x axis (``law`` set); None: the target frame's or the world's."""
 
     def frame(self, obs: Observation) -> np.ndarray:
         """(E, m, 2, 2) every robot's frame now: rows are its x and y axes in world coordinates."""
+        if self.law is not None:
+            return law_frame(obs, self.law)
         if self.relative:
             return target_frame(obs)
         return np.broadcast_to(np.eye(2), (*obs.n_seen.shape, 2, 2))
@@ -81,17 +86,29 @@ class ActionSet:
 
 
 RELATIVE_NAMES = ("toward", "toward-left", "left", "away-left", "away", "away-right", "right", "toward-right")
+LAW_NAMES = ("law", "law-left", "left", "back-left", "back", "back-right", "right", "law-right")
 
 ACTION_SETS: dict[str, ActionSet] = {
     a.name: a
     for a in (
         ActionSet("compass", COMPASS_NAMES, COMPASS, relative=False),
         ActionSet("relative", RELATIVE_NAMES, np.stack([np.cos(_EIGHTHS), np.sin(_EIGHTHS)], axis=-1), relative=True),
+        ActionSet(
+            "law",
+            LAW_NAMES,
+            np.stack([np.cos(_EIGHTHS), np.sin(_EIGHTHS)], axis=-1),
+            relative=True,
+            law=STATE_FORCE_LAW,
+        ),
     )
 }
 """Every action set by name: ``compass``, the 8 compass moves, north = +y, clockwise [paper]; ``relative``, the 8
 moves at multiples of 45° counter-clockwise from the direction of the nearest target in view, "left" meaning the
-side of the furthest target (or of the nearest robot) [beyond the paper]."""
+side of the furthest target (or of the nearest robot) [beyond the paper]; ``law``, the 8 moves at multiples of 45°
+from the pull of the force law on the state's information (``force-6d-shared``, :data:`STATE_FORCE_LAW`, a
+remembering state's remembered target included), "law" being that pull's own direction: a table that picks it
+follows the law, one that picks another move departs from it [beyond the paper: the law's move as one of the
+learned choices, in a frame that turns with the robot's exact situation inside a cell]."""
 
 
 def target_frame(obs: Observation) -> np.ndarray:
@@ -102,4 +119,22 @@ def target_frame(obs: Observation) -> np.ndarray:
     """
     frame = np.empty((*obs.n_seen.shape, 2, 2))
     _kernels.target_frames(obs.features, obs.n_seen, obs.sees_robot, frame)
+    return frame
+
+
+def law_frame(obs: Observation, law: ForceLawConfig = STATE_FORCE_LAW) -> np.ndarray:
+    """(E, m, 2, 2) float64 the law frame of every robot: x along the pull of the force law ``law`` on the
+    observation's features (the nearest and the furthest target in view, weighted ``shared_target_weight`` where a
+    teammate sees them, the nearest robot in view, and a remembering view's remembered target), as
+    :class:`sim.controllers.StateForceController` computes it; y a quarter turn counter-clockwise from x, mirrored
+    as the target frame is (so a scene and its mirror image get mirrored moves, and one cell of the state covers
+    both). Where the law pulls nowhere (every target in view watched by a teammate, no robot near), the target
+    frame. It reads what the state reads."""
+    target = target_frame(obs)
+    shape = obs.n_seen.shape
+    memory = np.zeros((*shape, 2)) if obs.memory is None else np.asarray(obs.memory, np.float64)
+    remembers = np.zeros(shape, bool) if obs.remembers is None else obs.remembers
+    params = np.array([law.do1, law.do2, law.do3, law.do4, law.dr1, law.dr2, law.shared_target_weight])
+    frame = np.empty((*shape, 2, 2))
+    _kernels.law_frames(obs.features, obs.n_seen, obs.sees_robot, obs.shared, memory, remembers, params, target, frame)
     return frame

@@ -218,6 +218,10 @@ FORMULATIONS: dict[str, Formulation] = {
     "frame-recall": Formulation.of(
         "frame11d-recall", "difference-redundancy", "relative", act_every=1, trial_rules="guided-search"
     ),
+    "frame-law": Formulation.of("frame9d", "difference-redundancy", "law", act_every=1, trial_rules="guided-search"),
+    "frame-recall-law": Formulation.of(
+        "frame11d-recall", "difference-redundancy", "law", act_every=1, trial_rules="guided-search"
+    ),
 }
 """Every formulation by name: ``paper`` is the paper's collaborative formulation [paper §4, Eq. 2];
 ``shared-difference`` the best with the world-frame state and compass moves that the README's ablations found;
@@ -227,8 +231,10 @@ trials in which a learner that loses every target searches and goes on learning 
 paper, docs/learning-quality.md "Learning cooperation"]; ``frame-guided`` the same with exploration guided by the
 force law on the state's information (``guided-search``) [beyond the paper, the same document's "Seventh round"];
 ``frame-recall`` ``frame-guided`` on a state that remembers the targets a robot lost (:mod:`sim.recall`) [beyond
-the paper; the same document's "Ninth round"]."""
-DEFAULT_FORMULATION = "frame-guided"
+the paper; the same document's "Ninth round"]; ``frame-law`` and ``frame-recall-law`` the same two with the moves
+named from the pull of the force law on the state's information (``law`` moves), so that following the law is one
+of the learned choices [beyond the paper; the same document's "Tenth round"]."""
+DEFAULT_FORMULATION = "frame-recall-law"
 """The formulation of every process (``up``, ``learner``, ``actor``, compose's) unless another is named."""
 
 

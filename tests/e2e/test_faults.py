@@ -125,14 +125,14 @@ def test_a_poisoned_message_is_rejected_and_its_stream_flows_on(cluster: Cluster
             "incarnation": 99,
             "seq": seq,
             "policy_version": 0,
-            "featurizer": "frame9d",  # the learner's formulation: frame-cooperative, by default
+            "featurizer": "frame11d-recall",  # the learner's formulation: frame-recall-law, by default
             "reward_function": "difference-redundancy",
-            "action_set": "relative",
+            "action_set": "law",
             "robot": array("int16", np.zeros(n)),
-            "state": array("float32", np.ones((n, 9))),
+            "state": array("float32", np.ones((n, 11))),
             "action": array("uint8", np.zeros(n)),
             "reward": array("float32", reward),
-            "next_state": array("float32", np.ones((n, 9))),
+            "next_state": array("float32", np.ones((n, 11))),
             "done": array("bool", np.zeros(n, bool)),
         }
         return msgpack.packb([2, "experience", fields], use_bin_type=True)

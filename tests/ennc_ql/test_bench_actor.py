@@ -46,25 +46,37 @@ def test_bench_actor_prints_a_table_without_json(capsys: pytest.CaptureFixture[s
     assert "robot-steps/s" in text and "ratio" in text
 
 
-def _frame_policy(tmp_path: Path) -> Path:
+def _frame_policy(tmp_path: Path, featurizer: str = "frame9d", actions: str = "relative") -> Path:
     cfg = scenario()
     rng = np.random.default_rng(0)
-    disc = Discretization.from_per_action([rng.uniform(-1, 1, (size, 9)) for size in (3, 5, 2, 7, 1, 4, 6, 2)])
+    formulation = Formulation.of(featurizer, "difference-redundancy", actions)
+    disc = Discretization.from_per_action(
+        [rng.uniform(-1, 1, (size, formulation.dim)) for size in (3, 5, 2, 7, 1, 4, 6, 2)]
+    )
     tables = np.zeros((cfg.n_robots, disc.size), np.float32)
-    policy = Policy(Formulation.of("frame9d", "difference-redundancy", "relative"), disc, tables, np.arange(10))
+    policy = Policy(formulation, disc, tables, np.arange(10))
     return save_policy(policy, cfg, tmp_path / "policy.npz")
 
 
 @pytest.mark.parametrize(
-    ("flags", "rules"),
-    [((), "guided-search"), (("--formulation", "frame-cooperative"), "lost-searches")],
-    ids=["run-default", "named"],
+    ("parts", "flags", "rules"),
+    [
+        (("frame11d-recall", "law"), (), "guided-search"),
+        (("frame9d", "relative"), (), "paper"),
+        (("frame9d", "relative"), ("--formulation", "frame-cooperative"), "lost-searches"),
+    ],
+    ids=["run-default", "other-parts", "named"],
 )
 def test_bench_actor_runs_the_policy_under_the_trial_rules_an_actor_would(
-    capsys: pytest.CaptureFixture[str], tmp_path: Path, flags: tuple[str, ...], rules: str
+    capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+    parts: tuple[str, str],
+    flags: tuple[str, ...],
+    rules: str,
 ) -> None:
-    # A policy file carries no trial rules; an actor of the default formulation learns with the guide.
-    argv = ["bench", "actor", "--policy", str(_frame_policy(tmp_path)), "--arenas", "2", "--seconds", "0.01"]
+    # A policy file carries no trial rules; an actor of the default formulation learns with the guide, and a policy
+    # of other parts runs under its own formulation's (the paper's rules, unless named).
+    argv = ["bench", "actor", "--policy", str(_frame_policy(tmp_path, *parts)), "--arenas", "2", "--seconds", "0.01"]
     assert main([*argv, *flags, "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["trial_rules"] == rules
 

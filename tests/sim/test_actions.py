@@ -91,6 +91,51 @@ def test_relative_moves_are_named_from_the_nearest_target_and_the_furthests_side
     np.testing.assert_allclose(north, [0, SPEED], atol=1e-12)
 
 
+def test_law_moves_are_named_from_the_force_laws_pull_and_mirror_with_the_scene() -> None:
+    # Robot 0: robot 1 watches the nearest target too, so it pulls nothing (weight 0); the furthest (-120, 50),
+    # d = 130, pulls (130 - 10) / 140 along its direction; robot 1 at d = 60 < dr1 pushes with -1.
+    cfg, obs = _observe(ROBOTS, TARGETS)
+    moves = ACTION_SETS["law"]
+    pull = (120.0 / 140.0) * np.array([-120.0, 50.0]) / 130.0 + np.array([-1.0, 0.0])
+    x = pull / np.linalg.norm(pull)
+    frame = moves.frame(obs)
+    np.testing.assert_allclose(frame[0, 0], [x, [-x[1], x[0]]], atol=1e-9)  # y: a quarter turn counter-clockwise
+    names = list(moves.moves)
+    law = moves.velocity(cfg, np.full((1, 2), names.index("law")), frame)[0, 0]
+    np.testing.assert_allclose(law, SPEED * x, atol=1e-9)
+    # The scene in a mirror (x -> -x): the pull is mirrored, and so is the frame's y axis (the target frame's is), so
+    # every move is the mirror image of the same move in the scene.
+    cfg, obs = _observe([(0.0, 0.0), (-60.0, 0.0)], MIRRORED)
+    mirrored = moves.frame(obs)[0, 0]
+    np.testing.assert_allclose(mirrored, [[-x[0], x[1]], [x[1], x[0]]], atol=1e-9)
+    for name in names:
+        index = np.full((1, 2), names.index(name))
+        here = moves.velocity(cfg, index, frame)[0, 0]
+        np.testing.assert_allclose(moves.velocity(cfg, index, moves.frame(obs))[0, 0], [-here[0], here[1]], atol=1e-9)
+
+
+def test_the_law_move_is_the_state_force_laws_move_wherever_it_pulls_and_the_target_frame_elsewhere() -> None:
+    from sim import reset
+    from sim.controllers import HAND_MADE
+
+    cfg = scenario()
+    rng = np.random.default_rng(3)
+    world = reset(cfg, 600, rng)
+    obs = sense(cfg, world, rng)
+    law = HAND_MADE["force-6d-shared"]
+    velocity, _ = law.act(cfg, world, obs, law.init(cfg, world, rng), rng)
+    # The law with every robot's heading turned a quarter: where it pulls, the move is unchanged.
+    turned = np.stack([-velocity[..., 1], velocity[..., 0]], -1) / cfg.robot_speed
+    pulls = np.all(np.isclose(law.act(cfg, world, obs, turned, rng)[0], velocity), -1)
+    moves = ACTION_SETS["law"]
+    frame = moves.frame(obs)
+    follows = moves.velocity(cfg, np.zeros(obs.n_seen.shape, np.int64), frame)
+    seen = obs.n_seen >= 1
+    assert (seen & pulls).sum() > 800 and (seen & ~pulls).sum() > 100
+    np.testing.assert_allclose(follows[seen & pulls], velocity[seen & pulls], atol=1e-5)
+    np.testing.assert_allclose(frame[seen & ~pulls], target_frame(obs)[seen & ~pulls], atol=1e-12)
+
+
 @pytest.mark.parametrize("actions", ["compass", "relative"])
 def test_a_relative_move_is_held_in_the_frame_it_was_chosen_in(actions: str) -> None:
     # The learner at the origin sees one target at (0, 100) moving east at 5 per step. "toward" (index 0, like N)
