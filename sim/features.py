@@ -167,14 +167,12 @@ def _frame9d(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
 def _frame11d_recall(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
     out = np.empty((*obs.n_seen.shape, 11), np.float32)
     frame = target_frame(obs)
-    _kernels.frame9d(obs.features, obs.n_seen, obs.sees_robot, obs.shared, frame, out[..., :9])
+    # The kernel writes columns 0-8 of each row; the memory's direction fills 9 and 10.
+    _kernels.frame9d(obs.features, obs.n_seen, obs.sees_robot, obs.shared, frame, out)
     if obs.memory is None:
         out[..., 9:] = 0.0
         return out
-    memory = obs.memory.astype(np.float64)
-    unit = memory / np.maximum(np.linalg.norm(memory, axis=-1, keepdims=True), 1e-300)
-    out[..., 9] = (frame[..., 0, :] * unit).sum(-1)
-    out[..., 10] = (frame[..., 1, :] * unit).sum(-1)
+    _kernels.memory_direction(obs.memory, frame, out)
     return out
 
 
