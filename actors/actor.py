@@ -83,7 +83,8 @@ class RobotActor:
         self.keys = transport.keys
         self.config = config
         self.monitor = monitor or Monitor()
-        self.scenario = scenario(config.scenario)
+        steps = {} if config.learning_steps is None else {"learning_steps": config.learning_steps}
+        self.scenario = scenario(config.scenario, **steps)
         self.learning_robots = config.learning_robots()
         self.incarnation = secrets.randbits(63)
         seed = np.random.SeedSequence([config.seed, zlib.crc32(config.actor_id.encode())])

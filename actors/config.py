@@ -68,6 +68,9 @@ class ActorConfig:
     """Learning-trial rules instead of the formulation's (none: the formulation's; paper: a learner that loses every
     target ends its trial and the time-out is terminal; the others go beyond the paper, see docs/simulator.md). The
     learner never reads them."""
+    learning_steps: int | None = None
+    """Steps of each learning trial instead of the scenario's (None: the scenario's) [beyond the paper; the
+    learner's test trials keep theirs; docs/learning-quality.md, tenth round]."""
     learn: tuple[int, ...] | None = field(default=None, metadata={"parse": parse_robots})
     """Robot ids whose tables this actor learns (and whose tuples it streams), e.g. 0-4,7; None = every robot."""
     arenas: int = 256
@@ -112,6 +115,7 @@ class ActorConfig:
             draw_every=self.draw_every,
         )
         require_positive(
+            learning_steps=self.learning_steps,
             resend_after=self.resend_after,
             status_interval=self.status_interval,
             duration=self.duration,

@@ -273,3 +273,20 @@ def test_a_paced_actor_sends_no_more_than_its_rate_allows() -> None:
     # The rest comes after each trial, so the sent tuples stay within the rate plus the trial in hand.
     assert status.trials >= 2 and status.tuples_sent <= rate * elapsed + per_trial
     assert free.tuples_sent > 3 * status.tuples_sent  # unpaced, the same 1.5 s sends many times more
+
+
+def test_an_actor_runs_learning_trials_of_the_length_it_is_given() -> None:
+    from actors.actor import RobotActor
+    from actors.config import ActorConfig
+
+    config = ActorConfig(actor_id="a0", arenas=1, batch_size=4096, outbox_limit=100_000, flush_timeout=0)
+    with InMemoryTransport() as transport:
+        default = RobotActor(transport, config)
+        longer = RobotActor(transport, dataclasses.replace(config, learning_steps=250))
+    # Phase 0: random exploration, every robot of the one arena deciding once per held action to the trial's end.
+    assert default.scenario.learning_steps == 100 and longer.scenario.learning_steps == 250
+    for actor, steps in ((default, 100), (longer, 250)):
+        batch = actor.slice.run_trial()
+        assert len(batch) == actor.scenario.n_robots * steps // actor.scenario.action_steps
+    with pytest.raises(ValueError, match="learning_steps"):
+        ActorConfig(learning_steps=0)
