@@ -1,8 +1,9 @@
 """Action sets: what a discrete action index means as a move, by name.
 
 Every action set has 8 actions, each a full-speed move held for ``action_steps`` steps (or until the policy decides
-again). A set names its directions in a *frame*: the world's axes for ``compass`` [paper], or the frame of the
-nearest target in view for ``relative`` [beyond the paper], fixed when the robot decides::
+again). A set names its directions in a *frame*: the world's axes for ``compass`` [paper], the frame of the
+nearest target in view for ``relative``, or the frame of the force law's pull for ``law`` (:func:`law_frame`)
+[beyond the paper], fixed when the robot decides::
 
     actions = ACTION_SETS["relative"]
     frame = actions.frame(obs)                        # (E, m, 2, 2) rows: the frame's x and y axes, world units
