@@ -565,17 +565,11 @@ def law_frames(
     for e in range(n_arenas):
         for i in range(m):
             fx = fy = 0.0
-            if n_seen[e, i] >= 1:
-                w = w_shared if shared[e, i, 0] else 1.0
+            # The nearest target (k = 0), then the furthest (k = 1), each present with k + 1 targets in view.
+            for k in range(min(n_seen[e, i], 2)):
+                w = w_shared if shared[e, i, k] else 1.0
                 px, py = _state_pull(
-                    np.float64(features[e, i, 0]), np.float64(features[e, i, 1]), w, do1, do2, do3, do4
-                )
-                fx += px
-                fy += py
-            if n_seen[e, i] >= 2:
-                w = w_shared if shared[e, i, 1] else 1.0
-                px, py = _state_pull(
-                    np.float64(features[e, i, 2]), np.float64(features[e, i, 3]), w, do1, do2, do3, do4
+                    np.float64(features[e, i, 2 * k]), np.float64(features[e, i, 2 * k + 1]), w, do1, do2, do3, do4
                 )
                 fx += px
                 fy += py
