@@ -61,6 +61,9 @@ class Phase1Config:
     sample), each with the majority class of its region, so that the discretization starts as fine as P cells spread
     with the states and ENNC refines it where the classes mix [beyond the paper: the class boundaries alone leave
     the rest of the space in a few large cells]."""
+    cells: Literal["per-action", "union"] = "per-action"
+    """``per-action``: each action's cells are its own ENNC's prototypes [paper]. ``union``: every action's cells
+    are the prototypes of every action's ENNC, each labelled with that action's Q̂ at it [beyond the paper]."""
     device: str = "cpu"
     """torch device of the ENNC operators."""
     standardize: bool = True
@@ -80,6 +83,8 @@ class Phase1Config:
             raise ValueError("max_patterns must be positive or None")
         if self.targets not in ("reward", "lost"):
             raise ValueError(f"targets must be 'reward' or 'lost', got {self.targets!r}")
+        if self.cells not in ("per-action", "union"):
+            raise ValueError(f"cells must be 'per-action' or 'union', got {self.cells!r}")
         if self.seed_prototypes < 0:
             raise ValueError("seed_prototypes must be non-negative")
 
@@ -270,4 +275,19 @@ def phase1(
         if frac == 0.0:
             converged = True
             break
+    if config.cells == "union":
+        disc = united(disc)
     return Phase1Result(discretization=disc, iterations=len(changed), converged=converged, changed=changed)
+
+
+def united(disc: Discretization) -> Discretization:
+    """Every action's cells made the union of all actions' prototypes, each labelled with the action's own Q̂ there
+    (the label of the action's nearest prototype, so an action keeps its labels at its own prototypes).
+
+    A prototype that several actions share (a warm start without seeds starts every action from the same union, and
+    a prototype no pattern moves stays where it was) is kept once, where it first occurs."""
+    _, first = np.unique(disc.prototypes, axis=0, return_index=True)
+    union = disc.prototypes[np.sort(first)]
+    cells = disc.cells(union)
+    labels = [disc.labels[cells[:, a]] for a in range(disc.n_actions)]
+    return Discretization.from_per_action([union] * disc.n_actions, labels, scale=disc.scale)

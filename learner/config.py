@@ -14,11 +14,12 @@ from algorithm.phase1 import CMOMMT_PHASE1, Phase1Config
 from sim import SCENARIOS
 from sim.formulation import DEFAULT_FORMULATION, Formulation, resolve_formulation
 
-LEARNER_PHASE1 = dataclasses.replace(CMOMMT_PHASE1, max_iterations=2, n_cycles=60, seed_prototypes=512)
+LEARNER_PHASE1 = dataclasses.replace(CMOMMT_PHASE1, max_iterations=2, n_cycles=60, seed_prototypes=512, cells="union")
 """The learner's phase 1 [beyond the paper, README "Learning quality"]: ENNC starts from 512 of each action's
 training states and runs 60 cycles (one prototype and 250 cycles [paper] leave a per-decision reward's noisy classes
-in a few cells, and 250 cycles from 512 states grow thousands of prototypes the actors must search), and two fitted
-iterations (a second one measured +1 to +3 points). ``ennc-ql reproduce`` keeps the paper's."""
+in a few cells, and 250 cycles from 512 states grow thousands of prototypes the actors must search), two fitted
+iterations (a second one measured +1 to +3 points), and every action's cells are the union of all actions'
+prototypes (docs/learning-quality.md, "Eleventh round"). ``ennc-ql reproduce`` keeps the paper's."""
 
 
 @dataclass(frozen=True, slots=True)

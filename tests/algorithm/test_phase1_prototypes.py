@@ -122,3 +122,35 @@ def test_a_warm_started_ennc_gives_the_same_prototypes_for_any_labels_in_the_sam
     np.testing.assert_array_equal(by_index.prototypes_, by_other.prototypes_)
     np.testing.assert_array_equal(7 * by_index.labels_ - 40, by_other.labels_)
     assert len(classes) > 8
+
+
+def test_union_cells_give_every_action_every_prototype_labelled_with_its_own_q_there(
+    results: tuple[Phase1Result, Phase1Result],
+) -> None:
+    own = results[0].discretization
+    config = Phase1Config(n_cycles=25, max_iterations=3, max_classes=8, max_patterns=150, cells="union")
+    union = phase1(transitions(600, 0), N_ACTIONS, config, seed=11).discretization
+    # The same fits as the per-action run, then every action's cells made the union of all of them.
+    assert union.is_shared()
+    assert union.sizes().tolist() == [own.size] * N_ACTIONS
+    assert union.scale is not None and own.scale is not None
+    np.testing.assert_array_equal(union.scale, own.scale)
+    for a in range(N_ACTIONS):
+        np.testing.assert_array_equal(union.action_prototypes(a), own.prototypes)
+        labels = union.labels[union.offsets[a] : union.offsets[a + 1]]
+        # At its own prototypes an action keeps its labels; elsewhere it reads its nearest own prototype's label,
+        # nearest in the scaled metric (brute force here).
+        mine = own.action_prototypes(a) / own.scale
+        distance = (((own.prototypes / own.scale)[:, None, :] - mine[None, :, :]) ** 2).sum(axis=-1)
+        expected = own.labels[own.offsets[a] + distance.argmin(axis=1)]
+        np.testing.assert_array_equal(labels, expected)
+        block = slice(own.offsets[a], own.offsets[a + 1])
+        np.testing.assert_array_equal(labels[block], own.labels[block])
+    # One search gives each state one cell index per action, offset by the action's block.
+    cells = union.cells(transitions(50, 3).state)
+    np.testing.assert_array_equal(cells - union.offsets[:-1], np.repeat(cells[:, :1], N_ACTIONS, axis=1))
+
+
+def test_phase1_refuses_unknown_cells() -> None:
+    with pytest.raises(ValueError, match="cells must be"):
+        Phase1Config(cells="shared")  # type: ignore[arg-type]
