@@ -188,7 +188,7 @@ class NetworkController:
             states = self.formulation.featurizer.compute(cfg, view)
             chosen = self.q.greedy(states.reshape(-1, states.shape[-1])).reshape(states.shape[:2])
             moves = self.formulation.actions
-            velocity = moves.velocity(cfg, chosen, moves.frame(view))
+            velocity = moves.velocity(cfg, chosen, moves.frame(view, heading))
         heading = wander(cfg, world, heading)
         move = np.where(lost(view)[..., None], cfg.robot_speed * heading, velocity)
         return move, (heading, velocity, recall)

@@ -170,7 +170,7 @@ class PolicyController:
             start_cell = cells[np.arange(n_arenas * m), action.reshape(-1)].reshape(n_arenas, m)
             cell = np.where(decide, start_cell, cell_now)
             if moves.relative:
-                frame = np.where(decide[..., None, None], moves.frame(view), frame)
+                frame = np.where(decide[..., None, None], moves.frame(view, memory.heading), frame)
         held = np.where(decide, 1, held + 1)
         velocity = moves.velocity(cfg, action, frame)
         heading = wander(cfg, world, memory.heading)

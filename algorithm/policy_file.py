@@ -92,7 +92,9 @@ def _action_set(moves: ActionSet) -> dict[str, Any]:
         return {"name": moves.name, "frame": "target" if moves.relative else "world"}
     law = moves.law
     fields = ("do1", "do2", "do3", "do4", "dr1", "dr2", "shared_target_weight")
-    return {"name": moves.name, "frame": "law", "law": {name: float(getattr(law, name)) for name in fields}}
+    frame = {"name": moves.name, "frame": "law", "law": {name: float(getattr(law, name)) for name in fields}}
+    # Where the law pulls nowhere: the target frame (``law``), or the robot's search heading (``law-search``).
+    return {**frame, "no_pull": "search-heading" if moves.search else "target"}
 
 
 def save_policy(policy: Policy, cfg: ScenarioConfig, path: str | os.PathLike[str]) -> Path:

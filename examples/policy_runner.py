@@ -211,10 +211,11 @@ def target_frame(obs: Observation) -> Floats:
     return np.stack([x_axis, y_axis], axis=-2)
 
 
-def law_frame(obs: Observation, law: dict[str, float]) -> Floats:
+def law_frame(obs: Observation, law: dict[str, float], heading: Floats | None = None) -> Floats:
     """(E, m, 2, 2) every robot's law frame (section "The law frame"): x along the pull of the force law ``law`` on
     the six numbers, the shared flags and a remembered target beside one in view; y a quarter turn counter-clockwise
-    from it, mirrored where the target frame is; the target frame where the law pulls nowhere."""
+    from it, mirrored where the target frame is; where the law pulls nowhere, the target frame, or given the search
+    ``heading`` (E, m, 2), x along it and y as above (``no_pull`` = ``search-heading``)."""
     f = obs.full_state.astype(np.float64)
 
     def profile(d: Floats) -> Floats:
@@ -245,6 +246,9 @@ def law_frame(obs: Observation, law: dict[str, float]) -> Floats:
     x_axis = force / np.where(pulls, norm, 1.0)[..., None]
     # The target frame's handedness: +1 where its y is its x turned counter-clockwise, -1 where it is mirrored.
     turned = target[..., 1, 0] * -target[..., 0, 1] + target[..., 1, 1] * target[..., 0, 0]
+    if heading is not None:
+        x_axis = np.where(pulls[..., None], x_axis, heading)
+        pulls = np.ones_like(pulls)
     y_axis = np.stack([-x_axis[..., 1], x_axis[..., 0]], axis=-1) * np.where(turned >= 0.0, 1.0, -1.0)[..., None]
     return np.where(pulls[..., None, None], np.stack([x_axis, y_axis], axis=-2), target)
 
@@ -386,7 +390,12 @@ def run(policy: PolicyFile, trials: int, steps: int, seed: int, violate: str | N
         else:
             raise SystemExit(f"unknown action_mode {mode!r}")
         if relative:  # the frame of a relative move is fixed when the robot decides
-            now = law_frame(obs, action_set["law"]) if action_set["frame"] == "law" else target_frame(obs)
+            search = action_set.get("no_pull") == "search-heading"
+            now = (
+                law_frame(obs, action_set["law"], heading if search else None)
+                if action_set["frame"] == "law"
+                else target_frame(obs)
+            )
             frame = np.where(decide[..., None, None], now, frame)
         # Lost robots: the heading is reflected for every robot, every step; lost-ness is checked every step.
         if violate != "no-reflect":

@@ -555,11 +555,14 @@ def law_frames(
     remembers: np.ndarray,  # (E, m) bool
     law: np.ndarray,  # (7,) do1, do2, do3, do4, dr1, dr2, shared_target_weight
     target: np.ndarray,  # (E, m, 2, 2) float64 from target_frames
+    heading: np.ndarray,  # (E, m, 2) float64 unit search headings, read where the law pulls nowhere and ``search``
+    search: bool,
     out_frame: np.ndarray,  # out (E, m, 2, 2) float64: rows are the frame's x and y axes in world coordinates
 ) -> None:
-    """The law frame of :class:`sim.actions.ActionSet` (``law`` set): x along the pull of
+    """The law frame of :class:`sim.actions.ActionSet` (``law`` and ``law-search`` sets): x along the pull of
     :class:`sim.controllers.StateForceController` (shared) on the same features, y a quarter turn counter-clockwise,
-    mirrored as the target frame is; the target frame where the law pulls nowhere."""
+    mirrored as the target frame is. Where the law pulls nowhere: the target frame, or with ``search`` x along the
+    robot's search heading (y turned and mirrored as above)."""
     do1, do2, do3, do4, dr1, dr2, w_shared = law[0], law[1], law[2], law[3], law[4], law[5], law[6]
     n_arenas, m, _ = features.shape
     for e in range(n_arenas):
@@ -586,11 +589,15 @@ def law_frames(
                 fx += px
                 fy += py
             norm = math.sqrt(fx * fx + fy * fy)
-            if norm <= 1e-12:
+            if norm > 1e-12:
+                xx = fx / norm
+                xy = fy / norm
+            elif search:
+                xx = heading[e, i, 0]
+                xy = heading[e, i, 1]
+            else:
                 out_frame[e, i] = target[e, i]
                 continue
-            xx = fx / norm
-            xy = fy / norm
             # +1 where the target frame's y is its x turned counter-clockwise, -1 where it is mirrored.
             turned = target[e, i, 1, 0] * -target[e, i, 0, 1] + target[e, i, 1, 1] * target[e, i, 0, 0]
             side = 1.0 if turned >= 0.0 else -1.0

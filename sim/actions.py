@@ -29,6 +29,8 @@ from sim.controllers import COMPASS, COMPASS_NAMES, STATE_FORCE_LAW
 from sim.world import Observation
 
 _EIGHTHS = np.arange(8) * np.pi / 4
+_NO_HEADING = np.zeros((1, 1, 2))
+"""What the law frame's kernel is given for the headings when it does not read them."""
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -45,12 +47,19 @@ class ActionSet:
     """Directions are in a robot's own frame, fixed when the robot decides: the target frame (:func:`target_frame`),
     or with ``law`` the law frame (:func:`law_frame`)."""
     law: ForceLawConfig | None = None
-    """The force law whose pull is the frame's x axis (``law`` set); None: the target frame's or the world's."""
+    """The force law whose pull is the frame's x axis (``law`` and ``law-search`` sets); None: the target frame's or
+    the world's."""
+    search: bool = False
+    """Where the law pulls nowhere, x along the robot's search heading instead of the target frame's
+    (``law-search``)."""
 
-    def frame(self, obs: Observation) -> np.ndarray:
-        """(E, m, 2, 2) every robot's frame now: rows are its x and y axes in world coordinates."""
+    def frame(self, obs: Observation, heading: np.ndarray | None = None) -> np.ndarray:
+        """(E, m, 2, 2) every robot's frame now: rows are its x and y axes in world coordinates. ``heading`` (E, m, 2)
+        unit vectors: every robot's search heading, which a ``search`` set's frame needs (ValueError without)."""
         if self.law is not None:
-            return law_frame(obs, self.law)
+            if self.search and heading is None:
+                raise ValueError(f"the {self.name!r} moves are named from the search heading: pass every robot's")
+            return law_frame(obs, self.law, heading if self.search else None)
         if self.relative:
             return target_frame(obs)
         return np.broadcast_to(np.eye(2), (*obs.n_seen.shape, 2, 2))
@@ -101,6 +110,14 @@ ACTION_SETS: dict[str, ActionSet] = {
             relative=True,
             law=STATE_FORCE_LAW,
         ),
+        ActionSet(
+            "law-search",
+            LAW_NAMES,
+            np.stack([np.cos(_EIGHTHS), np.sin(_EIGHTHS)], axis=-1),
+            relative=True,
+            law=STATE_FORCE_LAW,
+            search=True,
+        ),
     )
 }
 """Every action set by name: ``compass``, the 8 compass moves, north = +y, clockwise [paper]; ``relative``, the 8
@@ -109,7 +126,10 @@ side of the furthest target (or of the nearest robot) [beyond the paper]; ``law`
 from the pull of the force law on the state's information (``force-6d-shared``, :data:`STATE_FORCE_LAW`, a
 remembering state's remembered target included), "law" being that pull's own direction: a table that picks it
 follows the law, one that picks another move departs from it [beyond the paper: the law's move as one of the
-learned choices, in a frame that turns with the robot's exact situation inside a cell]."""
+learned choices, in a frame that turns with the robot's exact situation inside a cell]; ``law-search``, the same
+moves, but where the law pulls nowhere (every target in view watched by a teammate) named from the robot's search
+heading, the way a lost robot searches, so that ``law`` there is the law's own move: leave and search along that
+heading [beyond the paper]."""
 
 
 def target_frame(obs: Observation) -> np.ndarray:
@@ -123,19 +143,26 @@ def target_frame(obs: Observation) -> np.ndarray:
     return frame
 
 
-def law_frame(obs: Observation, law: ForceLawConfig = STATE_FORCE_LAW) -> np.ndarray:
+def law_frame(
+    obs: Observation, law: ForceLawConfig = STATE_FORCE_LAW, heading: np.ndarray | None = None
+) -> np.ndarray:
     """(E, m, 2, 2) float64 the law frame of every robot: x along the pull of the force law ``law`` on the
     observation's features (the nearest and the furthest target in view, weighted ``shared_target_weight`` where a
     teammate sees them, the nearest robot in view, and a remembering view's remembered target), as
     :class:`sim.controllers.StateForceController` computes it; y a quarter turn counter-clockwise from x, mirrored
     as the target frame is (so a scene and its mirror image get mirrored moves, and one cell of the state covers
     both). Where the law pulls nowhere (every target in view watched by a teammate, no robot near), the target
-    frame. It reads what the state reads."""
+    frame, or given ``heading`` (E, m, 2) x along each robot's search heading (y turned and mirrored as above). It
+    reads what the state reads, and the robot's own heading."""
     target = target_frame(obs)
     shape = obs.n_seen.shape
     memory = np.zeros((*shape, 2)) if obs.memory is None else np.asarray(obs.memory, np.float64)
     remembers = np.zeros(shape, bool) if obs.remembers is None else obs.remembers
     params = np.array([law.do1, law.do2, law.do3, law.do4, law.dr1, law.dr2, law.shared_target_weight])
+    search = heading is not None
+    headings = np.asarray(heading, np.float64) if search else _NO_HEADING
     frame = np.empty((*shape, 2, 2))
-    _kernels.law_frames(obs.features, obs.n_seen, obs.sees_robot, obs.shared, memory, remembers, params, target, frame)
+    _kernels.law_frames(
+        obs.features, obs.n_seen, obs.sees_robot, obs.shared, memory, remembers, params, target, headings, search, frame
+    )
     return frame

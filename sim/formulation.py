@@ -222,6 +222,9 @@ FORMULATIONS: dict[str, Formulation] = {
     "frame-recall-law": Formulation.of(
         "frame11d-recall", "difference-redundancy", "law", act_every=1, trial_rules="guided-search"
     ),
+    "frame-recall-search": Formulation.of(
+        "frame11d-recall", "difference-redundancy", "law-search", act_every=1, trial_rules="guided-search"
+    ),
 }
 """Every formulation by name: ``paper`` is the paper's collaborative formulation [paper §4, Eq. 2];
 ``shared-difference`` the best with the world-frame state and compass moves that the README's ablations found;
@@ -233,7 +236,10 @@ force law on the state's information (``guided-search``) [beyond the paper, the 
 ``frame-recall`` ``frame-guided`` on a state that remembers the targets a robot lost (:mod:`sim.recall`) [beyond
 the paper; the same document's "Ninth round"]; ``frame-law`` and ``frame-recall-law`` the same two with the moves
 named from the pull of the force law on the state's information (``law`` moves), so that following the law is one
-of the learned choices [beyond the paper; the same document's "Tenth round"]."""
+of the learned choices [beyond the paper; the same document's "Tenth round"]; ``frame-recall-search``
+``frame-recall-law`` with ``law-search`` moves: where the law pulls nowhere they are named from the robot's search
+heading, so that leaving a crowd to search along it is the move ``law`` [beyond the paper; the same document's
+"Twelfth round"]."""
 DEFAULT_FORMULATION = "frame-recall-law"
 """The formulation of every process (``up``, ``learner``, ``actor``, compose's) unless another is named."""
 

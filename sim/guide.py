@@ -70,7 +70,7 @@ class Guide:
             world, view, heading = _only(world, view, heading, rows)
         velocity, _ = GUIDES[self.law].act(cfg, world, view, heading, _NO_RNG)
         moves = state.formulation.actions
-        chosen = moves.closest(velocity, moves.frame(view))
+        chosen = moves.closest(velocity, moves.frame(view, heading))
         return chosen if rows is None else chosen[0]
 
 

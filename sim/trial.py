@@ -172,6 +172,7 @@ def reset_trial(
     view, memory = view_of(cfg, world, obs, memory)
     features = formulation.featurizer.compute(cfg, view)
     angle = rng.uniform(0.0, 2.0 * np.pi, learner.shape)
+    heading = np.stack([np.cos(angle), np.sin(angle)], axis=-1)
     return TrialState(
         world=world,
         obs=obs,
@@ -182,10 +183,10 @@ def reset_trial(
         action=np.zeros(learner.shape, np.int64),
         held=np.zeros(learner.shape, np.int64),
         start_features=features,
-        frame=np.array(formulation.actions.frame(view), dtype=np.float64),
+        frame=np.array(formulation.actions.frame(view, heading), dtype=np.float64),
         learner=learner,
         active=learner.copy(),
-        heading=np.stack([np.cos(angle), np.sin(angle)], axis=-1),
+        heading=heading,
         earned=np.zeros(learner.shape, np.float32),
     )
 
@@ -247,7 +248,7 @@ def step_trial(
         start = np.where(decide[..., None], state.features, start)
         held = np.where(decide, 0, held)
         if moves.relative:
-            frame = np.where(decide[..., None, None], moves.frame(state.view), frame)
+            frame = np.where(decide[..., None, None], moves.frame(state.view, state.heading), frame)
     # Only robots that do not learn search (and learners, where losing every target does not end their trial); with
     # none in the batch the headings are never read.
     seeker = ~state.learner | (not rules.lost_ends_trial)

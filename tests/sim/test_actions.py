@@ -136,6 +136,44 @@ def test_the_law_move_is_the_state_force_laws_move_wherever_it_pulls_and_the_tar
     np.testing.assert_allclose(frame[seen & ~pulls], target_frame(obs)[seen & ~pulls], atol=1e-12)
 
 
+def test_law_search_moves_follow_the_law_where_it_pulls_and_the_search_heading_where_it_does_not() -> None:
+    from sim import reset
+    from sim.controllers import HAND_MADE
+
+    cfg = scenario()
+    rng = np.random.default_rng(3)
+    world = reset(cfg, 600, rng)
+    obs = sense(cfg, world, rng)
+    angle = rng.uniform(0.0, 2.0 * np.pi, obs.n_seen.shape)
+    heading = np.stack([np.cos(angle), np.sin(angle)], -1)
+    search = ACTION_SETS["law-search"]
+    with pytest.raises(ValueError, match="search heading"):
+        search.frame(obs)
+    frame = search.frame(obs, heading)
+    law = ACTION_SETS["law"].frame(obs)
+    target = target_frame(obs)
+    # Where the force law pulls, its move does not depend on the heading it is given: the two sets name the same
+    # moves there.
+    force = HAND_MADE["force-6d-shared"]
+    pulls = np.all(
+        np.isclose(force.act(cfg, world, obs, heading, rng)[0], force.act(cfg, world, obs, -heading, rng)[0]), -1
+    )
+    watched = (obs.n_seen >= 1) & ~pulls
+    assert pulls.sum() > 500 and watched.sum() > 50
+    np.testing.assert_array_equal(frame[pulls], law[pulls])
+    # Elsewhere x is the heading, y its quarter turn, mirrored as the target frame is: the move "law" is the search.
+    x = heading[~pulls]
+    turned = np.stack([-x[:, 1], x[:, 0]], -1)
+    mirrored = np.sign(
+        np.einsum("nk,nk->n", target[~pulls][:, 1], np.stack([-target[~pulls][:, 0, 1], target[~pulls][:, 0, 0]], -1))
+    )
+    assert (mirrored < 0).any() and (mirrored > 0).any()
+    np.testing.assert_allclose(frame[~pulls][:, 0], x, atol=1e-12)
+    np.testing.assert_allclose(frame[~pulls][:, 1], turned * mirrored[:, None], atol=1e-12)
+    follows = search.velocity(cfg, np.zeros(obs.n_seen.shape, np.int64), frame)
+    np.testing.assert_allclose(follows[~pulls], SPEED * x, atol=1e-9)
+
+
 @pytest.mark.parametrize("actions", ["compass", "relative"])
 def test_a_relative_move_is_held_in_the_frame_it_was_chosen_in(actions: str) -> None:
     # The learner at the origin sees one target at (0, 100) moving east at 5 per step. "toward" (index 0, like N)
