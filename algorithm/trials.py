@@ -87,7 +87,8 @@ class ExperienceSlice:
         parts: list[Transitions] = []
         while True:
             action, cell_sa = self._decide(agent, state, decide, cell_sa, update, cells)
-            state, out = step_trial(cfg, state, action, decide, rng, hold=hold)
+            # The slice keeps only the newest state, so its tracks need no copy per step.
+            state, out = step_trial(cfg, state, action, decide, rng, hold=hold, in_place=True)
             if on_step is not None:
                 on_step(state.world, state.obs)
             if agent is not None and cells is not None:

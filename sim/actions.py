@@ -143,9 +143,7 @@ def target_frame(obs: Observation) -> np.ndarray:
     return frame
 
 
-def law_frame(
-    obs: Observation, law: ForceLawConfig = STATE_FORCE_LAW, heading: np.ndarray | None = None
-) -> np.ndarray:
+def law_frame(obs: Observation, law: ForceLawConfig = STATE_FORCE_LAW, heading: np.ndarray | None = None) -> np.ndarray:
     """(E, m, 2, 2) float64 the law frame of every robot: x along the pull of the force law ``law`` on the
     observation's features (the nearest and the furthest target in view, weighted ``shared_target_weight`` where a
     teammate sees them, the nearest robot in view, and a remembering view's remembered target), as

@@ -32,8 +32,9 @@ Call sequence::
             break
         decide = out.decide
 
-Nothing here modifies its inputs; all randomness comes from the ``rng`` passed in, in a fixed order, so the
-experience slice and the Gymnasium / PettingZoo adapters reproduce each other's trajectories from one seed.
+Nothing here modifies its inputs (unless told to update a state's tracks in place); all randomness comes from the
+``rng`` passed in, in a fixed order, so the experience slice and the Gymnasium / PettingZoo adapters reproduce each
+other's trajectories from one seed.
 """
 
 from __future__ import annotations
@@ -225,6 +226,7 @@ def step_trial(
     *,
     velocity: np.ndarray | None = None,
     hold: int | None = None,
+    in_place: bool = False,
 ) -> tuple[TrialState, TrialStep]:
     """Advance every arena one step under the trial rules.
 
@@ -232,6 +234,9 @@ def step_trial(
     now (every robot on the first step, then ``out.decide`` of the previous step). ``velocity`` (E, m, 2), if
     given, moves the robots that do not learn instead of their actions and search, e.g. a hand-made controller's.
     ``hold`` is the length after which an action ends (default ``cfg.action_steps``; VQQL passes its cap).
+    ``in_place``: a remembering state's tracks are updated in place (:func:`sim.recall.recall`), so ``state`` must not
+    be stepped again (a caller that keeps only the newest state, as the experience slice does); otherwise nothing
+    passed in is modified.
     """
     if state.world.t >= cfg.learning_steps:
         raise ValueError(f"the trial is over: it lasts {cfg.learning_steps} steps")
@@ -262,7 +267,7 @@ def step_trial(
     _kernels.override_moves(move, searching, heading, cfg.robot_speed, state.learner & ~state.active)
     world = step(cfg, state.world, move, rng)
     obs = sense(cfg, world, rng)
-    view, memory = view_of(cfg, world, obs, state.recall)
+    view, memory = view_of(cfg, world, obs, state.recall, in_place=in_place)
     features = formulation.featurizer.compute(cfg, view)
     held = held + 1
     trial_over = world.t >= cfg.learning_steps

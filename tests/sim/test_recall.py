@@ -177,3 +177,31 @@ def test_the_learned_policy_acts_on_a_remembered_target_in_test_trials() -> None
     cfg_short = cfg.replace(recall_steps=1)
     velocity, memory = controller.act(cfg_short, far, sense(cfg_short, far), memory, rng)
     np.testing.assert_allclose(velocity[0, 0], cfg.robot_speed * memory.heading[0, 0], atol=1e-9)
+
+
+def test_tracks_updated_in_place_are_the_tracks_a_pure_call_returns_and_a_pure_call_keeps_its_input() -> None:
+    from sim import reset, step
+
+    cfg = scenario()
+    rng = np.random.default_rng(4)
+    here = reset(cfg, 50, rng)
+    pure, kept = forget_all(cfg, (50, cfg.n_robots)), forget_all(cfg, (50, cfg.n_robots))
+    for _ in range(150):
+        obs = sense(cfg, here, rng)
+        before = (pure.position.copy(), pure.velocity.copy(), pure.age.copy())
+        view, after = recall(cfg, here, obs, pure)
+        # The pure call leaves its input as it was.
+        for was, now in zip(before, (pure.position, pure.velocity, pure.age), strict=True):
+            np.testing.assert_array_equal(was, now)
+        same, updated = recall(cfg, here, obs, kept, in_place=True)
+        assert updated is kept
+        for a, b in zip(
+            (after.position, after.velocity, after.age), (kept.position, kept.velocity, kept.age), strict=True
+        ):
+            np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(view.features, same.features)
+        np.testing.assert_array_equal(view.memory, same.memory)
+        pure = after
+        here = step(cfg, here, cfg.robot_speed * rng.normal(size=here.robot_pos.shape) / 2, rng)
+    # Over 150 steps some robots lost targets and remember them: the comparison covered the tracks that matter.
+    assert (pure.age[(pure.age > 0) & (pure.age < NEVER)]).size > 100 and view.remembers.any()
