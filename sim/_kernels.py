@@ -364,6 +364,34 @@ def _sightings(
                 watchers[j] += 1
 
 
+@njit(cache=True, inline="always")
+def _sight(
+    target_pos: np.ndarray,
+    track_pos: np.ndarray,
+    track_vel: np.ndarray,
+    age: int,
+    e: int,
+    i: int,
+    j: int,
+    out_pos: np.ndarray,
+    out_vel: np.ndarray,
+) -> None:
+    """Robot i's track of target j after sighting it: the position now and the mean displacement since its last
+    sighting ``age`` + 1 steps ago (0 on a first). Inlined where it is called (numba IR), so a call per pair costs
+    nothing; the ages are the caller's to write."""
+    px = target_pos[e, j, 0]
+    py = target_pos[e, j, 1]
+    if age < NEVER_SEEN:
+        gap = float(age + 1)
+        out_vel[e, i, j, 0] = (px - track_pos[e, i, j, 0]) / gap
+        out_vel[e, i, j, 1] = (py - track_pos[e, i, j, 1]) / gap
+    else:
+        out_vel[e, i, j, 0] = 0.0
+        out_vel[e, i, j, 1] = 0.0
+    out_pos[e, i, j, 0] = px
+    out_pos[e, i, j, 1] = py
+
+
 @njit(cache=True)
 def _track(
     target_pos: np.ndarray,
@@ -385,17 +413,7 @@ def _track(
         for j in range(n):
             age = track_age[e, i, j]
             if in_view[i, j]:
-                px = target_pos[e, j, 0]
-                py = target_pos[e, j, 1]
-                if age < NEVER_SEEN:
-                    gap = float(age + 1)
-                    out_vel[e, i, j, 0] = (px - track_pos[e, i, j, 0]) / gap
-                    out_vel[e, i, j, 1] = (py - track_pos[e, i, j, 1]) / gap
-                else:
-                    out_vel[e, i, j, 0] = 0.0
-                    out_vel[e, i, j, 1] = 0.0
-                out_pos[e, i, j, 0] = px
-                out_pos[e, i, j, 1] = py
+                _sight(target_pos, track_pos, track_vel, age, e, i, j, out_pos, out_vel)
                 out_age[e, i, j] = 0
                 continue
             out_pos[e, i, j, 0] = track_pos[e, i, j, 0]
@@ -752,17 +770,7 @@ def update_tracks(
             for j in range(n):
                 age = track_age[e, i, j]
                 if in_view[i, j]:
-                    px = target_pos[e, j, 0]
-                    py = target_pos[e, j, 1]
-                    if age < NEVER_SEEN:
-                        gap = float(age + 1)
-                        track_vel[e, i, j, 0] = (px - track_pos[e, i, j, 0]) / gap
-                        track_vel[e, i, j, 1] = (py - track_pos[e, i, j, 1]) / gap
-                    else:
-                        track_vel[e, i, j, 0] = 0.0
-                        track_vel[e, i, j, 1] = 0.0
-                    track_pos[e, i, j, 0] = px
-                    track_pos[e, i, j, 1] = py
+                    _sight(target_pos, track_pos, track_vel, age, e, i, j, track_pos, track_vel)
                     track_age[e, i, j] = 0
                     continue
                 if age >= NEVER_SEEN:
