@@ -29,6 +29,8 @@ from sim.controllers import COMPASS, COMPASS_NAMES, STATE_FORCE_LAW
 from sim.world import Observation
 
 _EIGHTHS = np.arange(8) * np.pi / 4
+_TURNED = np.stack([np.cos(_EIGHTHS), np.sin(_EIGHTHS)], axis=-1)
+"""(8, 2) unit vectors at multiples of 45° counter-clockwise: the directions of every relative set's moves."""
 _NO_HEADING = np.zeros((1, 1, 2))
 """What the law frame's kernel is given for the headings when it does not read them."""
 
@@ -102,22 +104,9 @@ ACTION_SETS: dict[str, ActionSet] = {
     a.name: a
     for a in (
         ActionSet("compass", COMPASS_NAMES, COMPASS, relative=False),
-        ActionSet("relative", RELATIVE_NAMES, np.stack([np.cos(_EIGHTHS), np.sin(_EIGHTHS)], axis=-1), relative=True),
-        ActionSet(
-            "law",
-            LAW_NAMES,
-            np.stack([np.cos(_EIGHTHS), np.sin(_EIGHTHS)], axis=-1),
-            relative=True,
-            law=STATE_FORCE_LAW,
-        ),
-        ActionSet(
-            "law-search",
-            LAW_NAMES,
-            np.stack([np.cos(_EIGHTHS), np.sin(_EIGHTHS)], axis=-1),
-            relative=True,
-            law=STATE_FORCE_LAW,
-            search=True,
-        ),
+        ActionSet("relative", RELATIVE_NAMES, _TURNED, relative=True),
+        ActionSet("law", LAW_NAMES, _TURNED, relative=True, law=STATE_FORCE_LAW),
+        ActionSet("law-search", LAW_NAMES, _TURNED, relative=True, law=STATE_FORCE_LAW, search=True),
     )
 }
 """Every action set by name: ``compass``, the 8 compass moves, north = +y, clockwise [paper]; ``relative``, the 8
