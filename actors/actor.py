@@ -32,7 +32,7 @@ from actors.increments import IncrementTracker
 from actors.outbox import Outbox
 from actors.policy_client import PolicyClient
 from algorithm.agent import TabularAgent
-from algorithm.transitions import Transitions
+from algorithm.transitions import Batcher, Transitions
 from algorithm.trials import ExperienceSlice, SliceConfig
 from algorithm.wire import experience_batches, increment_message, status_counters
 from monitor import Monitor
@@ -157,11 +157,10 @@ class RobotActor:
         while not self._stopping():
             self._adopt_policy()
             watch = self._watch_trial(start) if self.monitor.enabled else None
-            batch = self.slice.run_trial(self.agent, update=self.agent is not None, on_step=watch)
+            finals = self._run_trial(watch)
             self._trials += 1
             if watch is not None:
-                watch.report(batch.reward[batch.done], self._tuples + len(batch), self.policy.version)
-            self._send_experience(batch)
+                watch.report(finals, self._tuples, self.policy.version)
             if self.agent is not None:
                 self._send_increments(self.agent)
             if time.monotonic() >= next_status:
@@ -208,6 +207,20 @@ class RobotActor:
     def _stopping(self) -> bool:
         """The run's stop event is set or its duration is over: the loop ends, and a full outbox stops waiting."""
         return self._stop.is_set() or (self._deadline is not None and time.monotonic() >= self._deadline)
+
+    def _run_trial(self, watch: TrialWatch | None) -> np.ndarray:
+        """One learning trial, its tuples sent as each message fills (a trial's tuples are never held whole: 48 MB
+        at 500 arenas); the rewards of its terminal tuples."""
+        batcher = Batcher(self.config.batch_size, self._send_experience)
+        finals: list[np.ndarray] = []
+
+        def sink(part: Transitions) -> None:
+            batcher.add(part)
+            finals.append(part.reward[part.done])
+
+        self.slice.stream_trial(sink, self.agent, update=self.agent is not None, on_step=watch)
+        batcher.flush()
+        return np.concatenate(finals) if finals else np.zeros(0, np.float32)
 
     def _send_experience(self, tuples: Transitions) -> None:
         key = self.keys.experience(self.config.actor_id)

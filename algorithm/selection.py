@@ -7,6 +7,7 @@ the same validation trials, so two scores differ by the policies, not by the tri
 
     keeper = BestPolicy(scenario("cmommt-v1"), trials=10, steps=1000)
     keeper.offer(policy, at=61.0)        # its validation coverage (%); kept if above every earlier one
+    keeper.keep(policy, keeper.score(policy), at=61.0)   # the same in two halves: the slow score records nothing
     keeper.best                          # Kept(policy, coverage, at) or None before the first offer
     keeper.to_meta(); keeper.restore(meta, policy)   # across a learner's resume (the policy from its file)
 """
@@ -46,11 +47,21 @@ class BestPolicy:
     def offer(self, policy: Policy, at: float) -> float:
         """Score ``policy`` on the validation trials and keep it if it beats every earlier one (ties keep the
         earlier); returns its score."""
-        coverage = evaluate(self.cfg, PolicyController(policy), self.trials, self.steps, seed=self.seed).coverage_mean
+        coverage = self.score(policy)
+        self.keep(policy, coverage, at)
+        return coverage
+
+    def score(self, policy: Policy) -> float:
+        """Metric A (%) of ``policy`` on the validation trials; records nothing (the slow half of :meth:`offer`)."""
+        return evaluate(self.cfg, PolicyController(policy), self.trials, self.steps, seed=self.seed).coverage_mean
+
+    def keep(self, policy: Policy, coverage: float, at: float) -> bool:
+        """Record ``policy``'s validation ``coverage``; True if it is the new best (the quick half of :meth:`offer`)."""
         self.scores.append((round(at, 2), round(coverage, 3)))
         if self.best is None or coverage > self.best.coverage:
             self.best = Kept(policy, coverage, at)
-        return coverage
+            return True
+        return False
 
     def to_meta(self) -> dict[str, Any]:
         kept = None if self.best is None else {"coverage": self.best.coverage, "at": self.best.at}

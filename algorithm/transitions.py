@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -66,3 +66,40 @@ class Transitions:
             next_state=self.next_state[index],
             done=self.done[index],
         )
+
+
+class Batcher:
+    """Tuples as they are made, handed on in batches of exactly ``size`` (the last one, at :meth:`flush`, shorter):
+    the batches a whole stream's :meth:`Transitions.concat` would split into, without ever holding the stream.
+
+    Usage (an actor's trial: each step's tuples in, full messages out)::
+
+        batcher = Batcher(16384, send)       # send(Transitions) gets every full batch
+        batcher.add(part)                    # as each step's tuples are made
+        batcher.flush()                      # the rest, at the trial's end
+    """
+
+    def __init__(self, size: int, send: Callable[[Transitions], None]) -> None:
+        if size < 1:
+            raise ValueError(f"batch size must be at least 1, got {size}")
+        self.size = size
+        self._send = send
+        self._parts: list[Transitions] = []
+        self._held = 0
+
+    def add(self, part: Transitions) -> None:
+        self._parts.append(part)
+        self._held += len(part)
+        if self._held < self.size:
+            return
+        whole = Transitions.concat(self._parts)
+        full = self._held - self._held % self.size
+        for start in range(0, full, self.size):
+            self._send(whole.take(slice(start, start + self.size)))
+        rest = whole.take(slice(full, None))
+        self._parts, self._held = ([rest] if len(rest) else []), len(rest)
+
+    def flush(self) -> None:
+        if self._held:
+            self._send(Transitions.concat(self._parts))
+        self._parts, self._held = [], 0

@@ -13,10 +13,12 @@ Usage::
     sl = ExperienceSlice(cfg, SliceConfig(formulation, n_arenas=256), seed=0)
     batch = sl.run_trial()                      # random exploration: Transitions of every learning robot
     batch = sl.run_trial(agent, update=True)    # ε-greedy phase 2, updating the agent's tables on-line
+    sl.stream_trial(send, agent, update=True)   # the same, each step's tuples handed to send(Transitions) at once
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 
@@ -70,10 +72,24 @@ class ExperienceSlice:
     def run_trial(
         self, agent: TabularAgent | None = None, update: bool = False, on_step: StepHook | None = None
     ) -> Transitions:
-        """One learning trial in every arena; ``agent`` None means random actions for every robot.
+        """One learning trial in every arena, its tuples in one batch; ``agent`` None means random actions for every
+        robot.
 
         ``on_step`` (optional) sees the world and observation after every step, e.g. to draw an arena.
         """
+        parts: list[Transitions] = []
+        self.stream_trial(parts.append, agent, update, on_step)
+        return Transitions.concat(parts) if parts else Transitions.empty(self.config.formulation.dim)
+
+    def stream_trial(
+        self,
+        sink: Callable[[Transitions], None],
+        agent: TabularAgent | None = None,
+        update: bool = False,
+        on_step: StepHook | None = None,
+    ) -> None:
+        """:meth:`run_trial`, each step's tuples handed to ``sink`` as the step ends instead of kept: an actor sends
+        them as its messages fill, so it never holds a whole trial's tuples (tens of MB at 500 arenas)."""
         cfg, setup, rng = self.cfg, self.config, self.rng
         state = reset_trial(cfg, setup.n_arenas, self.learner_mask, setup.formulation, rng, self._carried(agent))
         # VQQL actions last until the held action's cell changes, so they need the agent's discretization.
@@ -84,7 +100,6 @@ class ExperienceSlice:
         # (E·m, L) every robot's cells at the latest state searched for it. A state is searched once: the decision
         # made in it and the update of the tuple ending in it (its s′) read the same row.
         cells = None if agent is None else agent.cells(_flat(state.features))
-        parts: list[Transitions] = []
         while True:
             action, cell_sa = self._decide(agent, state, decide, cell_sa, update, cells)
             # The slice keeps only the newest state, so its tracks need no copy per step.
@@ -104,10 +119,10 @@ class ExperienceSlice:
                 if until_change:
                     now = np.take_along_axis(cells.reshape(*state.shape, -1), out.action[..., None], axis=2)[..., 0]
                     out = out.with_boundary(now != cell_sa)
-            self._emit(out, agent if update else None, cell_sa, cells, parts)
+            self._emit(out, agent if update else None, cell_sa, cells, sink)
             if out.trial_over:
                 self._world = state.world
-                return Transitions.concat(parts) if parts else Transitions.empty(setup.formulation.dim)
+                return
             decide = out.decide
 
     def _carried(self, agent: TabularAgent | None) -> WorldState | None:
@@ -129,9 +144,9 @@ class ExperienceSlice:
         updated: TabularAgent | None,
         cell_sa: np.ndarray,
         cells: np.ndarray | None,
-        parts: list[Transitions],
+        sink: Callable[[Transitions], None],
     ) -> None:
-        """Append the tuples that end on this step to ``parts``; with ``updated``, apply Eq. 1 to them."""
+        """Hand the tuples that end on this step to ``sink``; with ``updated``, apply Eq. 1 to them."""
         # Rows of the (E·m) robots, found once for every array instead of once per boolean mask.
         rows = np.flatnonzero(out.transition)
         if rows.size == 0:
@@ -145,9 +160,9 @@ class ExperienceSlice:
             next_state=_flat(out.next_features)[rows],
             done=out.done.reshape(-1)[rows],
         )
-        parts.append(batch)
         if updated is not None and cells is not None:
             updated.update(robots, cell_sa.reshape(-1)[rows], cells[rows], batch.reward, batch.done)
+        sink(batch)
 
     def _decide(
         self,

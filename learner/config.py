@@ -74,10 +74,11 @@ class LearnerConfig:
     """Validation trials of each periodic evaluation when ``keep_best`` (the same trials every time)."""
     eval_steps: int = 1000
     """Steps of each test trial [paper]."""
-    checkpoint_interval: float = 1.0
-    """Seconds between checkpoints; acknowledgements follow each checkpoint, so an actor's outbox holds about this
-    long of its experience (≈ 40 MB/s for 500 arenas at ≈ 490 k tuples/s): 1 s keeps an actor under 300 MB (2 s:
-    334–350 MB at that rate, docs/performance.md), while a checkpoint of a full 1 M-tuple store costs ≈ 0.15–0.35 s."""
+    checkpoint_interval: float = 0.5
+    """Seconds between checkpoints (on a thread of their own, so an evaluation never delays one); acknowledgements
+    follow each checkpoint, so an actor's outbox holds about this long of its experience (≈ 38 MB/s at ≈ 400 k tuples/s
+    of 11-number states): 0.5 s keeps an actor under 300 MB (1 s: 301–306 MB over 120 s, docs/performance.md), while a
+    checkpoint of a full 400 k-tuple store (44 MB) costs ≈ 0.07–0.15 s."""
     status_interval: float = 2.0
     """Seconds between status messages."""
     duration: float | None = None

@@ -23,6 +23,7 @@ import json
 import logging
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -143,27 +144,25 @@ class LearnerService:
         c = self.config
         self._started = time.monotonic()
         self.watch.started(c.resolved, self.evaluator.references)
-        next_broadcast = next_checkpoint = next_status = self._started
+        next_broadcast = next_status = self._started
         next_eval = self._started + c.eval_interval
-        while not stop.is_set():
-            if c.duration is not None and self.elapsed() >= c.duration:
-                break
-            self.fitter.poll(self.intake, self.state.discretization)
-            now = time.monotonic()
-            fitted = self.state.fitted
-            if fitted and now >= next_broadcast:
-                self._broadcast()
-                next_broadcast = now + c.broadcast_interval
-            if now >= next_checkpoint:
-                self.checkpoint()
-                next_checkpoint = time.monotonic() + c.checkpoint_interval
-            if fitted and now >= next_eval:
-                self._evaluate()
-                next_eval = time.monotonic() + c.eval_interval
-            if now >= next_status:
-                self._publish_status()
-                next_status = now + c.status_interval
-            stop.wait(0.05)
+        with _Checkpoints(self.checkpoint, c.checkpoint_interval) as checkpoints:
+            while not stop.is_set() and checkpoints.failure is None:
+                if c.duration is not None and self.elapsed() >= c.duration:
+                    break
+                self.fitter.poll(self.intake, self.state.discretization)
+                now = time.monotonic()
+                fitted = self.state.fitted
+                if fitted and now >= next_broadcast:
+                    self._broadcast()
+                    next_broadcast = now + c.broadcast_interval
+                if fitted and now >= next_eval:
+                    self._evaluate()
+                    next_eval = time.monotonic() + c.eval_interval
+                if now >= next_status:
+                    self._publish_status()
+                    next_status = now + c.status_interval
+                stop.wait(0.05)
         self._stopped_at = self.elapsed()
         return self._finish()
 
@@ -198,9 +197,12 @@ class LearnerService:
         """Score ``policy`` on the validation trials; a new best goes to disk before the checkpoint that names it."""
         if self.keeper is None:
             return
-        validation = self.keeper.offer(policy, at=self.elapsed())
-        if self.keeper.best is not None and self.keeper.best.policy is policy:
-            save_policy(policy, self.scenario, self.run_dir / BEST_POLICY)
+        at = self.elapsed()
+        validation = self.keeper.score(policy)
+        # Recorded under the checkpoint's lock: no checkpoint names a best policy whose file is not written yet.
+        with self._checkpoint_lock:
+            if self.keeper.keep(policy, validation, at):
+                save_policy(policy, self.scenario, self.run_dir / BEST_POLICY)
         log.info("validation of policy version %d: %.2f%% of targets observed", policy.version, validation)
 
     def _chosen(self) -> Policy | None:
@@ -323,3 +325,36 @@ class LearnerService:
             resumes=self.resumes,
             keeper=self.keeper,
         )
+
+
+class _Checkpoints:
+    """Checkpoints every ``interval`` seconds on a thread of their own, the first at once. Acknowledgements follow
+    checkpoints, so an evaluation (seconds of trials on the loop's thread) must not hold them up: meanwhile every
+    actor's outbox would fill with unacknowledged experience (≈ 40 MB a second each). A checkpoint that fails ends
+    the thread and is raised on the loop's thread when the block ends; ``failure`` tells the loop to stop."""
+
+    def __init__(self, checkpoint: Callable[[], object], interval: float) -> None:
+        self._checkpoint = checkpoint
+        self._interval = interval
+        self._done = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="checkpoints", daemon=True)
+        self.failure: Exception | None = None
+
+    def __enter__(self) -> _Checkpoints:
+        self._thread.start()
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
+        self._done.set()
+        self._thread.join()
+        if self.failure is not None and exc_type is None:
+            raise self.failure
+
+    def _loop(self) -> None:
+        try:
+            while True:
+                self._checkpoint()
+                if self._done.wait(self._interval):
+                    return
+        except Exception as exc:  # raised again on the loop's thread by __exit__
+            self.failure = exc

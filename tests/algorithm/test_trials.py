@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from algorithm.agent import Phase2Config, TabularAgent
 from algorithm.discretization import Discretization
 from algorithm.policy import Policy
+from algorithm.transitions import Batcher, Transitions
 from algorithm.trials import ExperienceSlice, SliceConfig
 from sim import FORMULATIONS, Formulation, scenario
+from sim.formulation import DEFAULT_FORMULATION
 
 PAPER = FORMULATIONS["paper"]
 LOCAL = Formulation.of("local2d", "paper", "compass")
@@ -49,6 +52,33 @@ def test_slices_with_the_same_seed_produce_the_same_tuples() -> None:
     np.testing.assert_array_equal(a.state, b.state)
     np.testing.assert_array_equal(a.reward, b.reward)
     assert len(a) != len(c) or not np.array_equal(a.state, c.state)
+
+
+def test_a_streamed_trial_hands_on_each_steps_tuples_and_batches_them_as_one_trial_splits() -> None:
+    cfg = scenario()
+    default = FORMULATIONS[DEFAULT_FORMULATION]
+    whole = ExperienceSlice(cfg, SliceConfig(default, n_arenas=24), seed=5).run_trial()
+    parts: list[Transitions] = []
+    ExperienceSlice(cfg, SliceConfig(default, n_arenas=24), seed=5).stream_trial(parts.append)
+    # One part per step that ended an action (every action_steps steps), none holding a whole trial.
+    assert len(parts) == cfg.learning_steps // cfg.action_steps and max(map(len, parts)) < len(whole)
+    for size in (1, 97, 1000, len(whole), len(whole) + 1):
+        sent: list[Transitions] = []
+        batcher = Batcher(size, sent.append)
+        for part in parts:
+            batcher.add(part)
+        batcher.flush()
+        assert [len(b) for b in sent[:-1]] == [size] * (len(sent) - 1) and 0 < len(sent[-1]) <= size
+        assert len(sent) == -(-len(whole) // size)
+        joined = Transitions.concat(sent)
+        for name in ("robot", "state", "action", "reward", "next_state", "done"):
+            np.testing.assert_array_equal(getattr(joined, name), getattr(whole, name))
+    before = len(sent)
+    batcher = Batcher(5, sent.append)
+    batcher.flush()  # nothing held: nothing sent
+    assert len(sent) == before
+    with pytest.raises(ValueError, match="at least 1"):
+        Batcher(0, sent.append)
 
 
 def test_phase2_learns_that_moving_away_from_a_lone_target_loses_it() -> None:

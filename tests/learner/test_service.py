@@ -393,3 +393,55 @@ def test_the_run_saves_and_scores_the_policy_best_on_validation_trials_and_resum
     with InMemoryTransport(InMemoryBus()) as t:
         forgot = LearnerService(t, config, tmp_path, resume=True)
     assert forgot.keeper is not None and forgot.keeper.best is None and len(forgot.keeper.scores) == 3
+
+
+def test_experience_is_acknowledged_while_an_evaluation_holds_the_loop(tmp_path: Path) -> None:
+    # An evaluation is seconds of trials on the loop's thread; the checkpoints, and the acks after them, go on
+    # meanwhile, or every actor's outbox would fill with unacknowledged experience.
+    from protocol import Ack
+
+    config = dataclasses.replace(FAST, eval_interval=0.01, checkpoint_interval=0.05)
+    acks: list[Ack] = []
+    evaluating, release, returned = threading.Event(), threading.Event(), threading.Event()
+
+    def held(policy: Any, at: float) -> float:
+        evaluating.set()
+        release.wait(60.0)
+        returned.set()
+        return 0.0
+
+    with InMemoryTransport(InMemoryBus()) as t:
+        t.subscribe(t.keys.ack(), Ack, acks.append)
+        service = LearnerService(t, config, tmp_path)
+        handles = connect_learner(service, t)
+        service.state.adopt(one_cell_per_action(DIM))
+        service.evaluator.periodic = held  # type: ignore[method-assign]
+        stop = threading.Event()
+        thread = threading.Thread(target=service.run, args=(stop,))
+        thread.start()
+        try:
+            assert evaluating.wait(60.0)
+            t.publish(t.keys.experience("a"), experience(seq=0))
+            t.publish(t.keys.experience("a"), experience(seq=1))
+            deadline = time.monotonic() + 30.0
+            while not any(a.seq == 1 for a in acks) and time.monotonic() < deadline:
+                time.sleep(0.01)
+            acked_while_held = any(a.seq == 1 for a in acks) and not returned.is_set()
+        finally:
+            release.set()
+            stop.set()
+            thread.join()
+            handles.close()
+    assert acked_while_held
+    assert service.intake.figures().tuples_received == 6
+
+
+def test_a_checkpoint_that_fails_ends_the_run_with_its_error(tmp_path: Path) -> None:
+    def full(arrays: Any, meta: Any) -> Path:
+        raise OSError(28, "No space left on device")
+
+    with InMemoryTransport(InMemoryBus()) as t:
+        service = LearnerService(t, FAST, tmp_path)
+        service.checkpointer.save = full  # type: ignore[method-assign]
+        with pytest.raises(OSError, match="No space left"):
+            service.run(threading.Event())

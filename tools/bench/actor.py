@@ -15,7 +15,7 @@ import numpy as np
 from algorithm.agent import Phase2Config, TabularAgent
 from algorithm.phase1 import CMOMMT_PHASE1, phase1
 from algorithm.policy import Policy
-from algorithm.transitions import Transitions
+from algorithm.transitions import Batcher, Transitions
 from algorithm.trials import ExperienceSlice, SliceConfig
 from algorithm.wire import experience_batches
 from protocol import Header
@@ -73,19 +73,29 @@ def _actor_trials(
     formulation = policy.formulation
     parts = SliceConfig(formulation, n_arenas=arenas)
     experience = ExperienceSlice(cfg, parts, seed)
-    steps = tuples = 0
-    slice_s = message_s = 0.0
-    while steps == 0 or slice_s + message_s < seconds:
-        start = time.perf_counter()
-        batch = experience.run_trial(agent, update=True)
+    counts = {"tuples": 0, "messages": 0}
+    message_s = 0.0
+
+    def send(tuples: Transitions) -> None:
+        nonlocal message_s
         built = time.perf_counter()
-        for seq, build in enumerate(experience_batches(batch, batch_size, formulation)):
-            build(Header(actor_id="bench", incarnation=1, seq=seq, policy_version=1))
+        for build in experience_batches(tuples, batch_size, formulation):
+            build(Header(actor_id="bench", incarnation=1, seq=counts["messages"], policy_version=1))
+            counts["messages"] += 1
+        counts["tuples"] += len(tuples)
         message_s += time.perf_counter() - built
-        slice_s += built - start
+
+    batcher = Batcher(batch_size, send)
+    steps = 0
+    trials_s = 0.0
+    while steps == 0 or trials_s < seconds:
+        start = time.perf_counter()
+        experience.stream_trial(batcher.add, agent, update=True)
+        batcher.flush()
+        trials_s += time.perf_counter() - start
         steps += arenas * cfg.n_robots * cfg.learning_steps
-        tuples += len(batch)
-    return {"steps": steps, "tuples": tuples, "slice_s": slice_s, "message_s": message_s}
+    # The messages are built inside the trials, as the actor sends them while each trial runs.
+    return {"steps": steps, "tuples": counts["tuples"], "slice_s": trials_s - message_s, "message_s": message_s}
 
 
 def bench_actor(
