@@ -79,8 +79,10 @@ class ActorConfig:
     """Run seed; the actor's random stream is derived from (seed, actor id), so no two actors share one."""
     batch_size: int = 16384
     """Tuples per experience message."""
-    outbox_limit: int = 256
-    """Unacknowledged messages kept for re-sending; when full the actor waits for acks."""
+    outbox_limit: int = 32
+    """Unacknowledged messages kept for re-sending; when full the actor waits for acks. This bounds the actor's
+    in-flight experience: 32 messages of 16 384 tuples of 11-number states ≈ 50 MB, so an actor stays under 300 MB
+    even when a busy learner acknowledges late (docs/performance.md, "Memory of the processes")."""
     resend_after: float = 10.0
     """Seconds without an ack after which a message is sent again."""
     flush_timeout: float = 10.0
