@@ -39,17 +39,18 @@ def sense(
     covered: np.ndarray,  # out (E,) int32: targets in view of at least one robot
     shared: np.ndarray,  # out (E, m, 2) bool: another robot also has the nearest / furthest target in view
     n_only: np.ndarray,  # out (E, m) int32: targets in view of this robot and of no other
+    sighted: np.ndarray,  # out (E, m, n) bool: robot i has target j in view (the tracks' sightings)
 ) -> None:
     n_arenas, m, _ = robot_pos.shape
     n = target_pos.shape[1]
     r2 = sensing_range * sensing_range
     noisy = noise_t.shape[0] > 0
-    in_view = np.zeros((m, n), dtype=np.bool_)
     watchers = np.zeros(n, dtype=np.int32)
     near_j = np.zeros(m, dtype=np.int64)
     far_j = np.zeros(m, dtype=np.int64)
     for e in range(n_arenas):
         watchers[:] = 0
+        in_view = sighted[e]
         for i in range(m):
             rx = robot_pos[e, i, 0]
             ry = robot_pos[e, i, 1]
@@ -738,6 +739,7 @@ def frame_velocity(
 def update_tracks(
     robot_pos: np.ndarray,  # (E, m, 2) float64
     target_pos: np.ndarray,  # (E, n, 2) float64, read only where some robot senses the target
+    sighted: np.ndarray,  # (E, m, n) bool: robot i has target j in view now (``sense`` made it)
     track_pos: np.ndarray,  # in/out (E, m, n, 2) float64: robot i's last sighting of target j
     track_vel: np.ndarray,  # in/out (E, m, n, 2) float64: the target's displacement per step estimated then
     track_age: np.ndarray,  # in/out (E, m, n) int64: steps since that sighting (NEVER_SEEN: none)
@@ -758,10 +760,14 @@ def update_tracks(
     n_arenas, m, _ = robot_pos.shape
     n = target_pos.shape[1]
     r2 = sensing_range * sensing_range
-    in_view = np.zeros((m, n), dtype=np.bool_)
     watchers = np.zeros(n, dtype=np.int64)
     for e in range(n_arenas):
-        _sightings(robot_pos, target_pos, e, r2, in_view, watchers)
+        in_view = sighted[e]
+        watchers[:] = 0
+        for i in range(m):
+            for j in range(n):
+                if in_view[i, j]:
+                    watchers[j] += 1
         for i in range(m):
             rx = robot_pos[e, i, 0]
             ry = robot_pos[e, i, 1]

@@ -88,4 +88,4 @@ def _only(
     alone = WorldState(pick(world.robot_pos), no_targets, no_targets, np.zeros((1, 0)), world.t)
     fields = ("features", "n_seen", "sees_robot", "shared", "n_only", "memory", "remembers")
     picked = {name: pick(getattr(view, name)) for name in fields if getattr(view, name) is not None}
-    return alone, dataclasses.replace(view, covered=view.covered[:1], **picked), pick(heading)
+    return alone, dataclasses.replace(view, covered=view.covered[:1], sighted=None, **picked), pick(heading)

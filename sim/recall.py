@@ -80,6 +80,7 @@ def recall(
     _kernels.update_tracks(
         world.robot_pos,
         world.target_pos,
+        sightings(cfg, world) if obs.sighted is None else obs.sighted,
         after.position,
         after.velocity,
         after.age,
@@ -104,3 +105,10 @@ def view_of(
     """:func:`recall` for a caller that holds a memory only when its state remembers (``memory`` None: ``obs`` is
     the view, and there is nothing to keep)."""
     return (obs, None) if memory is None else recall(cfg, world, obs, memory, in_place=in_place)
+
+
+def sightings(cfg: ScenarioConfig, world: WorldState) -> np.ndarray:
+    """(E, m, n) bool: robot i has target j within sensing range, measured as :func:`sim.world.sense` measures it."""
+    dx = world.target_pos[:, None, :, 0] - world.robot_pos[:, :, None, 0]
+    dy = world.target_pos[:, None, :, 1] - world.robot_pos[:, :, None, 1]
+    return dx * dx + dy * dy <= cfg.sensing_range * cfg.sensing_range

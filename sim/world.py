@@ -66,6 +66,9 @@ class Observation:
     that sees no target reads its remembered one as its nearest), None as sensed."""
     remembers: np.ndarray | None = None
     """(E, m) bool or None: ``memory`` holds a remembered target; None as sensed."""
+    sighted: np.ndarray | None = None
+    """(E, m, n) bool or None: robot i has target j within sensing range (true distance), as :func:`sense` found it,
+    so that the tracks (:mod:`sim.recall`) need not measure again; None in an observation made elsewhere."""
 
 
 def uniform_in_disk(rng: np.random.Generator, radius: float, shape: tuple[int, ...]) -> np.ndarray:
@@ -106,6 +109,7 @@ def sense(cfg: ScenarioConfig, state: WorldState, rng: np.random.Generator | Non
     covered = np.empty(n_arenas, dtype=np.int32)
     shared = np.empty((n_arenas, m, 2), dtype=np.bool_)
     n_only = np.empty((n_arenas, m), dtype=np.int32)
+    sighted = np.empty((n_arenas, m, n), dtype=np.bool_)
     _kernels.sense(
         state.robot_pos,
         state.target_pos,
@@ -119,9 +123,16 @@ def sense(cfg: ScenarioConfig, state: WorldState, rng: np.random.Generator | Non
         covered,
         shared,
         n_only,
+        sighted,
     )
     return Observation(
-        features=features, n_seen=n_seen, sees_robot=sees_robot, covered=covered, shared=shared, n_only=n_only
+        features=features,
+        n_seen=n_seen,
+        sees_robot=sees_robot,
+        covered=covered,
+        shared=shared,
+        n_only=n_only,
+        sighted=sighted,
     )
 
 

@@ -205,3 +205,26 @@ def test_tracks_updated_in_place_are_the_tracks_a_pure_call_returns_and_a_pure_c
         here = step(cfg, here, cfg.robot_speed * rng.normal(size=here.robot_pos.shape) / 2, rng)
     # Over 150 steps some robots lost targets and remember them: the comparison covered the tracks that matter.
     assert (pure.age[(pure.age > 0) & (pure.age < NEVER)]).size > 100 and view.remembers.any()
+
+
+def test_the_tracks_read_the_sightings_sense_made_and_measure_the_same_without_them() -> None:
+    from sim import reset, step
+    from sim.recall import sightings
+
+    cfg = scenario()
+    rng = np.random.default_rng(5)
+    here = reset(cfg, 40, rng)
+    given, measured = forget_all(cfg, (40, cfg.n_robots)), forget_all(cfg, (40, cfg.n_robots))
+    for _ in range(120):
+        obs = sense(cfg, here, rng)
+        assert obs.sighted is not None
+        # sense's sightings are the true-distance ones, and what each robot counts as in view.
+        np.testing.assert_array_equal(obs.sighted, sightings(cfg, here))
+        np.testing.assert_array_equal(obs.sighted.sum(axis=2), obs.n_seen)
+        view, given = recall(cfg, here, obs, given, in_place=True)
+        again, measured = recall(cfg, here, dataclasses.replace(obs, sighted=None), measured, in_place=True)
+        for name in ("position", "velocity", "age"):
+            np.testing.assert_array_equal(getattr(given, name), getattr(measured, name))
+        np.testing.assert_array_equal(view.features, again.features)
+        here = step(cfg, here, cfg.robot_speed * rng.normal(size=here.robot_pos.shape) / 2, rng)
+    assert view.remembers is not None and view.remembers.any() and (given.age == 0).any()
