@@ -134,7 +134,8 @@ def collect(
     while True:
         chosen = rng.integers(0, 8, state.shape)
         if q is not None:
-            greedy = q.greedy(state.features.reshape(-1, state.features.shape[-1])).reshape(state.shape)
+            features = state.require_features()
+            greedy = q.greedy(features.reshape(-1, features.shape[-1])).reshape(state.shape)
             chosen = np.where(rng.random(state.shape) < epsilon, chosen, greedy)
         state, out = step_trial(cfg, state, chosen, decide, rng)
         ends = out.transition
@@ -145,12 +146,12 @@ def collect(
                     state=out.start_features[ends],
                     action=out.action[ends].astype(np.uint8),
                     reward=out.reward[ends],
-                    next_state=out.next_features[ends],
+                    next_state=out.require_next_features()[ends],
                     done=out.done[ends],
                 )
             )
         if out.trial_over:
-            return Transitions.concat(parts) if parts else Transitions.empty(state.features.shape[-1])
+            return Transitions.concat(parts) if parts else Transitions.empty(state.require_features().shape[-1])
         decide = out.decide
 
 

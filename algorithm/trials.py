@@ -99,11 +99,13 @@ class ExperienceSlice:
         cell_sa = np.zeros(state.shape, np.int64)  # cell of (s, a) for the held action, for Eq. 1 and VQQL
         # (E·m, L) every robot's cells at the latest state searched for it. A state is searched once: the decision
         # made in it and the update of the tuple ending in it (its s′) read the same row.
-        cells = None if agent is None else agent.cells(_flat(state.features))
+        cells = None if agent is None else agent.cells(_flat(state.require_features()))
         while True:
             action, cell_sa = self._decide(agent, state, decide, cell_sa, update, cells)
             # The slice keeps only the newest state, so its tracks need no copy per step.
-            state, out = step_trial(cfg, state, action, decide, rng, hold=hold, in_place=True)
+            # VQQL reads every step's cells for its cell-change boundary; other holds end together, so the states
+            # between decisions are never read.
+            state, out = step_trial(cfg, state, action, decide, rng, hold=hold, in_place=True, lazy=not until_change)
             if on_step is not None:
                 on_step(state.world, state.obs)
             if agent is not None and cells is not None:
@@ -115,7 +117,8 @@ class ExperienceSlice:
                 else:
                     need = (out.transition & ~out.done) | (out.decide & (not out.trial_over))
                 rows = np.flatnonzero(need)
-                cells[rows] = agent.cells(_flat(state.features)[rows])
+                if rows.size:
+                    cells[rows] = agent.cells(_flat(state.require_features())[rows])
                 if until_change:
                     now = np.take_along_axis(cells.reshape(*state.shape, -1), out.action[..., None], axis=2)[..., 0]
                     out = out.with_boundary(now != cell_sa)
@@ -157,7 +160,7 @@ class ExperienceSlice:
             state=_flat(out.start_features)[rows],
             action=out.action.reshape(-1)[rows].astype(np.uint8),
             reward=out.reward.reshape(-1)[rows],
-            next_state=_flat(out.next_features)[rows],
+            next_state=_flat(out.require_next_features())[rows],
             done=out.done.reshape(-1)[rows],
         )
         if updated is not None and cells is not None:

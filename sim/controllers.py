@@ -11,7 +11,6 @@ anew, never modified in place.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -197,32 +196,6 @@ class ForceController:
         return cfg.robot_speed * heading, tracks
 
 
-def _f_target(f: ForceLawConfig, d: np.ndarray) -> np.ndarray:
-    """A-CMOMMT's attraction profile of a target at distance ``d`` (the kernel's, vectorized)."""
-    return np.select(
-        [d <= f.do1, d <= f.do2, d <= f.do3, d <= f.do4],
-        [-1.0 + d / f.do1, (d - f.do1) / (f.do2 - f.do1), np.ones_like(d), 1.0 - (d - f.do3) / (f.do4 - f.do3)],
-        0.0,
-    )
-
-
-def _g_robot(f: ForceLawConfig, d: np.ndarray) -> np.ndarray:
-    """A-CMOMMT's repulsion profile of a robot at distance ``d`` (the kernel's, vectorized)."""
-    return np.select([d <= f.dr1, d <= f.dr2], [-np.ones_like(d), -1.0 + (d - f.dr1) / (f.dr2 - f.dr1)], 0.0)
-
-
-Profile = Callable[[ForceLawConfig, np.ndarray], np.ndarray]
-
-
-def _pull(
-    law: ForceLawConfig, offset: np.ndarray, present: np.ndarray, weight: np.ndarray, profile: Profile
-) -> np.ndarray:
-    """(E, m, 2) force of one feature pair: ``weight`` × profile(d) along the offset, where the pair is present."""
-    d = np.linalg.norm(offset, axis=-1)
-    safe = np.maximum(d, 1e-12)
-    return np.where((present & (d > 1e-12))[..., None], (weight * profile(law, safe) / safe)[..., None] * offset, 0.0)
-
-
 @dataclass(frozen=True, slots=True)
 class StateForceController:
     """A-CMOMMT's force law fed only what the ``collab6d`` state holds: the nearest and the furthest target in view
@@ -250,19 +223,25 @@ class StateForceController:
         memory: np.ndarray,
         rng: np.random.Generator,
     ) -> tuple[np.ndarray, np.ndarray]:
-        features = obs.features.astype(np.float64)
-        nearest, furthest, robot = features[..., 0:2], features[..., 2:4], features[..., 4:6]
-        w_nearest = w_furthest = np.ones(obs.n_seen.shape)
-        if self.shared:
-            w_nearest, w_furthest = (np.where(obs.shared[..., k], self.law.shared_target_weight, 1.0) for k in range(2))
-        # With one target in view the nearest and the furthest are the same target: it pulls once.
-        force = _pull(self.law, nearest, obs.n_seen >= 1, w_nearest, _f_target)
-        force += _pull(self.law, furthest, obs.n_seen >= 2, w_furthest, _f_target)
-        force += _pull(self.law, robot, obs.sees_robot, np.ones(obs.n_seen.shape), _g_robot)
+        # With one target in view the nearest and the furthest are the same target: it pulls once. A remembering
+        # state's view: the remembered target of a robot that also sees one pulls as A-CMOMMT's predictions do (beyond
+        # the sensing range, in the (do3, do4] band).
+        f = self.law
+        shape = obs.n_seen.shape
+        recalled, remembers = np.zeros((*shape, 2)), np.zeros(shape, bool)
         if obs.remembers is not None and obs.memory is not None:
-            # A remembering state's view: the remembered target of a robot that also sees one pulls as A-CMOMMT's
-            # predictions do (beyond the sensing range, in the (do3, do4] band).
-            force += _pull(self.law, obs.memory.astype(np.float64), obs.remembers, np.ones(obs.n_seen.shape), _f_target)
+            recalled, remembers = np.asarray(obs.memory, np.float64), obs.remembers
+        force = np.empty((*shape, 2))
+        _kernels.state_forces(
+            obs.features,
+            obs.n_seen,
+            obs.sees_robot,
+            obs.shared,
+            recalled,
+            remembers,
+            np.array([f.do1, f.do2, f.do3, f.do4, f.dr1, f.dr2, f.shared_target_weight if self.shared else 1.0]),
+            force,
+        )
         norm = np.linalg.norm(force, axis=-1, keepdims=True)
         heading = np.where(norm > 1e-12, force / np.maximum(norm, 1e-300), wander(cfg, world, memory))
         return cfg.robot_speed * heading, heading

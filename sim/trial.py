@@ -67,8 +67,9 @@ class TrialState:
     """Every robot's memory of its last sighting, for a state that remembers; None otherwise."""
     formulation: Formulation
     """The state of ``features``, the learners' reward, the action set of the action indices, the trial rules."""
-    features: np.ndarray
-    """(E, m, d) float32: every robot's state now."""
+    features: np.ndarray | None
+    """(E, m, d) float32: every robot's state now; None after a :func:`step_trial` with ``lazy`` on which no robot's
+    action or trial ended (nothing reads it before the next state's)."""
     action: np.ndarray
     """(E, m) int64: the action each robot holds (an index of the formulation's action set)."""
     held: np.ndarray
@@ -93,6 +94,12 @@ class TrialState:
         n_arenas, m = self.action.shape
         return n_arenas, m
 
+    def require_features(self) -> np.ndarray:
+        """:attr:`features`, which every state has but one a ``lazy`` step left out."""
+        if self.features is None:
+            raise ValueError("this state's features were left out: a lazy step on which no action ended made it")
+        return self.features
+
 
 @dataclass(frozen=True, slots=True)
 class TrialStep:
@@ -102,8 +109,9 @@ class TrialStep:
     """(E, m, d) float32: s, the state in which the action held during this step was chosen."""
     action: np.ndarray
     """(E, m) int64: a, the action held during this step."""
-    next_features: np.ndarray
-    """(E, m, d) float32: s′, the state after this step."""
+    next_features: np.ndarray | None
+    """(E, m, d) float32: s′, the state after this step; None where the new state's ``features`` are (``lazy``, no
+    tuple ends here)."""
     reward: np.ndarray
     """(E, m) float32: r of the tuples that end here (``lost_reward`` for a robot that lost every target), 0 elsewhere:
     a trial-end reward's value where ``done``, a per-decision reward's mean over the action where it ends."""
@@ -129,6 +137,12 @@ class TrialStep:
     def transition(self) -> np.ndarray:
         """(E, m) bool: learners whose tuple ⟨s, a, r, s′, done⟩ ends on this step."""
         return self.done | self.truncated | (self.active & self.boundary)
+
+    def require_next_features(self) -> np.ndarray:
+        """:attr:`next_features`, which every step has but a ``lazy`` one on which no tuple ends."""
+        if self.next_features is None:
+            raise ValueError("this step's s′ was left out: a lazy step on which no action ended")
+        return self.next_features
 
     @property
     def decide(self) -> np.ndarray:
@@ -227,6 +241,7 @@ def step_trial(
     velocity: np.ndarray | None = None,
     hold: int | None = None,
     in_place: bool = False,
+    lazy: bool = False,
 ) -> tuple[TrialState, TrialStep]:
     """Advance every arena one step under the trial rules.
 
@@ -236,7 +251,10 @@ def step_trial(
     ``hold`` is the length after which an action ends (default ``cfg.action_steps``; VQQL passes its cap).
     ``in_place``: a remembering state's tracks are updated in place (:func:`sim.recall.recall`), so ``state`` must not
     be stepped again (a caller that keeps only the newest state, as the experience slice does); otherwise nothing
-    passed in is modified.
+    passed in is modified. ``lazy``: the new state's features are computed only when some robot's action or trial ends
+    on this step, the only steps after which they are read (as s′, and as the s of the next decisions); otherwise they
+    are None. Held actions end together, so a learning slice computes them on one step in ``cfg.action_steps``; a
+    caller that reads them every step (an environment's observation, VQQL's cell change) keeps the default.
     """
     if state.world.t >= cfg.learning_steps:
         raise ValueError(f"the trial is over: it lasts {cfg.learning_steps} steps")
@@ -250,7 +268,7 @@ def step_trial(
         held_action = np.where(decide, action, held_action)
         if held_action.min() < 0 or held_action.max() >= N_ACTIONS:
             raise ValueError(f"actions must be integers in [0, {N_ACTIONS})")
-        start = np.where(decide[..., None], state.features, start)
+        start = np.where(decide[..., None], state.require_features(), start)
         held = np.where(decide, 0, held)
         if moves.relative:
             frame = np.where(decide[..., None, None], moves.frame(state.view, state.heading), frame)
@@ -268,7 +286,6 @@ def step_trial(
     world = step(cfg, state.world, move, rng)
     obs = sense(cfg, world, rng)
     view, memory = view_of(cfg, world, obs, state.recall, in_place=in_place)
-    features = formulation.featurizer.compute(cfg, view)
     held = held + 1
     trial_over = world.t >= cfg.learning_steps
     gone = lost(obs)
@@ -280,6 +297,8 @@ def step_trial(
     truncated = state.active & ~done & trial_over
     active = state.active & ~done & ~truncated
     boundary = held >= (cfg.action_steps if hold is None else hold)
+    read = not lazy or bool(boundary.any() or done.any() or truncated.any())
+    features = formulation.featurizer.compute(cfg, view) if read else None
     earned, action_mean = state.earned, None
     if per_decision:
         # The value summed over the held action's steps (restarted where a robot decided), its mean, and the reward

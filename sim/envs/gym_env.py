@@ -75,7 +75,7 @@ class CmommtSingleRobotEnv(gym.Env[np.ndarray, np.int64]):
         if self.others is not None:
             self._memory = self.others.init(self.cfg, self._state.world, rng)
         self._decide = np.ones(self._state.shape, dtype=bool)
-        return self._state.features[0, 0].copy(), self._info(self._state)
+        return self._state.require_features()[0, 0].copy(), self._info(self._state)
 
     def step(self, action: np.int64) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         state = self._state
@@ -101,5 +101,5 @@ class CmommtSingleRobotEnv(gym.Env[np.ndarray, np.int64]):
             if out.transition[0, 0]:
                 break
         self._state, self._decide = state, decide
-        obs = out.next_features[0, 0].copy()
+        obs = out.require_next_features()[0, 0].copy()
         return obs, float(out.reward[0, 0]), bool(out.done[0, 0]), bool(out.truncated[0, 0]), self._info(state)

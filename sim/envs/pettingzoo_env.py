@@ -72,7 +72,7 @@ class CmommtParallelEnv(ParallelEnv[str, np.ndarray, np.int64]):
         self._state, self._decide = state, np.ones(state.shape, dtype=bool)
         self.agents = list(self.possible_agents)
         share = float(coverage(self.cfg, state.obs)[0])
-        observations = {a: state.features[0, i].copy() for i, a in enumerate(self.agents)}
+        observations = {a: state.require_features()[0, i].copy() for i, a in enumerate(self.agents)}
         infos = {a: {"n_seen": int(state.obs.n_seen[0, i]), "coverage": share} for i, a in enumerate(self.agents)}
         return observations, infos
 
@@ -102,13 +102,13 @@ class CmommtParallelEnv(ParallelEnv[str, np.ndarray, np.int64]):
         # loses every target (then its s′ and reward are those of that simulation step), or at the end of the trial.
         pending = self._decide.copy()
         decide = self._decide
-        next_obs, reward = state.features[0].copy(), np.zeros(self.cfg.n_robots, np.float32)
+        next_obs, reward = state.require_features()[0].copy(), np.zeros(self.cfg.n_robots, np.float32)
         done, n_seen = np.zeros(self.cfg.n_robots, dtype=bool), state.obs.n_seen[0].copy()
         cut = np.zeros(self.cfg.n_robots, dtype=bool)
         while pending.any():
             state, out = step_trial(self.cfg, state, chosen, decide, self._rng)
             ends = (out.transition & pending)[0]
-            next_obs = np.where(ends[:, None], out.next_features[0], next_obs)
+            next_obs = np.where(ends[:, None], out.require_next_features()[0], next_obs)
             reward = np.where(ends, out.reward[0], reward)
             done = np.where(ends, out.done[0], done)
             cut = np.where(ends, out.truncated[0], cut)

@@ -226,3 +226,43 @@ def test_decision_rewards_equal_the_numpy_arithmetic() -> None:
     for have, want in zip(got, (want_earned, want_mean, want_reward), strict=True):
         assert have.dtype == np.float32
         np.testing.assert_array_equal(have, want)
+
+
+@pytest.mark.parametrize("name", ["frame-recall-law", "paper"])
+def test_a_lazy_step_leaves_out_only_the_features_nobody_reads(name: str) -> None:
+    # The same trial stepped twice from the same seed: lazily, the states between decisions carry no features and
+    # every other output is equal; on the steps where an action or the trial ends, the features are the eager ones.
+    cfg = scenario(learning_steps=23)
+    formulation = FORMULATIONS[name]
+    runs = []
+    for lazy in (False, True):
+        rng = np.random.default_rng(5)
+        state = reset_trial(cfg, 6, np.ones(cfg.n_robots, bool), formulation, rng)
+        decide = np.ones(state.shape, bool)
+        steps = []
+        for _ in range(cfg.learning_steps):
+            action = rng.integers(0, 8, state.shape)
+            state, out = step_trial(cfg, state, action, decide, rng, lazy=lazy)
+            steps.append((state, out))
+            decide = out.decide
+        runs.append(steps)
+    read = 0
+    for (eager, eager_out), (lazy, lazy_out) in zip(*runs, strict=True):
+        ends = bool((eager_out.boundary | eager_out.done | eager_out.truncated).any())
+        read += ends
+        np.testing.assert_array_equal(lazy.world.robot_pos, eager.world.robot_pos)
+        np.testing.assert_array_equal(lazy_out.reward, eager_out.reward)
+        np.testing.assert_array_equal(lazy_out.start_features, eager_out.start_features)
+        if ends:
+            np.testing.assert_array_equal(lazy.require_features(), eager.require_features())
+            np.testing.assert_array_equal(lazy_out.require_next_features(), eager_out.require_next_features())
+        else:
+            assert lazy.features is None and lazy_out.next_features is None
+            with pytest.raises(ValueError, match="lazy"):
+                lazy.require_features()
+            # Deciding on a state whose features were left out is refused, not read as stale.
+            with pytest.raises(ValueError, match="lazy"):
+                step_trial(cfg, lazy, action, np.ones(lazy.shape, bool), np.random.default_rng(0), lazy=True)
+    # Actions of 5 steps in a trial of 23: features on steps 5, 10, 15, 20 and the last, 23 (with every learner's
+    # trial over, paper rules end some sooner, which only adds steps).
+    assert read >= 5 and read < cfg.learning_steps
