@@ -20,7 +20,7 @@ import numpy as np
 
 from algorithm.discretization import Discretization
 from algorithm.policy import Policy
-from algorithm.qtable import q_targets, q_update, row_best
+from algorithm.qtable import n_step_targets, q_targets, q_update, row_best
 from sim import N_ACTIONS
 
 
@@ -39,6 +39,11 @@ class Phase2Config:
     max(alpha_floor, 1 / (1/alpha − 1 + n)), a running mean of its targets in which the initial value weighs
     1/alpha − 1 samples, so that a cell visited often averages over about 1/alpha_floor targets instead of 1/alpha
     [beyond the paper: a decaying step size]."""
+    n_step: int = 1
+    """Decisions one target spans: r_t + γ r_t+1 + … + γ^(n−1) r_t+n−1 + γ^n max_b Q(s_t+n, b), cut short without
+    the bootstrap where the robot's trial ends terminally [1: paper Eq. 1; beyond the paper: n-step returns, which
+    carry a payoff that comes decisions later (a search's) back to the move that started it without bootstrapping
+    through every aliased cell between]."""
 
     def __post_init__(self) -> None:
         if not 0.0 < self.alpha <= 1.0:
@@ -49,6 +54,8 @@ class Phase2Config:
             raise ValueError(f"gamma must lie in [0, 1), got {self.gamma}")
         if not 0.0 <= self.epsilon <= 1.0:
             raise ValueError(f"epsilon must lie in [0, 1], got {self.epsilon}")
+        if self.n_step < 1:
+            raise ValueError(f"n_step must be at least 1, got {self.n_step}")
 
 
 class TabularAgent:
@@ -125,6 +132,11 @@ class TabularAgent:
             self.config.alpha_floor,
         )
 
+    def returns(self, n_rows: int) -> NStepReturns | None:
+        """The unfinished n-step targets of a learning trial of ``n_rows`` robots (arenas × robots); None with
+        one-step targets, which :meth:`update` applies at once."""
+        return None if self.config.n_step == 1 else NStepReturns(self, n_rows)
+
     def policy(self, **changes: object) -> Policy:
         """A snapshot of the current tables as an immutable policy."""
         return dataclasses.replace(
@@ -132,4 +144,67 @@ class TabularAgent:
             tables=self.tables.astype(np.float32),
             visits=self.visits.copy(),
             **changes,  # type: ignore[arg-type]
+        )
+
+
+class NStepReturns:
+    """A learning trial's unfinished n-step targets (:attr:`Phase2Config.n_step`): per robot of the trial (a row,
+    arena · m + robot), the table cells of its last decisions and their rewards, until n of them are known.
+
+    Usage (one per trial: a trial's end applies every target it holds)::
+
+        returns = agent.returns(n_arenas * m)
+        returns.update(trial_rows, robots, cell_sa, next_cells, rewards, dones, ends)   # instead of agent.update
+    """
+
+    def __init__(self, agent: TabularAgent, n_rows: int) -> None:
+        self.agent = agent
+        n = agent.config.n_step
+        self._cells = np.zeros((n_rows, n), np.int64)
+        self._rewards = np.zeros((n_rows, n), np.float64)
+        self._length = np.zeros(n_rows, np.int64)
+
+    def update(
+        self,
+        trial_rows: np.ndarray,
+        robots: np.ndarray,
+        cell_sa: np.ndarray,
+        next_cells: np.ndarray,
+        rewards: np.ndarray,
+        dones: np.ndarray,
+        ends: np.ndarray,
+    ) -> None:
+        """N tuples ending now: ``trial_rows`` (N,) their robots' rows in the trial, ``cell_sa`` (N,) the cell of
+        (s, a), ``next_cells`` (N, L) the cells of s′; ``ends`` (N,) the robot's trial ends here (``dones``:
+        terminally), so each of its held decisions gets its target, shorter than n. Every target completed now is
+        applied to the tables (Eq. 1 with the n-step target)."""
+        agent = self.agent
+        if robots.size == 0:
+            return
+        rows = agent.template.rows(robots)
+        size = agent.tables.shape[1]
+        n = agent.config.n_step
+        cells = np.empty(robots.size * n, np.int64)
+        targets = np.empty(robots.size * n, np.float64)
+        done = n_step_targets(
+            np.asarray(trial_rows, np.int64),
+            rows * size + np.asarray(cell_sa, np.int64),
+            np.asarray(rewards, np.float64),
+            row_best(agent.tables, rows, next_cells)[0].astype(np.float64),
+            np.asarray(ends, bool),
+            np.asarray(dones, bool),
+            agent.config.gamma,
+            self._cells,
+            self._rewards,
+            self._length,
+            cells,
+            targets,
+        )
+        q_update(
+            agent.tables.reshape(-1),
+            agent.visits.reshape(-1),
+            cells[:done],
+            targets[:done],
+            agent.config.alpha,
+            agent.config.alpha_floor,
         )

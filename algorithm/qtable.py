@@ -77,6 +77,55 @@ def greedy(table: np.ndarray, cells: np.ndarray) -> np.ndarray:
     return np.argmax(np.take_along_axis(table, cells, axis=1), axis=1)
 
 
+@njit(cache=True)
+def n_step_targets(
+    trial_rows: np.ndarray,  # (N,) int64: each tuple's robot in the trial's queues
+    cells: np.ndarray,  # (N,) int64: the flat table index of each tuple's (s, a)
+    rewards: np.ndarray,  # (N,) float64
+    bootstrap: np.ndarray,  # (N,) float64: max_b Q(s′, b)
+    ends: np.ndarray,  # (N,) bool: the robot's trial ends with this tuple
+    dones: np.ndarray,  # (N,) bool: ... terminally (no bootstrap)
+    gamma: float,
+    queue_cells: np.ndarray,  # in/out (rows, n) int64: each robot's decisions whose targets are not complete yet
+    queue_rewards: np.ndarray,  # in/out (rows, n) float64: their rewards
+    queue_length: np.ndarray,  # in/out (rows,) int64
+    out_cells: np.ndarray,  # out (N · n,) int64: the cells of the targets completed now ...
+    out_targets: np.ndarray,  # out (N · n,) float64: ... and the targets
+) -> int:
+    """Queue each tuple behind its robot's earlier ones and complete the n-step targets it makes known: the oldest
+    one once a robot holds n, every held one where its trial ends (r_j + γ r_j+1 + … down to the last reward, then
+    γ·bootstrap unless terminal). Returns how many targets were completed. With n = 1 the targets are Eq. 1's."""
+    n = queue_cells.shape[1]
+    k = 0
+    for t in range(trial_rows.shape[0]):
+        r = trial_rows[t]
+        length = queue_length[r]
+        queue_cells[r, length] = cells[t]
+        queue_rewards[r, length] = rewards[t]
+        length += 1
+        if ends[t]:
+            g = 0.0 if dones[t] else bootstrap[t]
+            for j in range(length - 1, -1, -1):
+                g = queue_rewards[r, j] + gamma * g
+                out_cells[k] = queue_cells[r, j]
+                out_targets[k] = g
+                k += 1
+            length = 0
+        elif length == n:
+            g = bootstrap[t]
+            for j in range(n - 1, -1, -1):
+                g = queue_rewards[r, j] + gamma * g
+            out_cells[k] = queue_cells[r, 0]
+            out_targets[k] = g
+            k += 1
+            for j in range(n - 1):
+                queue_cells[r, j] = queue_cells[r, j + 1]
+                queue_rewards[r, j] = queue_rewards[r, j + 1]
+            length = n - 1
+        queue_length[r] = length
+    return k
+
+
 def row_best(tables: np.ndarray, rows: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(N,) max_a and (N,) argmax_a of ``tables[rows[n], cells[n, a]]``, ``tables`` (R, Σ P_a), as numpy's max and
     argmax give them (the lowest action on a tie; a NaN wins, the first one). One pass instead of gathering an

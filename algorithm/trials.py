@@ -24,7 +24,7 @@ from functools import partial
 
 import numpy as np
 
-from algorithm.agent import TabularAgent
+from algorithm.agent import NStepReturns, TabularAgent
 from algorithm.policy import ActionMode
 from algorithm.transitions import Transitions
 from sim import ScenarioConfig
@@ -100,6 +100,7 @@ class ExperienceSlice:
         # (E·m, L) every robot's cells at the latest state searched for it. A state is searched once: the decision
         # made in it and the update of the tuple ending in it (its s′) read the same row.
         cells = None if agent is None else agent.cells(_flat(state.require_features()))
+        returns = agent.returns(state.shape[0] * state.shape[1]) if agent is not None and update else None
         while True:
             action, cell_sa = self._decide(agent, state, decide, cell_sa, update, cells)
             # The slice keeps only the newest state, so its tracks need no copy per step.
@@ -122,7 +123,7 @@ class ExperienceSlice:
                 if until_change:
                     now = np.take_along_axis(cells.reshape(*state.shape, -1), out.action[..., None], axis=2)[..., 0]
                     out = out.with_boundary(now != cell_sa)
-            self._emit(out, agent if update else None, cell_sa, cells, sink)
+            self._emit(out, agent if update else None, returns, cell_sa, cells, sink)
             if out.trial_over:
                 self._world = state.world
                 return
@@ -145,11 +146,13 @@ class ExperienceSlice:
         self,
         out: TrialStep,
         updated: TabularAgent | None,
+        returns: NStepReturns | None,
         cell_sa: np.ndarray,
         cells: np.ndarray | None,
         sink: Callable[[Transitions], None],
     ) -> None:
-        """Hand the tuples that end on this step to ``sink``; with ``updated``, apply Eq. 1 to them."""
+        """Hand the tuples that end on this step to ``sink``; with ``updated``, apply Eq. 1 to them (through
+        ``returns``, the trial's unfinished targets, with n-step targets)."""
         # Rows of the (E·m) robots, found once for every array instead of once per boolean mask.
         rows = np.flatnonzero(out.transition)
         if rows.size == 0:
@@ -163,7 +166,10 @@ class ExperienceSlice:
             next_state=_flat(out.require_next_features())[rows],
             done=out.done.reshape(-1)[rows],
         )
-        if updated is not None and cells is not None:
+        if updated is not None and cells is not None and returns is not None:
+            ends = batch.done | out.truncated.reshape(-1)[rows]
+            returns.update(rows, robots, cell_sa.reshape(-1)[rows], cells[rows], batch.reward, batch.done, ends)
+        elif updated is not None and cells is not None:
             updated.update(robots, cell_sa.reshape(-1)[rows], cells[rows], batch.reward, batch.done)
         sink(batch)
 

@@ -7,7 +7,7 @@ import pytest
 
 from algorithm.discretization import Discretization, nearest
 from algorithm.phase1 import Phase1Config, phase1, to_classes
-from algorithm.qtable import greedy, merge_increments, q_targets, q_update, row_best
+from algorithm.qtable import greedy, merge_increments, n_step_targets, q_targets, q_update, row_best
 from algorithm.transitions import Transitions
 
 GAMMA = 0.9
@@ -294,3 +294,78 @@ def test_row_best_equals_numpy_max_and_argmax_with_ties_and_nans() -> None:
     assert np.isnan(best).any() and (action[:5] == 0).all()
     empty = row_best(tables, rows[:0], cells[:0])
     assert empty[0].shape == empty[1].shape == (0,)
+
+
+def _n_step(n: int, tuples: list[tuple[int, int, float, float, bool, bool]], gamma: float = 0.5):
+    """Feed ``tuples`` (trial row, cell, reward, bootstrap, ends, done) one call at a time; the targets completed."""
+    queue_cells, queue_rewards, length = np.zeros((2, n), np.int64), np.zeros((2, n)), np.zeros(2, np.int64)
+    done_targets = []
+    for row, cell, reward, boot, ends, done in tuples:
+        cells, targets = np.empty(n, np.int64), np.empty(n)
+        k = n_step_targets(
+            np.array([row]),
+            np.array([cell]),
+            np.array([reward]),
+            np.array([boot]),
+            np.array([ends]),
+            np.array([done]),
+            gamma,
+            queue_cells,
+            queue_rewards,
+            length,
+            cells,
+            targets,
+        )
+        done_targets.append(sorted(zip(cells[:k].tolist(), targets[:k].tolist(), strict=True)))
+    return done_targets
+
+
+def test_n_step_targets_sum_the_next_rewards_and_bootstrap_after_n_decisions() -> None:
+    # Robot 0 decides in cells 10, 11, 12, 13 (rewards 1, 2, 4, 8), γ = 0.5, n = 3: cell 10's target is known at
+    # the third tuple, 1 + 0.5·2 + 0.25·4 + 0.125·max Q(s′) = 3 + 0.125·6; cell 11's at the fourth. Robot 1 is kept
+    # apart. The time-out then cuts robot 0's trial: cells 12 and 13 get their shorter returns, bootstrapped.
+    out = _n_step(
+        3,
+        [
+            (0, 10, 1.0, 99.0, False, False),
+            (1, 20, 5.0, 99.0, False, False),
+            (0, 11, 2.0, 99.0, False, False),
+            (0, 12, 4.0, 6.0, False, False),
+            (0, 13, 8.0, 2.0, False, False),
+            (0, 14, 16.0, 4.0, True, False),
+        ],
+    )
+    assert out[:3] == [[], [], []]
+    assert out[3] == [(10, 1.0 + 1.0 + 1.0 + 0.125 * 6.0)]
+    assert out[4] == [(11, 2.0 + 2.0 + 2.0 + 0.125 * 2.0)]
+    assert out[5] == [(12, 4.0 + 4.0 + 4.0 + 0.125 * 4.0), (13, 8.0 + 8.0 + 0.25 * 4.0), (14, 16.0 + 0.5 * 4.0)]
+
+
+def test_a_terminal_tuple_cuts_every_held_return_without_a_bootstrap() -> None:
+    out = _n_step(4, [(1, 5, 1.0, 50.0, False, False), (1, 6, -1.0, 50.0, True, True)])
+    assert out == [[], [(5, 1.0 - 0.5), (6, -1.0)]]
+
+
+def test_one_step_targets_through_the_queue_are_equation_1() -> None:
+    rng = np.random.default_rng(3)
+    n = 40
+    rewards, boot = rng.normal(size=n), rng.normal(size=n)
+    dones, ends = rng.random(n) < 0.3, rng.random(n) < 0.5
+    ends |= dones
+    cells, targets = np.empty(n, np.int64), np.empty(n)
+    k = n_step_targets(
+        np.arange(n),
+        np.arange(n),
+        rewards,
+        boot,
+        ends,
+        dones,
+        0.9,
+        np.zeros((n, 1), np.int64),
+        np.zeros((n, 1)),
+        np.zeros(n, np.int64),
+        cells,
+        targets,
+    )
+    assert k == n
+    np.testing.assert_array_equal(targets[np.argsort(cells)], q_targets(boot, rewards, dones, 0.9))

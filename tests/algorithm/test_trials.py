@@ -101,6 +101,22 @@ def test_phase2_learns_that_moving_away_from_a_lone_target_loses_it() -> None:
     assert agent.visits.sum() > 0
 
 
+def test_n_step_targets_apply_every_tuple_by_the_trials_end_and_learn_other_values() -> None:
+    cfg = scenario(n_robots=2)
+    protos = [np.array([[0.0, 0.0], [140.0, 0.0], [-140.0, 0.0]])] * 8
+    disc = Discretization.from_per_action(protos)
+    policy = Policy(LOCAL, disc, np.zeros((1, disc.size), np.float32), np.zeros(2, np.int64))
+    tables = {}
+    for n_step in (1, 3):
+        agent = TabularAgent(policy, Phase2Config(alpha=0.1, gamma=0.9, epsilon=0.5, n_step=n_step))
+        sl = ExperienceSlice(cfg, SliceConfig(LOCAL, n_arenas=200), seed=4)
+        tuples = sum(len(sl.run_trial(agent, update=True)) for _ in range(3))
+        # Each tuple's target is applied once by its trial's end (a lost learner's, the time-out's): none waits.
+        assert int(agent.visits.sum()) == tuples
+        tables[n_step] = agent.tables.copy()
+    assert not np.allclose(tables[1], tables[3])
+
+
 def test_until_change_actions_last_until_the_cell_changes_or_the_cap() -> None:
     cfg = scenario()
     # One prototype per action: the cell never changes, so every VQQL action lasts its cap of 25 steps.
