@@ -158,19 +158,24 @@ class ExperienceSlice:
         if rows.size == 0:
             return
         robots = rows % out.action.shape[1]
+        # Held actions end together, so on a decision step every robot's tuple ends: views then, not copies (no
+        # step writes into an array a TrialStep returned).
+        take = slice(None) if rows.size == out.transition.size else rows
         batch = Transitions(
             robot=robots.astype(np.int16),
-            state=_flat(out.start_features)[rows],
-            action=out.action.reshape(-1)[rows].astype(np.uint8),
-            reward=out.reward.reshape(-1)[rows],
-            next_state=_flat(out.require_next_features())[rows],
-            done=out.done.reshape(-1)[rows],
+            state=_flat(out.start_features)[take],
+            action=out.action.reshape(-1)[take].astype(np.uint8),
+            reward=out.reward.reshape(-1)[take],
+            next_state=_flat(out.require_next_features())[take],
+            done=out.done.reshape(-1)[take],
         )
-        if updated is not None and cells is not None and returns is not None:
-            ends = batch.done | out.truncated.reshape(-1)[rows]
-            returns.update(rows, robots, cell_sa.reshape(-1)[rows], cells[rows], batch.reward, batch.done, ends)
-        elif updated is not None and cells is not None:
-            updated.update(robots, cell_sa.reshape(-1)[rows], cells[rows], batch.reward, batch.done)
+        if updated is not None and cells is not None:
+            held, next_cells = cell_sa.reshape(-1)[take], cells[take]
+            if returns is not None:
+                ends = batch.done | out.truncated.reshape(-1)[take]
+                returns.update(rows, robots, held, next_cells, batch.reward, batch.done, ends)
+            else:
+                updated.update(robots, held, next_cells, batch.reward, batch.done)
         sink(batch)
 
     def _decide(

@@ -564,45 +564,6 @@ def _state_pull(
     return s * x, s * y
 
 
-@njit(cache=True, inline="always")
-def _state_force(
-    features: np.ndarray,
-    n_seen: np.ndarray,
-    sees_robot: np.ndarray,
-    shared: np.ndarray,
-    memory: np.ndarray,
-    remembers: np.ndarray,
-    law: np.ndarray,
-    e: int,
-    i: int,
-) -> tuple[float, float]:
-    """Robot i of arena e: the pull of :class:`sim.controllers.StateForceController` on its features, summed in the
-    controller's order (nearest target, furthest, nearest robot, remembered target)."""
-    do1, do2, do3, do4, dr1, dr2, w_shared = law[0], law[1], law[2], law[3], law[4], law[5], law[6]
-    fx = fy = 0.0
-    # The nearest target (k = 0), then the furthest (k = 1), each present with k + 1 targets in view.
-    for k in range(min(n_seen[e, i], 2)):
-        w = w_shared if shared[e, i, k] else 1.0
-        px, py = _state_pull(
-            np.float64(features[e, i, 2 * k]), np.float64(features[e, i, 2 * k + 1]), w, do1, do2, do3, do4
-        )
-        fx += px
-        fy += py
-    if sees_robot[e, i]:
-        x = np.float64(features[e, i, 4])
-        y = np.float64(features[e, i, 5])
-        d = math.sqrt(x * x + y * y)
-        if d > 1e-12:
-            s = _g_robot(d, dr1, dr2) / d
-            fx += s * x
-            fy += s * y
-    if remembers[e, i]:
-        px, py = _state_pull(np.float64(memory[e, i, 0]), np.float64(memory[e, i, 1]), 1.0, do1, do2, do3, do4)
-        fx += px
-        fy += py
-    return fx, fy
-
-
 @njit(cache=True)
 def state_forces(
     features: np.ndarray,  # (E, m, 6) float32: nearest target, furthest target, nearest robot (dx, dy), masked
@@ -614,12 +575,34 @@ def state_forces(
     law: np.ndarray,  # (7,) do1, do2, do3, do4, dr1, dr2, shared_target_weight (1 for a law blind to sharing)
     out_force: np.ndarray,  # out (E, m, 2) float64
 ) -> None:
-    """:class:`sim.controllers.StateForceController`'s force of every robot, one pass (its numpy version made a
-    phase-2 slice's guided explorations a twentieth of the slice)."""
+    """:class:`sim.controllers.StateForceController`'s force of every robot, summed in its order: the nearest target,
+    the furthest, the nearest robot, the remembered target (its numpy version made a phase-2 slice's guided
+    explorations a twentieth of the slice)."""
+    do1, do2, do3, do4, dr1, dr2, w_shared = law[0], law[1], law[2], law[3], law[4], law[5], law[6]
     n_arenas, m, _ = features.shape
     for e in range(n_arenas):
         for i in range(m):
-            fx, fy = _state_force(features, n_seen, sees_robot, shared, memory, remembers, law, e, i)
+            fx = fy = 0.0
+            # The nearest target (k = 0), then the furthest (k = 1), each present with k + 1 targets in view.
+            for k in range(min(n_seen[e, i], 2)):
+                w = w_shared if shared[e, i, k] else 1.0
+                px, py = _state_pull(
+                    np.float64(features[e, i, 2 * k]), np.float64(features[e, i, 2 * k + 1]), w, do1, do2, do3, do4
+                )
+                fx += px
+                fy += py
+            if sees_robot[e, i]:
+                x = np.float64(features[e, i, 4])
+                y = np.float64(features[e, i, 5])
+                d = math.sqrt(x * x + y * y)
+                if d > 1e-12:
+                    s = _g_robot(d, dr1, dr2) / d
+                    fx += s * x
+                    fy += s * y
+            if remembers[e, i]:
+                px, py = _state_pull(np.float64(memory[e, i, 0]), np.float64(memory[e, i, 1]), 1.0, do1, do2, do3, do4)
+                fx += px
+                fy += py
             out_force[e, i, 0] = fx
             out_force[e, i, 1] = fy
 
@@ -642,10 +625,13 @@ def law_frames(
     :class:`sim.controllers.StateForceController` (shared) on the same features, y a quarter turn counter-clockwise,
     mirrored as the target frame is. Where the law pulls nowhere: the target frame, or with ``search`` x along the
     robot's search heading (y turned and mirrored as above)."""
+    force = np.empty((*n_seen.shape, 2))
+    state_forces(features, n_seen, sees_robot, shared, memory, remembers, law, force)
     n_arenas, m, _ = features.shape
     for e in range(n_arenas):
         for i in range(m):
-            fx, fy = _state_force(features, n_seen, sees_robot, shared, memory, remembers, law, e, i)
+            fx = force[e, i, 0]
+            fy = force[e, i, 1]
             norm = math.sqrt(fx * fx + fy * fy)
             if norm > 1e-12:
                 xx = fx / norm
