@@ -279,14 +279,13 @@ class Searcher:
             return search(self.full, x)
         keys = np.empty(x.shape[0], np.int64)
         _fixed_keys(x, np.full(dim, np.nan) if self._flags is None else self._flags, keys)
-        order = np.argsort(keys, kind="stable")
-        ranked = keys[order]
-        starts = np.flatnonzero(np.r_[True, ranked[1:] != ranked[:-1]])
+        order, starts, group_keys = (np.empty(x.shape[0], np.int64) for _ in range(3))
+        groups = _group_rows(keys, order, starts, group_keys)
         out = np.empty((x.shape[0], self.full.groups.size - 1), np.int64)
         rest: list[np.ndarray] = []
-        for begin, end in zip(starts, [*starts[1:], ranked.size], strict=True):
-            rows = order[begin:end]
-            key = int(ranked[begin])
+        for g in range(groups):
+            rows = order[starts[g] : starts[g + 1] if g + 1 < groups else x.shape[0]]
+            key = int(group_keys[g])
             if rows.size >= REDUCE_MIN and dim - key.bit_count() <= len(GRID_SIDES):
                 rows = self._search_grid(key, dim, x, rows, out)
                 if rows.size == 0:
@@ -474,6 +473,44 @@ def _decide(
                 best = d
                 found = index[g, p]
     return found
+
+
+@njit(cache=True)
+def _group_rows(keys: np.ndarray, order: np.ndarray, starts: np.ndarray, group_keys: np.ndarray) -> int:
+    """The rows of each distinct key together: group g (in order of first appearance) is ``group_keys[g]``, its
+    rows ``order[starts[g]:starts[g + 1]]`` ascending; returns the number of groups. One hashed pass and a counting
+    sort instead of numpy's stable argsort of the keys (2 % of a phase-2 slice)."""
+    n = keys.shape[0]
+    size = 2
+    while size < 2 * n:
+        size *= 2
+    slot_key = np.empty(size, np.int64)
+    slot_group = np.full(size, -1, np.int64)
+    group_of = np.empty(n, np.int64)
+    counts = np.zeros(n, np.int64)
+    groups = 0
+    for i in range(n):
+        key = keys[i]
+        h = (key * 2654435761) & (size - 1)  # Knuth's multiplicative hash; the product may wrap, as intended
+        while slot_group[h] >= 0 and slot_key[h] != key:
+            h = (h + 1) & (size - 1)
+        if slot_group[h] < 0:
+            slot_key[h] = key
+            slot_group[h] = groups
+            group_keys[groups] = key
+            groups += 1
+        group_of[i] = slot_group[h]
+        counts[slot_group[h]] += 1
+    start = 0
+    for g in range(groups):
+        starts[g] = start
+        start += counts[g]
+        counts[g] = starts[g]
+    for i in range(n):
+        g = group_of[i]
+        order[counts[g]] = i
+        counts[g] += 1
+    return groups
 
 
 @njit(cache=True)

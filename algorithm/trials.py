@@ -118,7 +118,9 @@ class ExperienceSlice:
                 else:
                     need = (out.transition & ~out.done) | (out.decide & (not out.trial_over))
                 rows = np.flatnonzero(need)
-                if rows.size:
+                if rows.size == need.size:  # a decision step: every robot, no gather and scatter
+                    cells = agent.cells(_flat(state.require_features()))
+                elif rows.size:
                     cells[rows] = agent.cells(_flat(state.require_features())[rows])
                 if until_change:
                     now = np.take_along_axis(cells.reshape(*state.shape, -1), out.action[..., None], axis=2)[..., 0]

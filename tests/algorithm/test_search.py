@@ -12,7 +12,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from algorithm._search import search_grid
+from algorithm._search import _group_rows, search_grid
 from algorithm.agent import Phase2Config, TabularAgent
 from algorithm.discretization import Discretization, nearest
 from algorithm.policy import Policy
@@ -230,3 +230,19 @@ def test_run_trial_gives_the_tuples_and_tables_of_the_reference_loop(
     np.testing.assert_array_equal(fast.tables, slow.tables)
     np.testing.assert_array_equal(fast.visits, slow.visits)
     assert fast.visits.sum() > 0
+
+
+@pytest.mark.parametrize("distinct", [1, 24, 5000])
+def test_group_rows_partitions_the_rows_by_key_each_group_ascending(distinct: int) -> None:
+    rng = np.random.default_rng(distinct)
+    keys = rng.integers(0, 1 << 40, distinct)[rng.integers(0, distinct, 5000)]
+    order, starts, group_keys = (np.empty(keys.size, np.int64) for _ in range(3))
+    groups = _group_rows(keys, order, starts, group_keys)
+    assert groups == np.unique(keys).size
+    assert sorted(order.tolist()) == list(range(keys.size))
+    bounds = [*starts[:groups].tolist(), keys.size]
+    for g in range(groups):
+        rows = order[bounds[g] : bounds[g + 1]]
+        assert (keys[rows] == group_keys[g]).all() and (np.diff(rows) > 0).all()
+    # Groups come in order of first appearance.
+    assert (np.diff([int(np.flatnonzero(keys == k)[0]) for k in group_keys[:groups]]) > 0).all()
