@@ -200,7 +200,7 @@ class ExperienceSlice:
             return explore_actions(self.cfg, state, self.rng), cell_sa
         m = state.shape[1]
         who = np.flatnonzero(decide)
-        cells = all_cells[who]
+        cells = all_cells if who.size == all_cells.shape[0] else all_cells[who]  # every robot: a view
         robots = who % m
         learner_rows = self.learner_mask[robots]
         chosen = agent.act(robots, cells, self.rng, explore=False)

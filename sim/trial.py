@@ -78,6 +78,9 @@ class TrialState:
     """(E, m, d) float32: each robot's state when it chose the held action (the s of its next tuple)."""
     frame: np.ndarray
     """(E, m, 2, 2) float64: the frame the held action is named in, fixed when it was chosen (rows: x, y axes)."""
+    move: np.ndarray
+    """(E, m, 2) float64: the held action's full-speed displacement in that frame, computed when it was chosen (the
+    search and stop rules override it step by step)."""
     learner: np.ndarray
     """(E, m) bool: robots that learn; their trial ends when they lose every target (paper rules)."""
     active: np.ndarray
@@ -188,6 +191,8 @@ def reset_trial(
     features = formulation.featurizer.compute(cfg, view)
     angle = rng.uniform(0.0, 2.0 * np.pi, learner.shape)
     heading = np.stack([np.cos(angle), np.sin(angle)], axis=-1)
+    action = np.zeros(learner.shape, np.int64)
+    frame = np.array(formulation.actions.frame(view, heading), dtype=np.float64)
     return TrialState(
         world=world,
         obs=obs,
@@ -195,10 +200,11 @@ def reset_trial(
         recall=memory,
         formulation=formulation,
         features=features,
-        action=np.zeros(learner.shape, np.int64),
+        action=action,
         held=np.zeros(learner.shape, np.int64),
         start_features=features,
-        frame=np.array(formulation.actions.frame(view, heading), dtype=np.float64),
+        frame=frame,
+        move=formulation.actions.velocity(cfg, action, frame),
         learner=learner,
         active=learner.copy(),
         heading=heading,
@@ -263,7 +269,7 @@ def step_trial(
         raise ValueError(f"decide must have shape {state.shape}, got {decide.shape}")
     formulation = state.formulation
     moves, rules = formulation.actions, formulation.trial_rules
-    held_action, start, held, frame = state.action, state.start_features, state.held, state.frame
+    held_action, start, held, frame, held_move = state.action, state.start_features, state.held, state.frame, state.move
     if decide.any():
         held_action = np.where(decide, action, held_action)
         if held_action.min() < 0 or held_action.max() >= N_ACTIONS:
@@ -272,13 +278,14 @@ def step_trial(
         held = np.where(decide, 0, held)
         if moves.relative:
             frame = np.where(decide[..., None, None], moves.frame(state.view, state.heading), frame)
+        held_move = moves.velocity(cfg, held_action, frame)
     # Only robots that do not learn search (and learners, where losing every target does not end their trial); with
     # none in the batch the headings are never read.
     seeker = ~state.learner | (not rules.lost_ends_trial)
     heading = wander(cfg, state.world, state.heading) if seeker.any() else state.heading
-    move = moves.velocity(cfg, held_action, frame)  # a new array: the rules below overwrite its robots' rows
+    # A new array: the rules below overwrite its robots' rows.
+    move = held_move.copy() if velocity is None else np.where(state.learner[..., None], held_move, velocity)
     if velocity is not None:
-        move = np.where(state.learner[..., None], move, velocity)
         seeker = seeker & state.learner
     searching = seeker & lost(state.view)
     # Searchers move along their heading; a learner whose trial ended stays where it lost its targets [paper].
@@ -345,6 +352,7 @@ def step_trial(
         held=held,
         start_features=start,
         frame=frame,
+        move=held_move,
         learner=state.learner,
         active=active,
         heading=heading,

@@ -54,6 +54,7 @@ def situation(
     view, memory = view_of(cfg, world, obs, memory)
     features = formulation.featurizer.compute(cfg, view)
     mask = np.array([learner])
+    frame = np.array(formulation.actions.frame(view), dtype=np.float64)
     return TrialState(
         world=world,
         obs=obs,
@@ -63,7 +64,8 @@ def situation(
         features=features,
         action=np.zeros((1, m), np.int64),
         held=np.zeros((1, m), np.int64),
-        frame=np.array(formulation.actions.frame(view), dtype=np.float64),
+        frame=frame,
+        move=formulation.actions.velocity(cfg, np.zeros((1, m), np.int64), frame),
         start_features=features,
         learner=mask,
         active=mask.copy(),
