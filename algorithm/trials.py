@@ -101,6 +101,7 @@ class ExperienceSlice:
         # made in it and the update of the tuple ending in it (its s′) read the same row.
         cells = None if agent is None else agent.cells(_flat(state.require_features()))
         returns = agent.returns(state.shape[0] * state.shape[1]) if agent is not None and update else None
+        idle = np.zeros(state.shape, dtype=bool)
         while True:
             action, cell_sa = self._decide(agent, state, decide, cell_sa, update, cells)
             # The slice keeps only the newest state, so its tracks need no copy per step.
@@ -109,6 +110,10 @@ class ExperienceSlice:
             state, out = step_trial(cfg, state, action, decide, rng, hold=hold, in_place=True, lazy=not until_change)
             if on_step is not None:
                 on_step(state.world, state.obs)
+            if out.next_features is None and not out.trial_over:
+                # A lazy step on which no action ended (four in five): no tuple ends, nobody decides next.
+                decide = idle
+                continue
             if agent is not None and cells is not None:
                 # Robots that decide next (none after the last step), and learners whose tuple ends here and
                 # bootstraps from s′ (VQQL: all, for the cell-change boundary). Rows of ended trials keep older cells
@@ -162,7 +167,7 @@ class ExperienceSlice:
         robots = rows % out.action.shape[1]
         # Held actions end together, so on a decision step every robot's tuple ends: views then, not copies (no
         # step writes into an array a TrialStep returned).
-        take = slice(None) if rows.size == out.transition.size else rows
+        take = slice(None) if rows.size == out.action.size else rows
         batch = Transitions(
             robot=robots.astype(np.int16),
             state=_flat(out.start_features)[take],

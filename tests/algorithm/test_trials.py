@@ -117,6 +117,21 @@ def test_n_step_targets_apply_every_tuple_by_the_trials_end_and_learn_other_valu
     assert not np.allclose(tables[1], tables[3])
 
 
+def test_a_trial_ends_when_its_time_out_falls_between_decisions_after_every_learner_stopped() -> None:
+    # Actions of 3 steps in trials of 20: the time-out falls on no decision step, and under the paper's rules many
+    # learners have stopped (lost every target) before it. Every learner still ends its trial with exactly one
+    # terminal tuple (lost, or the time-out, which is terminal under these rules).
+    cfg = scenario(n_robots=2, action_steps=3, learning_steps=20)
+    protos = [np.array([[0.0, 0.0], [140.0, 0.0], [-140.0, 0.0]])] * 8
+    disc = Discretization.from_per_action(protos)
+    policy = Policy(LOCAL, disc, np.zeros((1, disc.size), np.float32), np.zeros(2, np.int64))
+    agent = TabularAgent(policy, Phase2Config(epsilon=1.0))
+    sl = ExperienceSlice(cfg, SliceConfig(LOCAL, n_arenas=50), seed=3)
+    for _ in range(4):
+        batch = sl.run_trial(agent, update=True)
+        assert int(batch.done.sum()) == 50 * cfg.n_robots
+
+
 def test_until_change_actions_last_until_the_cell_changes_or_the_cap() -> None:
     cfg = scenario()
     # One prototype per action: the cell never changes, so every VQQL action lasts its cap of 25 steps.
