@@ -193,6 +193,22 @@ def override_moves(
 
 
 @njit(cache=True)
+def difference_redundancy(
+    n_seen: np.ndarray,  # (E, m) int32
+    n_only: np.ndarray,  # (E, m) int32
+    penalty: np.float32,
+    out: np.ndarray,  # out (E, m) float32
+) -> None:
+    """The ``difference-redundancy`` reward of :mod:`sim.features` in one pass, in float32 as numpy computes it:
+    the targets only this robot sees, less ``penalty`` where it sees targets but only ones a teammate sees too."""
+    n_arenas, m = n_only.shape
+    for e in range(n_arenas):
+        for i in range(m):
+            redundant = np.float32(1.0) if n_seen[e, i] > 0 and n_only[e, i] == 0 else np.float32(0.0)
+            out[e, i] = np.float32(n_only[e, i]) - penalty * redundant
+
+
+@njit(cache=True)
 def decision_rewards(
     decide: np.ndarray,  # (E, m) bool: robots that chose their action before this step
     earned: np.ndarray,  # (E, m) float32: the value summed over the held action's earlier steps

@@ -290,8 +290,9 @@ def _difference(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
 
 
 def _difference_redundancy(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
-    redundant = (obs.n_seen > 0) & (obs.n_only == 0)
-    return obs.n_only.astype(np.float32) - np.float32(cfg.redundancy_penalty) * redundant.astype(np.float32)
+    out = np.empty(obs.n_only.shape, np.float32)
+    _kernels.difference_redundancy(obs.n_seen, obs.n_only, np.float32(cfg.redundancy_penalty), out)
+    return out
 
 
 def _redundancy_potential(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
