@@ -784,6 +784,7 @@ def update_tracks(
     track_pos: np.ndarray,  # in/out (E, m, n, 2) float64: robot i's last sighting of target j
     track_vel: np.ndarray,  # in/out (E, m, n, 2) float64: the target's displacement per step estimated then
     track_age: np.ndarray,  # in/out (E, m, n) int64: steps since that sighting (NEVER_SEEN: none)
+    known: np.ndarray,  # in/out (E, m, ⌈n / 64⌉) uint64: bit j of word j // 64, robot i has a track of target j
     sensing_range: float,
     recall_steps: int,
     out_memory: np.ndarray,  # out (E, m, 2) float64: offset to the remembered target (0 where none)
@@ -795,44 +796,55 @@ def update_tracks(
     first sighting), as :func:`tracked_force_heading` keeps them; any other track ages by one. A robot's remembered
     target is, of the targets it saw at most ``recall_steps`` steps ago, sees not now and no teammate sees now, the
     one whose prediction (the last sighting moved on by its velocity for the steps since) lies nearest; a prediction
-    inside the sensing range is known to be wrong (the robot would see the target) and is passed over. Only a sighted
-    track's position and velocity are written, and a track's are read only when it may be the remembered target: the
-    kernel it replaced read and wrote every track's five numbers every step, a fifth of a learning step."""
+    inside the sensing range is known to be wrong (the robot would see the target) and is passed over. Only the
+    tracks a robot holds or sights now are read (``known`` and this step's sightings as bit sets: a robot holds one
+    or two of ten): the loop over every robot-target pair, which read every age, was a ninth of a learning step."""
     n_arenas, m, _ = robot_pos.shape
     n = target_pos.shape[1]
+    words = known.shape[2]
     r2 = sensing_range * sensing_range
-    watchers = np.zeros(n, dtype=np.int64)
+    seen = np.empty((m, words), np.uint64)
+    watched = np.empty(words, np.uint64)
+    one = np.uint64(1)
     for e in range(n_arenas):
-        in_view = sighted[e]
-        watchers[:] = 0
+        for w in range(words):
+            watched[w] = 0
         for i in range(m):
-            for j in range(n):
-                if in_view[i, j]:
-                    watchers[j] += 1
+            for w in range(words):
+                bits = np.uint64(0)
+                for b in range(min(64, n - 64 * w)):
+                    bits |= np.uint64(sighted[e, i, 64 * w + b]) << np.uint64(b)
+                seen[i, w] = bits
+                watched[w] |= bits
         for i in range(m):
             rx = robot_pos[e, i, 0]
             ry = robot_pos[e, i, 1]
             best = np.inf
             mx = my = 0.0
-            for j in range(n):
-                age = track_age[e, i, j]
-                if in_view[i, j]:
-                    _sight(target_pos, track_pos, track_vel, age, e, i, j, track_pos, track_vel)
-                    track_age[e, i, j] = 0
-                    continue
-                if age >= NEVER_SEEN:
-                    continue
-                age += 1
-                track_age[e, i, j] = age
-                if watchers[j] > 0 or age > recall_steps:
-                    continue
-                dx = track_pos[e, i, j, 0] + age * track_vel[e, i, j, 0] - rx
-                dy = track_pos[e, i, j, 1] + age * track_vel[e, i, j, 1] - ry
-                d2 = dx * dx + dy * dy
-                if d2 > r2 and d2 < best:
-                    best = d2
-                    mx = dx
-                    my = dy
+            for w in range(words):
+                now = seen[i, w]
+                relevant = now | known[e, i, w]
+                known[e, i, w] = relevant
+                j = 64 * w
+                while relevant:
+                    if relevant & one:
+                        age = track_age[e, i, j]
+                        if (now >> np.uint64(j - 64 * w)) & one:
+                            _sight(target_pos, track_pos, track_vel, age, e, i, j, track_pos, track_vel)
+                            track_age[e, i, j] = 0
+                        else:
+                            age += 1
+                            track_age[e, i, j] = age
+                            if not (watched[w] >> np.uint64(j - 64 * w)) & one and age <= recall_steps:
+                                dx = track_pos[e, i, j, 0] + age * track_vel[e, i, j, 0] - rx
+                                dy = track_pos[e, i, j, 1] + age * track_vel[e, i, j, 1] - ry
+                                d2 = dx * dx + dy * dy
+                                if d2 > r2 and d2 < best:
+                                    best = d2
+                                    mx = dx
+                                    my = dy
+                    relevant >>= one
+                    j += 1
             out_memory[e, i, 0] = mx
             out_memory[e, i, 1] = my
             out_remembers[e, i] = best < np.inf

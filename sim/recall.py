@@ -51,13 +51,19 @@ class Recall:
     """(E, m, n, 2) float64: its displacement per step estimated from the robot's sightings (0 after a first one)."""
     age: np.ndarray
     """(E, m, n) int64: steps since that sighting (0: seen now; :data:`NEVER`: never seen)."""
+    known: np.ndarray
+    """(E, m, ⌈n / 64⌉) uint64: bit j of word j // 64 set where the robot has a track of target j (its age is not
+    :data:`NEVER`), so that an update reads only those tracks and the ones sighted now."""
 
 
 def forget_all(cfg: ScenarioConfig, shape: tuple[int, int]) -> Recall:
     """Tracks holding nothing, for (E, m) robots and the scenario's targets."""
     tracks = (*shape, cfg.n_targets)
     return Recall(
-        position=np.zeros((*tracks, 2)), velocity=np.zeros((*tracks, 2)), age=np.full(tracks, NEVER, np.int64)
+        position=np.zeros((*tracks, 2)),
+        velocity=np.zeros((*tracks, 2)),
+        age=np.full(tracks, NEVER, np.int64),
+        known=np.zeros((*shape, (cfg.n_targets + 63) // 64), np.uint64),
     )
 
 
@@ -74,7 +80,12 @@ def recall(
     if in_place:
         after = memory
     else:
-        after = Recall(position=memory.position.copy(), velocity=memory.velocity.copy(), age=memory.age.copy())
+        after = Recall(
+            position=memory.position.copy(),
+            velocity=memory.velocity.copy(),
+            age=memory.age.copy(),
+            known=memory.known.copy(),
+        )
     offset = np.empty(world.robot_pos.shape)
     remembers = np.empty(obs.n_seen.shape, np.bool_)
     _kernels.update_tracks(
@@ -84,6 +95,7 @@ def recall(
         after.position,
         after.velocity,
         after.age,
+        after.known,
         cfg.sensing_range,
         cfg.recall_steps,
         offset,

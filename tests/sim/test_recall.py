@@ -228,3 +228,61 @@ def test_the_tracks_read_the_sightings_sense_made_and_measure_the_same_without_t
         np.testing.assert_array_equal(view.features, again.features)
         here = step(cfg, here, cfg.robot_speed * rng.normal(size=here.robot_pos.shape) / 2, rng)
     assert view.remembers is not None and view.remembers.any() and (given.age == 0).any()
+
+
+def _tracks_by_hand(cfg, here, memory):
+    """The module docstring's rule, pair by pair in plain Python: the tracks after this step, each robot's remembered
+    offset (None: none)."""
+    r, n = cfg.sensing_range, here.target_pos.shape[1]
+    position, velocity, age = memory.position.copy(), memory.velocity.copy(), memory.age.copy()
+    remembered = {}
+    for e in range(here.robot_pos.shape[0]):
+        d = here.target_pos[e][None, :, :] - here.robot_pos[e][:, None, :]
+        sees = (d**2).sum(-1) <= r * r
+        for i in range(here.robot_pos.shape[1]):
+            best = None
+            for j in range(n):
+                if sees[i, j]:
+                    gap = age[e, i, j] + 1 if age[e, i, j] < NEVER else None
+                    velocity[e, i, j] = 0.0 if gap is None else (here.target_pos[e, j] - position[e, i, j]) / gap
+                    position[e, i, j], age[e, i, j] = here.target_pos[e, j], 0
+                elif age[e, i, j] < NEVER:
+                    age[e, i, j] += 1
+                    if not sees[:, j].any() and age[e, i, j] <= cfg.recall_steps:
+                        off = position[e, i, j] + age[e, i, j] * velocity[e, i, j] - here.robot_pos[e, i]
+                        d2 = float(off @ off)
+                        if d2 > r * r and (best is None or d2 < best[0]):
+                            best = (d2, off)
+            remembered[e, i] = None if best is None else best[1]
+    return position, velocity, age, remembered
+
+
+def test_tracks_of_more_than_64_targets_follow_the_rule_pair_by_pair() -> None:
+    # 70 targets: a robot's known tracks span two 64-bit words. Small arena, wide sensing: many sightings and losses.
+    from sim import reset, step
+
+    cfg = scenario(n_robots=3, n_targets=70, arena_radius=400.0, recall_steps=30)
+    rng = np.random.default_rng(8)
+    here = reset(cfg, 4, rng)
+    memory = forget_all(cfg, (4, cfg.n_robots))
+    remembered_any = far_words = 0
+    for _ in range(60):
+        obs = sense(cfg, here, rng)
+        position, velocity, age, remembered = _tracks_by_hand(cfg, here, memory)
+        view, memory = recall(cfg, here, obs, memory, in_place=True)
+        np.testing.assert_array_equal(memory.age, age)
+        np.testing.assert_allclose(memory.position, position, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(memory.velocity, velocity, rtol=0, atol=1e-9)
+        for (e, i), offset in remembered.items():
+            assert bool(view.remembers[e, i]) == (offset is not None)
+            if offset is not None:
+                np.testing.assert_allclose(view.memory[e, i], offset, rtol=1e-6, atol=1e-3)
+                remembered_any += 1
+        known = (memory.age < NEVER)[..., :64], (memory.age < NEVER)[..., 64:]
+        far_words += int(known[1].any())
+        for w, part in enumerate(known):
+            bits = memory.known[..., w]
+            expected = (part.astype(np.uint64) << np.arange(part.shape[-1], dtype=np.uint64)).sum(-1, dtype=np.uint64)
+            np.testing.assert_array_equal(bits, expected)
+        here = step(cfg, here, cfg.robot_speed * rng.normal(size=here.robot_pos.shape) / 2, rng)
+    assert remembered_any > 20 and far_words > 0
