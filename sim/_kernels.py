@@ -363,6 +363,8 @@ def force_heading(
 
 NEVER_SEEN = 1 << 40
 """Track age of a target a robot has never observed."""
+TRACK_WORD = 32
+"""Targets per word of a robot's bit set of known tracks (int64 words: shifts stay clear of the sign bit)."""
 
 
 @njit(cache=True)
@@ -784,7 +786,7 @@ def update_tracks(
     track_pos: np.ndarray,  # in/out (E, m, n, 2) float64: robot i's last sighting of target j
     track_vel: np.ndarray,  # in/out (E, m, n, 2) float64: the target's displacement per step estimated then
     track_age: np.ndarray,  # in/out (E, m, n) int64: steps since that sighting (NEVER_SEEN: none)
-    known: np.ndarray,  # in/out (E, m, ⌈n / 64⌉) uint64: bit j of word j // 64, robot i has a track of target j
+    known: np.ndarray,  # in/out (E, m, ⌈n / TRACK_WORD⌉) int64: bit set of the targets robot i has a track of
     sensing_range: float,
     recall_steps: int,
     out_memory: np.ndarray,  # out (E, m, 2) float64: offset to the remembered target (0 where none)
@@ -801,53 +803,49 @@ def update_tracks(
     or two of ten): the loop over every robot-target pair, which read every age, was a ninth of a learning step."""
     n_arenas, m, _ = robot_pos.shape
     n = target_pos.shape[1]
-    words = known.shape[2]
     r2 = sensing_range * sensing_range
-    seen = np.empty((m, words), np.uint64)
-    watched = np.empty(words, np.uint64)
-    one = np.uint64(1)
+    seen = np.empty(m, np.int64)
+    best = np.empty(m)
     for e in range(n_arenas):
-        for w in range(words):
-            watched[w] = 0
         for i in range(m):
-            for w in range(words):
-                bits = np.uint64(0)
-                for b in range(min(64, n - 64 * w)):
-                    bits |= np.uint64(sighted[e, i, 64 * w + b]) << np.uint64(b)
-                seen[i, w] = bits
-                watched[w] |= bits
-        for i in range(m):
-            rx = robot_pos[e, i, 0]
-            ry = robot_pos[e, i, 1]
-            best = np.inf
-            mx = my = 0.0
-            for w in range(words):
-                now = seen[i, w]
+            best[i] = np.inf
+            out_memory[e, i, 0] = 0.0
+            out_memory[e, i, 1] = 0.0
+        for w in range(known.shape[2]):
+            first = TRACK_WORD * w
+            watched = 0
+            for i in range(m):
+                bits = 0
+                for b in range(min(TRACK_WORD, n - first)):
+                    bits |= int(sighted[e, i, first + b]) << b
+                seen[i] = bits
+                watched |= bits
+            for i in range(m):
+                now = seen[i]
                 relevant = now | known[e, i, w]
                 known[e, i, w] = relevant
-                j = 64 * w
+                j = first
                 while relevant:
-                    if relevant & one:
+                    if relevant & 1:
                         age = track_age[e, i, j]
-                        if (now >> np.uint64(j - 64 * w)) & one:
+                        if (now >> (j - first)) & 1:
                             _sight(target_pos, track_pos, track_vel, age, e, i, j, track_pos, track_vel)
                             track_age[e, i, j] = 0
                         else:
                             age += 1
                             track_age[e, i, j] = age
-                            if not (watched[w] >> np.uint64(j - 64 * w)) & one and age <= recall_steps:
-                                dx = track_pos[e, i, j, 0] + age * track_vel[e, i, j, 0] - rx
-                                dy = track_pos[e, i, j, 1] + age * track_vel[e, i, j, 1] - ry
+                            if not (watched >> (j - first)) & 1 and age <= recall_steps:
+                                dx = track_pos[e, i, j, 0] + age * track_vel[e, i, j, 0] - robot_pos[e, i, 0]
+                                dy = track_pos[e, i, j, 1] + age * track_vel[e, i, j, 1] - robot_pos[e, i, 1]
                                 d2 = dx * dx + dy * dy
-                                if d2 > r2 and d2 < best:
-                                    best = d2
-                                    mx = dx
-                                    my = dy
-                    relevant >>= one
+                                if d2 > r2 and d2 < best[i]:
+                                    best[i] = d2
+                                    out_memory[e, i, 0] = dx
+                                    out_memory[e, i, 1] = dy
+                    relevant >>= 1
                     j += 1
-            out_memory[e, i, 0] = mx
-            out_memory[e, i, 1] = my
-            out_remembers[e, i] = best < np.inf
+        for i in range(m):
+            out_remembers[e, i] = best[i] < np.inf
 
 
 @njit(cache=True)

@@ -52,7 +52,7 @@ class Recall:
     age: np.ndarray
     """(E, m, n) int64: steps since that sighting (0: seen now; :data:`NEVER`: never seen)."""
     known: np.ndarray
-    """(E, m, ⌈n / 64⌉) uint64: bit j of word j // 64 set where the robot has a track of target j (its age is not
+    """(E, m, ⌈n / 32⌉) int64: bit j % 32 of word j // 32 set where the robot has a track of target j (its age is not
     :data:`NEVER`), so that an update reads only those tracks and the ones sighted now."""
 
 
@@ -63,7 +63,7 @@ def forget_all(cfg: ScenarioConfig, shape: tuple[int, int]) -> Recall:
         position=np.zeros((*tracks, 2)),
         velocity=np.zeros((*tracks, 2)),
         age=np.full(tracks, NEVER, np.int64),
-        known=np.zeros((*shape, (cfg.n_targets + 63) // 64), np.uint64),
+        known=np.zeros((*shape, -(-cfg.n_targets // _kernels.TRACK_WORD)), np.int64),
     )
 
 
