@@ -51,8 +51,9 @@ def test_learner_killed_just_after_a_checkpoint_resumes_exactly(cluster: Cluster
     watch = PolicyWatch(cluster)
     try:
         # Checkpoints and broadcasts out of phase, so a checkpoint holds increments not merged yet and versions go
-        # out between checkpoints, as with the defaults (3 s and 5 s).
-        first = cluster.learner(run_dir, "--broadcast-interval", "0.7", "--checkpoint-interval", "2")
+        # out between checkpoints. Broadcasts every 0.5 s and checkpoints every 4 s leave about 3 s between the
+        # second broadcast after a checkpoint and the next checkpoint for the kill below, on a loaded machine too.
+        first = cluster.learner(run_dir, "--broadcast-interval", "0.5", "--checkpoint-interval", "4")
         # Outboxes that never fill: the actors keep handing in increments between checkpoints instead of waiting.
         actors = [
             cluster.actor(f"actor-{i}", "--learn", robots, "--outbox-limit", "100000")
@@ -71,7 +72,7 @@ def test_learner_killed_just_after_a_checkpoint_resumes_exactly(cluster: Cluster
         saved_version = checkpoint_version(run_dir)
         assert published_before > saved_version  # versions went out after the checkpoint: the hard case
         time.sleep(2.0)  # the actors go on producing into their outboxes with no learner
-        second = cluster.learner(run_dir, "--resume", "--broadcast-interval", "0.7", "--checkpoint-interval", "2")
+        second = cluster.learner(run_dir, "--resume", "--broadcast-interval", "0.5", "--checkpoint-interval", "4")
         wait_for(lambda: checkpoint_version(run_dir) > published_before + 3, 90, "the resumed learner to broadcast")
         statuses = [finish(a, sig=signal.SIGTERM) for a in actors]
         report = finish(second, sig=signal.SIGTERM)
