@@ -164,15 +164,15 @@ class Outbox:
 
     def _resend_due(self) -> None:
         """Re-send what is overdue, and everything after a learner (re)joined once its subscription is visible here:
-        a message published before the new learner's subscriber reaches this session would be lost again."""
+        a message published before the new learner's subscriber reaches this session would be lost again. Overdue
+        messages go out whether or not it is visible: were this session's view of the learner's subscription to
+        stay stale, waiting on it would stop every re-send while a full outbox stops everything else."""
         now = time.monotonic()
         with self._cond:
-            if self._resend_all and not self.transport.has_subscribers(self.probe_key):
-                return
-            due = [
-                (seq, p) for seq, p in self._pending.items() if self._resend_all or now - p.sent_at >= self.resend_after
-            ]
-            self._resend_all = False
+            everything = self._resend_all and self.transport.has_subscribers(self.probe_key)
+            due = [(seq, p) for seq, p in self._pending.items() if everything or now - p.sent_at >= self.resend_after]
+            if everything:
+                self._resend_all = False
         for seq, pending in due:
             pending.sent_at = now
             self.transport.publish(pending.key, pending.msg)

@@ -110,6 +110,28 @@ def test_an_overdue_message_is_sent_again_before_the_next_one() -> None:
         assert received == [0.0, 0.0, 1.0] and outbox.resent == 1
 
 
+def test_overdue_messages_go_out_while_a_rejoined_learner_s_subscription_is_not_seen() -> None:
+    # After a partition a session's view of the learner's subscription can stay stale. The join's "everything
+    # again" waits for it, but overdue re-sends must not: a full outbox waiting on both deadlocked the actor.
+    received: list[float] = []
+    with InMemoryTransport(InMemoryBus()) as actor:
+        key = actor.keys.status("a0")
+        actor.subscribe(key, Status, lambda m: received.append(m.counters["seq"]))
+        stale = actor.keys.status("nobody")  # a probe key no subscription ever matches
+        outbox = Outbox(actor, "a0", incarnation=1, limit=2, resend_after=0.05, probe_key=stale, stopping=never)
+        outbox.add(key, stamped, policy_version=0)
+        outbox.add(key, stamped, policy_version=0)
+        outbox.on_learner_join("alive/learner/l0")
+        added: list[Status | None] = []
+        worker = threading.Thread(target=lambda: added.append(outbox.add(key, stamped, policy_version=0)))
+        worker.start()
+        # The full outbox keeps re-sending its overdue messages; an ack of them makes room for the third.
+        assert wait_until(lambda: received.count(0.0) >= 3 and received.count(1.0) >= 3)
+        outbox.on_ack(Ack(actor_id="a0", incarnation=1, seq=1))
+        worker.join(timeout=10.0)
+        assert added and added[0] is not None and added[0].counters["seq"] == 2.0
+
+
 def test_a_rejoining_learner_gets_the_whole_outbox_again_and_flush_ends_on_the_last_ack() -> None:
     bus = InMemoryBus()
     received: list[float] = []
