@@ -29,6 +29,7 @@ import numpy as np
 
 from actors.config import ActorConfig
 from actors.increments import IncrementTracker
+from actors.memory import release_compiler_code
 from actors.outbox import Outbox
 from actors.policy_client import PolicyClient
 from algorithm.agent import TabularAgent
@@ -159,6 +160,9 @@ class RobotActor:
             watch = self._watch_trial(start) if self.monitor.enabled else None
             finals = self._run_trial(watch)
             self._trials += 1
+            # What this trial compiled (the first trial of each phase compiles its kernels) leaves LLVM's code resident
+            # though it will not run again; releasing costs ~4 µs a trial (~0.25 s at 500 arenas).
+            release_compiler_code()
             if watch is not None:
                 watch.report(finals, self._tuples, self.policy.version)
             if self.agent is not None:
