@@ -45,19 +45,27 @@ def release_compiler_code() -> int:
 
 
 _spans: list[tuple[int, int]] = []
+_unreadable: list[OSError] = []
+"""Why the mappings could not be read, once (then nothing is released and nothing is said again)."""
 
 
 def _compiler_spans() -> list[tuple[int, int]]:
-    """(start, size) of the library's executable mappings; empty off Linux or before the library is loaded (looked
-    for again next time: a shared library, once loaded, stays where it is)."""
-    if _spans or not sys.platform.startswith("linux"):
+    """(start, size) of the library's executable mappings; empty off Linux, where the mappings cannot be read, or
+    before the library is loaded (looked for again next time: a shared library, once loaded, stays where it is)."""
+    if _spans or _unreadable or not sys.platform.startswith("linux"):
         return _spans
-    with open("/proc/self/maps", encoding="ascii", errors="replace") as maps:
-        for line in maps:
-            fields = line.split(maxsplit=5)
-            if len(fields) == 6 and fields[1] == "r-xp" and fields[5].rstrip("\n").endswith(COMPILER_LIBRARY):
-                lo, hi = (int(x, 16) for x in fields[0].split("-"))
-                _spans.append((lo, hi - lo))
+    try:
+        with open("/proc/self/maps", encoding="ascii", errors="replace") as maps:
+            lines = maps.readlines()
+    except OSError as e:
+        _unreadable.append(e)
+        log.warning("the compiler's code pages stay resident: cannot read /proc/self/maps (%s)", e)
+        return _spans
+    for line in lines:
+        fields = line.split(maxsplit=5)
+        if len(fields) == 6 and fields[1] == "r-xp" and fields[5].rstrip("\n").endswith(COMPILER_LIBRARY):
+            lo, hi = (int(x, 16) for x in fields[0].split("-"))
+            _spans.append((lo, hi - lo))
     return _spans
 
 

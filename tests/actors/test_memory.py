@@ -54,3 +54,23 @@ def test_release_drops_the_compilers_pages_and_numba_still_compiles() -> None:
     # The compiled function still runs, and a new compilation faults the compiler back in and works.
     assert (r["first"], r["again"], r["new"]) == (45, 4950, 16)
     assert r["refaulted"] > r["dropped"], r
+
+
+def test_unreadable_mappings_release_nothing_and_say_so_once(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    from actors import memory
+
+    def refuse(*_args: object, **_kwargs: object) -> None:
+        raise PermissionError("no /proc here")
+
+    monkeypatch.setattr(memory.sys, "platform", "linux")
+    monkeypatch.setattr(memory, "_spans", [])
+    monkeypatch.setattr(memory, "_unreadable", [])
+    monkeypatch.setattr(memory, "open", refuse, raising=False)
+    with caplog.at_level("WARNING", logger="actors.memory"):
+        assert memory.release_compiler_code() == 0
+        assert memory.release_compiler_code() == 0
+    assert [r.getMessage() for r in caplog.records] == [
+        "the compiler's code pages stay resident: cannot read /proc/self/maps (no /proc here)"
+    ]
