@@ -11,7 +11,7 @@ threads)::
                                                       # publishes it and keeps it until acknowledged
     outbox.on_ack(ack)                                # every seq <= ack.seq leaves the outbox
     outbox.on_reject(reject)                          # refused for good by the learner: dropped, counted, logged
-    outbox.on_learner_join(key)                       # a (re)started learner: everything is sent again
+    outbox.on_learner_join(key)                       # a (re)started learner: everything is sent again, on new publishers
     outbox.flush(timeout=10.0)                        # on stopping: re-send and wait for the last acks
 """
 
@@ -68,6 +68,8 @@ class Outbox:
         """The seq of the next message: every seq below it was sent, so the learner sees no gap."""
         self._acked = -1
         self._resend_all = False
+        self._unmatched_resends = 0
+        """Rounds of overdue re-sends made while this session saw no subscriber of ``probe_key``."""
         self.resent = 0
         self.waits = 0
         self.rejected = 0
@@ -123,7 +125,9 @@ class Outbox:
             log.error("the learner rejected seq %d (#%d): %s; dropped from the outbox", reject.seq, n, reject.reason)
 
     def on_learner_join(self, key: str) -> None:
-        # A (re)started learner has not seen what it did not acknowledge: send the whole outbox again.
+        # A (re)started learner has not seen what it did not acknowledge: send the whole outbox again, on publishers
+        # declared afresh (a learner that reappears may mean this session reconnected).
+        self.transport.refresh_publishers()
         with self._cond:
             if self._pending:
                 self._resend_all = True
@@ -173,6 +177,16 @@ class Outbox:
             due = [(seq, p) for seq, p in self._pending.items() if everything or now - p.sent_at >= self.resend_after]
             if everything:
                 self._resend_all = False
+        if due and not everything and not self.transport.has_subscribers(self.probe_key):
+            self._unmatched_resends += 1
+            if self._unmatched_resends in (1, 10) or self._unmatched_resends % 100 == 0:
+                log.warning(
+                    "re-sending %d overdue messages (#%d) while this session sees no subscriber of %s: zenoh may "
+                    "drop them before the wire",
+                    len(due),
+                    self._unmatched_resends,
+                    self.probe_key,
+                )
         for seq, pending in due:
             pending.sent_at = now
             self.transport.publish(pending.key, pending.msg)

@@ -278,6 +278,14 @@ class ZenohTransport:
         sub = self.session.declare_subscriber(key_expr, zenoh.handlers.FifoChannel(self._capacity))
         return self._add(_Pump(f"zenoh-sub {key_expr}", sub, on_sample, self.stats))
 
+    def refresh_publishers(self) -> None:
+        # Seen in the chaos suite (zenoh 1.10.2, a client behind a partition past the lease): after the session
+        # reconnected, its subscribers and liveliness came back, but the publishers declared before the cut put
+        # nothing more on the wire (5 KB sent in 6 minutes of re-sends). Dropping them lets the next publish
+        # declare new ones; a publisher another thread is using now stays alive until that put returns.
+        with self._lock:
+            self._publishers.clear()
+
     def has_subscribers(self, key: str) -> bool:
         # zenoh 1.10's stub says bool, but the value is a MatchingStatus object, which is always truthy.
         status: Any = self._publisher(key).matching_status

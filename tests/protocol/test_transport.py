@@ -428,3 +428,18 @@ def test_a_stream_is_bound_to_its_keys_identity() -> None:
         liar.publish(liar.keys.experience("actor-0"), batch(1))
     assert [m.seq for m in got] == [1]
     assert learner.stats.rejected == {"IdentityMismatch": 1}
+
+
+def test_zenoh_refreshed_publishers_are_declared_anew_and_deliver(pair: tuple[ZenohTransport, ZenohTransport]) -> None:
+    learner, actor = pair
+    got: list[int] = []
+    learner.subscribe(K.experience(), ExperienceBatch, lambda msg: got.append(msg.seq))
+    key = K.experience("actor-0")
+    assert wait_until(lambda: actor.has_subscribers(key))
+    actor.publish(key, batch(0))
+    first = actor._publisher(key)
+    actor.refresh_publishers()
+    actor.publish(key, batch(1))
+    assert actor._publisher(key) is not first  # declared again, not the one from before the refresh
+    assert actor.has_subscribers(key)  # the new publisher sees the subscriber too
+    assert wait_until(lambda: got == [0, 1])
