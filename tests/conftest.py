@@ -17,7 +17,7 @@ import pytest
 
 SLOW_SECONDS = {
     "test_chaos_applies_every_fault_and_the_contract_holds": 119,
-    "test_a_killed_learner_actor_and_router_come_back_and_the_run_ends_exactly": 103,
+    "test_a_killed_learner_actor_and_router_come_back_and_the_run_ends_exactly": 133,
     "test_a_training_job_survives_a_killed_actor_task_and_a_requeue": 82,
     "test_up_saves_one_recording_of_every_process": 71,
     "test_learner_restarted_with_resume_continues_and_outboxes_fill_the_gap": 69,

@@ -82,7 +82,9 @@ def kill_learner_after_a_checkpoint(run_dir: Path) -> int:
 
 def test_a_killed_learner_actor_and_router_come_back_and_the_run_ends_exactly(tmp_path: Path) -> None:
     run_dir, err_path = tmp_path / "sup", tmp_path / "up.err"
-    argv = ennc_ql("up", "--secure", "--duration=45", *SMALL, f"--runs={tmp_path}", "--run-id=sup")
+    # 75 s, not 45: a fresh clone compiles every kernel on loaded cores, and the first checkpointed policy came at 43 s
+    # once, leaving no run to kill the actor and router in.
+    argv = ennc_ql("up", "--secure", "--duration=75", *SMALL, f"--runs={tmp_path}", "--run-id=sup")
     with open(err_path, "w") as err_file:
         up = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=err_file, text=True)
         try:
