@@ -68,8 +68,6 @@ class Outbox:
         """The seq of the next message: every seq below it was sent, so the learner sees no gap."""
         self._acked = -1
         self._resend_all = False
-        self._unmatched_resends = 0
-        """Rounds of overdue re-sends made while this session saw no subscriber of ``probe_key``."""
         self.resent = 0
         self.waits = 0
         self.rejected = 0
@@ -177,16 +175,6 @@ class Outbox:
             due = [(seq, p) for seq, p in self._pending.items() if everything or now - p.sent_at >= self.resend_after]
             if everything:
                 self._resend_all = False
-        if due and not everything and not self.transport.has_subscribers(self.probe_key):
-            self._unmatched_resends += 1
-            if self._unmatched_resends in (1, 10) or self._unmatched_resends % 100 == 0:
-                log.warning(
-                    "re-sending %d overdue messages (#%d) while this session sees no subscriber of %s: zenoh may "
-                    "drop them before the wire",
-                    len(due),
-                    self._unmatched_resends,
-                    self.probe_key,
-                )
         for seq, pending in due:
             pending.sent_at = now
             self.transport.publish(pending.key, pending.msg)
