@@ -11,7 +11,7 @@ threads)::
                                                       # publishes it and keeps it until acknowledged
     outbox.on_ack(ack)                                # every seq <= ack.seq leaves the outbox
     outbox.on_reject(reject)                          # refused for good by the learner: dropped, counted, logged
-    outbox.on_learner_join(key)                       # a (re)started learner: all sent again, on new publishers
+    outbox.on_learner_join(key)                       # a (re)started learner: all sent again
     outbox.flush(timeout=10.0)                        # on stopping: re-send and wait for the last acks
 """
 
@@ -123,9 +123,7 @@ class Outbox:
             log.error("the learner rejected seq %d (#%d): %s; dropped from the outbox", reject.seq, n, reject.reason)
 
     def on_learner_join(self, key: str) -> None:
-        # A (re)started learner has not seen what it did not acknowledge: send the whole outbox again, on publishers
-        # declared afresh (a learner that reappears may mean this session reconnected).
-        self.transport.refresh_publishers()
+        # A (re)started learner has not seen what it did not acknowledge: send the whole outbox again.
         with self._cond:
             if self._pending:
                 self._resend_all = True

@@ -145,9 +145,6 @@ class InMemoryTransport:
     def has_subscribers(self, key: str) -> bool:
         return bool(self.bus.matching("sub", key))
 
-    def refresh_publishers(self) -> None:
-        """Nothing to do: the bus routes every publication afresh."""
-
     def declare_queryable(self, key: str, fn: Callable[[], Message | None]) -> Closeable:
         return self._declare(_Entity(self, "queryable", key, handler=fn))
 

@@ -175,11 +175,6 @@ class Transport(Protocol):
         """Whether a subscriber matching ``key`` is known (e.g. wait for the learner before streaming)."""
         ...
 
-    def refresh_publishers(self) -> None:
-        """Declare every key's publisher afresh at its next :meth:`publish` (after a reconnection: a publisher
-        declared before it may go on routing its data nowhere)."""
-        ...
-
     def declare_queryable(self, key: str, fn: Callable[[], Message | None]) -> Closeable:
         """Answer ``get``s on ``key`` with ``fn()`` (no reply when it returns None)."""
         ...

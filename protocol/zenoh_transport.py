@@ -27,9 +27,11 @@ Memory held per subscription is bounded by ``channel_capacity`` × the largest p
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import threading
+import time
 from collections.abc import Callable, Sequence
 from types import TracebackType
 from typing import Any, Self
@@ -55,6 +57,9 @@ log = logging.getLogger(__name__)
 
 MODES = ("peer", "client", "router")
 DEFAULT_CHANNEL_CAPACITY = 32
+REOPEN_AFTER_LEASES = 2
+"""A client session without a router for this many leases is closed and opened anew."""
+WATCH_INTERVAL_S = 1.0
 SHM_POOL_BYTES = 4 * 2**20
 """Zenoh's shared-memory pool per session (its default: 16 MiB). Every process of a one-host run maps its own pool
 and each peer's it receives from, all of it resident once used round-robin; an experience batch is about 1 MiB."""
@@ -160,12 +165,23 @@ def keys_from_args(args: argparse.Namespace) -> KeySpace:
 
 
 class _Pump:
-    """A zenoh entity with a FifoChannel handler and the worker thread that drains it."""
+    """A zenoh entity with a FifoChannel handler and the worker thread that drains it. The entity is
+    ``declare(session)``: declared again on each session the transport reopens (``detach``, then ``attach``), the same
+    worker draining it."""
 
-    def __init__(self, name: str, entity: Any, on_item: Callable[[Any], None], stats: TransportStats) -> None:
-        self._entity = entity
+    def __init__(
+        self,
+        name: str,
+        declare: Callable[[zenoh.Session], Any],
+        session: zenoh.Session | None,
+        on_item: Callable[[Any], None],
+        stats: TransportStats,
+    ) -> None:
+        self._declare = declare
         self._on_item = on_item
         self._stats = stats
+        self._cond = threading.Condition()
+        self._entity: Any = None if session is None else declare(session)
         self._closed = False
         # Daemon only as a last resort: close() joins it; a forgotten one must not keep the process alive.
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
@@ -173,18 +189,48 @@ class _Pump:
 
     def _run(self) -> None:
         while True:
+            with self._cond:
+                while self._entity is None and not self._closed:
+                    self._cond.wait()
+                entity = self._entity
+                if entity is None:
+                    return  # closed while detached
             try:
-                item = self._entity.handler.recv()
-            except zenoh.ZError:
-                return  # the channel is closed (entity undeclared) and drained
+                item = entity.handler.recv()
+            except zenoh.ZError:  # the channel is closed (entity undeclared) and drained
+                with self._cond:
+                    if self._closed:
+                        return
+                    if self._entity is entity:
+                        self._entity = None  # closed under us: wait for the next attach instead of spinning
+                continue
             run_handler(self._stats, self._thread.name, self._on_item, item)
+
+    def detach(self) -> None:
+        """Undeclare the entity (the session is going away); the worker drains it and waits for :meth:`attach`."""
+        with self._cond:
+            entity, self._entity = self._entity, None
+        if entity is not None:
+            entity.undeclare()
+
+    def attach(self, session: zenoh.Session) -> None:
+        """Declare the entity on ``session`` unless it is declared already."""
+        with self._cond:
+            if self._closed or self._entity is not None:
+                return
+            self._entity = self._declare(session)
+            self._cond.notify_all()
 
     def close(self) -> None:
         """Undeclare the entity, let the worker drain the channel and join it; idempotent."""
-        if self._closed:
-            return
-        self._closed = True
-        self._entity.undeclare()
+        with self._cond:
+            if self._closed:
+                return
+            self._closed = True
+            entity, self._entity = self._entity, None
+            self._cond.notify_all()
+        if entity is not None:
+            entity.undeclare()
         if threading.current_thread() is not self._thread:
             self._thread.join(_JOIN_TIMEOUT_S)
             if self._thread.is_alive():
@@ -192,20 +238,48 @@ class _Pump:
 
 
 class _Token:
-    def __init__(self, token: zenoh.LivelinessToken) -> None:
-        self._token: zenoh.LivelinessToken | None = token
+    """A liveliness token, declared again on each session the transport reopens."""
+
+    def __init__(self, key: str, session: zenoh.Session | None) -> None:
+        self._key = key
+        self._lock = threading.Lock()
+        self._closed = False
+        self._token: zenoh.LivelinessToken | None = None
+        if session is not None:
+            self.attach(session)
+
+    def detach(self) -> None:
+        with self._lock:
+            token, self._token = self._token, None
+        if token is not None:
+            token.undeclare()
+
+    def attach(self, session: zenoh.Session) -> None:
+        with self._lock:
+            if not self._closed and self._token is None:
+                self._token = session.liveliness().declare_token(self._key)
 
     def close(self) -> None:
         """Undeclare the token; idempotent."""
-        token, self._token = self._token, None
-        if token is not None:
-            token.undeclare()
+        with self._lock:
+            self._closed = True
+        self.detach()
+
+
+def _reopen_after_s(conf: zenoh.Config) -> float | None:
+    """How long a client session may see no router before it is reopened (two leases), or None: not a client with
+    endpoints to connect to, so nothing to reopen towards."""
+    if json.loads(conf.get_json("mode")) != "client" or not json.loads(conf.get_json("connect/endpoints")):
+        return None
+    return REOPEN_AFTER_LEASES * int(conf.get_json("transport/link/tx/lease")) / 1000
 
 
 class ZenohTransport:
     """A :class:`~protocol.transport.Transport` over a zenoh session.
 
-    ``ZenohTransport(session)`` borrows a session the caller closes; :meth:`open` owns one.
+    ``ZenohTransport(session)`` borrows a session the caller closes; :meth:`open` owns one and, for a client,
+    watches it: a session that sees no router for two leases is closed and opened anew, everything declared on it
+    declared again (see :meth:`_watch`).
     """
 
     def __init__(
@@ -225,19 +299,100 @@ class ZenohTransport:
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._handles: list[_Pump | _Token] = []
         self._closed = False
+        self._reopening = False
+        """While True the session is being replaced: publications are dropped (as zenoh drops them while no router
+        is connected), declarations wait for the new session."""
+        self._stop = threading.Event()
+        self._watchdog: threading.Thread | None = None
+        self.reopened = 0
+        """Sessions opened anew by the watchdog."""
 
     @classmethod
-    def open(cls, conf: zenoh.Config, keys: KeySpace = DEFAULT_KEYS, **kwargs: Any) -> ZenohTransport:
-        """Open a zenoh session with ``conf`` that :meth:`close` will close."""
-        return cls(zenoh.open(conf), keys, own_session=True, **kwargs)
+    def open(
+        cls, conf: zenoh.Config, keys: KeySpace = DEFAULT_KEYS, *, reopen_after_s: float | None = None, **kwargs: Any
+    ) -> ZenohTransport:
+        """Open a zenoh session with ``conf`` that :meth:`close` will close. A client's session is reopened after
+        ``reopen_after_s`` seconds without a router (default: two of ``conf``'s leases)."""
+        transport = cls(zenoh.open(conf), keys, own_session=True, **kwargs)
+        after = reopen_after_s if reopen_after_s is not None else _reopen_after_s(conf)
+        if after is not None:
+            transport._watchdog = threading.Thread(
+                target=transport._watch, args=(conf, after), name="zenoh-session-watchdog", daemon=True
+            )
+            transport._watchdog.start()
+        return transport
 
     def _check_open(self) -> None:
         if self._closed:
             raise TransportClosed("transport is closed")
 
-    def _publisher(self, key: str) -> zenoh.Publisher:
+    def _watch(self, conf: zenoh.Config, after: float) -> None:
+        """Reopen the session once it has seen no router for ``after`` seconds.
+
+        Why: zenoh 1.10.2 can leave a client's session connected in name only. Seen in the chaos suite (an actor
+        partitioned past the lease, then healed): the session reconnected, received the learner's policies and
+        acknowledgements, and put nothing on the wire (5 KB in minutes of re-sends) while ``routers_zid()`` stayed
+        empty. That fits the race zenoh issue #1886 describes: the old transport, its sending stuck in the cut-off
+        socket, finishes closing only after the new one opened, and takes the new one's routing with it. Nothing in
+        the session mends it, so a client without a router for two leases starts afresh; after a real outage this
+        costs one more connection, once the router is back.
+        """
+        lost_since: float | None = None
+        while not self._stop.wait(WATCH_INTERVAL_S):
+            try:
+                connected = bool(self.session.info.routers_zid())
+            except zenoh.ZError:
+                return  # closed under us
+            now = time.monotonic()
+            if connected:
+                lost_since = None
+            elif lost_since is None:
+                lost_since = now
+            elif now - lost_since >= after:
+                log.warning("no router for %.0f s: closing the zenoh session and opening it anew", now - lost_since)
+                self._reopen(conf)
+                lost_since = None
+
+    def _reopen(self, conf: zenoh.Config) -> None:
+        """Replace the session by a new one with ``conf`` and declare everything again on it."""
+        with self._lock:
+            if self._closed:
+                return
+            self._reopening = True
+            old, handles = self.session, list(self._handles)
+            publishers, self._publishers = list(self._publishers.values()), {}
+        # The old session is broken: what fails in undeclaring on it or closing it is of no further concern.
+        with contextlib.suppress(zenoh.ZError):
+            for handle in handles:
+                handle.detach()
+            for pub in publishers:
+                pub.undeclare()
+            old.close()
+        while True:
+            try:
+                new = zenoh.open(conf)  # a client retries its router until it answers
+                break
+            except zenoh.ZError as exc:
+                log.error("reopening the zenoh session failed (retrying): %s", exc)
+                if self._stop.wait(WATCH_INTERVAL_S):
+                    return
+        with self._lock:
+            if self._closed:
+                new.close()
+                return
+            self.session, self._reopening = new, False
+            handles = list(self._handles)
+        for handle in handles:
+            handle.attach(new)
+        self.reopened += 1
+        log.info("zenoh session reopened (%d so far): %d declarations renewed", self.reopened, len(handles))
+
+    def _publisher(self, key: str) -> zenoh.Publisher | None:
+        """The publisher of ``key``, declared at its first use; None while the session is being reopened."""
         with self._lock:
             self._check_open()
+            if self._reopening:
+                return None
             pub = self._publishers.get(key)
             if pub is None:
                 qos = self.keys.qos(key)
@@ -252,18 +407,31 @@ class ZenohTransport:
                 self._publishers[key] = pub
             return pub
 
-    def _add(self, handle: _Pump | _Token) -> Closeable:
+    def _add(self, make: Callable[[zenoh.Session | None], _Pump | _Token]) -> Closeable:
+        """``make(session)``, declared on the session now, or detached (``make(None)``) while it is being reopened:
+        the reopening then attaches it to the new one."""
         with self._lock:
-            if self._closed:
-                handle.close()
-                raise TransportClosed("transport is closed")
+            self._check_open()
+            handle = make(None if self._reopening else self.session)
             self._handles.append(handle)
         return handle
 
     def publish(self, key: str, msg: Message) -> None:
         self.keys.check_message(key, msg)  # our own bug is caught here, before the wire
         data = encode(msg)
-        self._publisher(key).put(data)
+        pub = self._publisher(key)
+        if pub is None:
+            log.debug("no session while it is reopened: a message on %s dropped", key)
+            return
+        try:
+            pub.put(data)
+        except zenoh.ZError:
+            with self._lock:
+                replaced = self._publishers.get(key) is not pub
+            if not replaced:
+                raise
+            log.debug("the session was reopened during a put on %s: the message dropped", key)
+            return
         self.stats.count_published()
 
     def subscribe(
@@ -275,21 +443,16 @@ class ZenohTransport:
             key = str(sample.key_expr)
             deliver(self.keys, self.stats, key, sample.payload.to_bytes(), msg_type, handler, on_reject)
 
-        sub = self.session.declare_subscriber(key_expr, zenoh.handlers.FifoChannel(self._capacity))
-        return self._add(_Pump(f"zenoh-sub {key_expr}", sub, on_sample, self.stats))
+        def declare(session: zenoh.Session) -> Any:
+            return session.declare_subscriber(key_expr, zenoh.handlers.FifoChannel(self._capacity))
 
-    def refresh_publishers(self) -> None:
-        # Seen in the chaos suite (zenoh 1.10.2, a client behind a partition past the lease): after the session
-        # reconnected, its subscribers and liveliness came back, but the publishers declared before the cut put
-        # nothing more on the wire (5 KB sent in 6 minutes of re-sends). Dropping them lets the next publish
-        # declare new ones; a publisher another thread is using now stays alive until that put returns.
-        with self._lock:
-            self._publishers.clear()
+        return self._add(lambda session: _Pump(f"zenoh-sub {key_expr}", declare, session, on_sample, self.stats))
 
     def has_subscribers(self, key: str) -> bool:
         # zenoh 1.10's stub says bool, but the value is a MatchingStatus object, which is always truthy.
-        status: Any = self._publisher(key).matching_status
-        return bool(status.matching)
+        pub = self._publisher(key)
+        status: Any = None if pub is None else pub.matching_status
+        return status is not None and bool(status.matching)
 
     def declare_queryable(self, key: str, fn: Callable[[], Message | None]) -> Closeable:
         self._check_open()
@@ -300,12 +463,16 @@ class ZenohTransport:
                 if msg is not None:
                     query.reply(key, encode(msg), encoding=ENCODING)
 
-        queryable = self.session.declare_queryable(key, zenoh.handlers.FifoChannel(self._capacity))
-        return self._add(_Pump(f"zenoh-queryable {key}", queryable, on_query, self.stats))
+        def declare(session: zenoh.Session) -> Any:
+            return session.declare_queryable(key, zenoh.handlers.FifoChannel(self._capacity))
+
+        return self._add(lambda session: _Pump(f"zenoh-queryable {key}", declare, session, on_query, self.stats))
 
     def get(self, key_expr: str, msg_type: type[M], timeout: float = 2.0) -> list[M]:
         self._check_open()
         replies: list[M] = []
+        if self._reopening:
+            return replies  # no session to ask: as if nobody answered
         for reply in self.session.get(key_expr, timeout=timeout):
             sample = reply.ok
             if sample is None:
@@ -317,8 +484,7 @@ class ZenohTransport:
         return replies
 
     def liveliness_token(self, key: str) -> Closeable:
-        self._check_open()
-        return self._add(_Token(self.session.liveliness().declare_token(key)))
+        return self._add(lambda session: _Token(key, session))
 
     def liveliness_subscribe(
         self,
@@ -333,10 +499,11 @@ class ZenohTransport:
             key = str(sample.key_expr)
             (on_join if sample.kind == zenoh.SampleKind.PUT else on_leave)(key)
 
-        sub = self.session.liveliness().declare_subscriber(
-            key_expr, zenoh.handlers.FifoChannel(self._capacity), history=history
-        )
-        return self._add(_Pump(f"zenoh-liveliness {key_expr}", sub, on_sample, self.stats))
+        def declare(session: zenoh.Session) -> Any:
+            channel: zenoh.handlers.FifoChannel[zenoh.Sample] = zenoh.handlers.FifoChannel(self._capacity)
+            return session.liveliness().declare_subscriber(key_expr, channel, history=history)
+
+        return self._add(lambda session: _Pump(f"zenoh-liveliness {key_expr}", declare, session, on_sample, self.stats))
 
     def close(self) -> None:
         """Undeclare everything, join the workers, then close the session if this transport owns it."""
@@ -346,12 +513,19 @@ class ZenohTransport:
             self._closed = True
             handles, self._handles = self._handles, []
             publishers, self._publishers = list(self._publishers.values()), {}
+            reopening = self._reopening
+        self._stop.set()
         for handle in handles:
             handle.close()
         for pub in publishers:
             pub.undeclare()
-        if self._own_session:
-            self.session.close()
+        # While the watchdog reopens the session, the old one is closed already and the watchdog closes the new one
+        # once it opens (it may wait for a router indefinitely: it is not joined then).
+        if not reopening:
+            if self._watchdog is not None:
+                self._watchdog.join()
+            if self._own_session:
+                self.session.close()
 
     def __enter__(self) -> Self:
         return self

@@ -312,14 +312,3 @@ def test_an_actor_runs_learning_trials_of_the_length_it_is_given() -> None:
         assert len(batch) == actor.scenario.n_robots * steps // actor.scenario.action_steps
     with pytest.raises(ValueError, match="learning_steps"):
         ActorConfig(learning_steps=0)
-
-
-def test_a_learner_joining_declares_the_publishers_anew() -> None:
-    # A learner that reappears may mean this session reconnected, after which zenoh's old publishers were seen to
-    # put nothing on the wire (the chaos suite's partition): the outbox asks for new ones before re-sending.
-    with InMemoryTransport(InMemoryBus()) as actor:
-        refreshed: list[bool] = []
-        actor.refresh_publishers = lambda: refreshed.append(True)  # type: ignore[method-assign]
-        outbox = Outbox(actor, "actor-0", 7, limit=4, resend_after=60.0, probe_key="k", stopping=lambda: False)
-        outbox.on_learner_join("learner")
-        assert refreshed == [True]

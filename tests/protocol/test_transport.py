@@ -42,7 +42,7 @@ from protocol import (
     message_equal,
     zenoh_config,
 )
-from protocol.zenoh_transport import SHM_POOL_BYTES
+from protocol.zenoh_transport import SHM_POOL_BYTES, _reopen_after_s
 from tests.protocol.conftest import golden_samples, sample_policy
 from tools.system import free_port
 
@@ -430,16 +430,52 @@ def test_a_stream_is_bound_to_its_keys_identity() -> None:
     assert learner.stats.rejected == {"IdentityMismatch": 1}
 
 
-def test_zenoh_refreshed_publishers_are_declared_anew_and_deliver(pair: tuple[ZenohTransport, ZenohTransport]) -> None:
-    learner, actor = pair
+def test_a_client_without_a_router_reopens_its_session_and_declares_everything_anew(endpoint: str) -> None:
+    # The watchdog's path, end to end: a client session that sees no router for reopen_after_s is closed and opened
+    # anew, and its subscriptions, liveliness token, queryable and publishers work on the new one. (The broken
+    # session that calls for it, connected in name only after a partition, is the chaos suite's network faults.)
+    def router() -> zenoh.Session:
+        return zenoh.open(zenoh_config(listen=[endpoint], mode="router"))
+
+    client = zenoh_config(connect=[endpoint], mode="client")
     got: list[int] = []
-    learner.subscribe(K.experience(), ExperienceBatch, lambda msg: got.append(msg.seq))
-    key = K.experience("actor-0")
-    assert wait_until(lambda: actor.has_subscribers(key))
-    actor.publish(key, batch(0))
-    first = actor._publisher(key)
-    actor.refresh_publishers()
-    actor.publish(key, batch(1))
-    assert actor._publisher(key) is not first  # declared again, not the one from before the refresh
-    assert actor.has_subscribers(key)  # the new publisher sees the subscriber too
-    assert wait_until(lambda: got == [0, 1])
+    joins: list[str] = []
+    first = router()
+    with (
+        ZenohTransport.open(client, reopen_after_s=1.0) as actor,
+        ZenohTransport.open(client, reopen_after_s=3600.0) as learner,
+    ):
+        learner.subscribe(K.experience(), ExperienceBatch, lambda msg: got.append(msg.seq))
+        learner.liveliness_subscribe(K.alive("actor"), joins.append, lambda _key: None)
+        actor.liveliness_token(K.alive("actor", "actor-0"))
+        actor.declare_queryable(K.experience("actor-0"), lambda: batch(7))
+        key = K.experience("actor-0")
+        assert wait_until(lambda: actor.has_subscribers(key))
+        actor.publish(key, batch(0))
+        assert wait_until(lambda: got == [0]) and wait_until(lambda: len(joins) == 1)
+        before = actor.session
+        first.close()
+        assert wait_until(lambda: before.is_closed(), timeout=15.0)  # reopening: it waits for a router
+        assert actor.has_subscribers(key) is False
+        actor.publish(key, batch(1))  # dropped, as zenoh drops what no router takes
+        with router():
+            assert wait_until(lambda: actor.reopened == 1 and actor.has_subscribers(key), timeout=15.0)
+            assert actor.session is not before and not actor.session.is_closed()
+            assert learner.reopened == 0  # its own session reconnected by itself within the hour
+            actor.publish(key, batch(2))
+            assert wait_until(lambda: got == [0, 2])
+            assert wait_until(lambda: len(joins) == 2)  # the token declared again on the new session
+            assert [m.seq for m in learner.get(key, ExperienceBatch)] == [7]  # the queryable too
+            assert actor.stats.published == 2
+
+
+def test_only_a_client_with_a_router_to_connect_to_is_watched(endpoint: str) -> None:
+    with ZenohTransport.open(zenoh_config(listen=[endpoint])) as peer:
+        assert peer._watchdog is None
+    with zenoh.open(zenoh_config(listen=[endpoint], mode="router")):
+        conf = zenoh_config(connect=[endpoint], mode="client")
+        conf.insert_json5("transport/link/tx/lease", "4000")
+        assert _reopen_after_s(conf) == 8.0
+        with ZenohTransport.open(conf) as client:
+            assert client._watchdog is not None and client._watchdog.is_alive()
+        assert not client._watchdog.is_alive()
