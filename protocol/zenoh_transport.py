@@ -312,10 +312,11 @@ class ZenohTransport:
         cls, conf: zenoh.Config, keys: KeySpace = DEFAULT_KEYS, *, reopen_after_s: float | None = None, **kwargs: Any
     ) -> ZenohTransport:
         """Open a zenoh session with ``conf`` that :meth:`close` will close. A client's session is reopened after
-        ``reopen_after_s`` seconds without a router (default: two of ``conf``'s leases)."""
+        ``reopen_after_s`` seconds without a router (default: two of ``conf``'s leases); another's never is."""
         transport = cls(zenoh.open(conf), keys, own_session=True, **kwargs)
-        after = reopen_after_s if reopen_after_s is not None else _reopen_after_s(conf)
+        after = _reopen_after_s(conf)
         if after is not None:
+            after = after if reopen_after_s is None else reopen_after_s
             transport._watchdog = threading.Thread(
                 target=transport._watch, args=(conf, after), name="zenoh-session-watchdog", daemon=True
             )
