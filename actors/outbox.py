@@ -11,7 +11,7 @@ threads)::
                                                       # publishes it and keeps it until acknowledged
     outbox.on_ack(ack)                                # every seq <= ack.seq leaves the outbox
     outbox.on_reject(reject)                          # refused for good by the learner: dropped, counted, logged
-    outbox.on_learner_join(key)                       # a (re)started learner: all sent again
+    outbox.on_learner_join(key)                       # a (re)started learner: everything is sent again
     outbox.flush(timeout=10.0)                        # on stopping: re-send and wait for the last acks
 """
 
