@@ -4,6 +4,7 @@ interrupts), a child's death with its launcher, and the one free-port helper."""
 from __future__ import annotations
 
 import ctypes
+import faulthandler
 import logging
 import os
 import random
@@ -26,7 +27,8 @@ INTERRUPTS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 def stop_on_signals() -> threading.Event:
     """An event set by SIGTERM, SIGINT or SIGUSR1 (the process then winds down instead of dying mid-write). SIGUSR1 is
-    for SLURM: ``srun`` forwards it to its task, while it turns a SIGTERM into killing the job step."""
+    for SLURM: ``srun`` forwards it to its task, while it turns a SIGTERM into killing the job step. SIGQUIT dumps
+    every thread's stack to stderr."""
     stop = threading.Event()
 
     def handler(signum: int, _frame: object) -> None:
@@ -36,6 +38,9 @@ def stop_on_signals() -> threading.Event:
     signal.signal(signal.SIGTERM, handler)
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGUSR1, handler)
+    # A process that overruns its stop shows where it hangs: SIGQUIT writes every thread's stack to stderr (a
+    # launched child's log) and the process goes on; its launcher sends it before killing it.
+    faulthandler.register(signal.SIGQUIT, all_threads=True)
     return stop
 
 

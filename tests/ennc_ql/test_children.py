@@ -3,10 +3,13 @@ and whatever happens, closing stops every child still running."""
 
 from __future__ import annotations
 
+import logging
 import signal
 import sys
 import time
 from pathlib import Path
+
+import pytest
 
 from tools.cluster import Children, Supervisor, ennc_ql_argv
 
@@ -62,3 +65,21 @@ def test_a_restart_runs_its_own_command_and_a_child_that_exits_0_has_finished(tm
     assert (event.name, event.status, event.delay_s) == ("l", 3, 1.0)
     children = supervisor.children
     assert (children.stdout("l", 1).read_text(), children.stdout("l", 2).read_text()) == ("first\n", "resumed\n")
+
+
+def test_a_child_that_overruns_its_stop_leaves_its_stacks_in_its_log_before_it_is_killed(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # What every ennc-ql process installs (stop_on_signals), then a hang that ignores the stop.
+    hangs = "from tools.system import stop_on_signals\nimport time\nstop_on_signals()\ndef stuck_here():\n"
+    hangs += "    print('up', flush=True)\n    time.sleep(600)\nstuck_here()\n"
+    children = Children(tmp_path, keep_stdout=True)
+    children.start("l", [sys.executable, "-c", hangs])
+    deadline = time.monotonic() + 60
+    while children.stdout("l").read_text() != "up\n" and time.monotonic() < deadline:
+        time.sleep(0.05)
+    with caplog.at_level(logging.ERROR, logger="tools.cluster.children"):
+        assert children.stop("l", grace=1.0) == -signal.SIGKILL
+    log = (tmp_path / "l.log").read_text()
+    assert "most recent call first" in log and "in stuck_here" in log
+    assert "in stuck_here" in caplog.text and "still running after 1 s" in caplog.text

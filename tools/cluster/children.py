@@ -20,6 +20,7 @@ launcher's pid (:data:`tools.system.PARENT_PID_ENV`) and asks Linux for SIGTERM 
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import signal
@@ -37,6 +38,9 @@ from tools.system import PARENT_PID_ENV
 
 log = logging.getLogger(__name__)
 
+STACK_DUMP_S = 1.0
+"""How long a child that overran its stop gets to write its stacks (SIGQUIT) before it is killed."""
+STACK_DUMP_LINES = 80
 ACTOR_NICENESS = 10
 """Actors produce experience faster than one learner digests it on a shared machine: they yield the CPU to the
 learner so phase 1 and evaluations are not starved."""
@@ -158,7 +162,12 @@ class Children:
         try:
             return self.procs[name].wait(timeout)
         except subprocess.TimeoutExpired:
-            log.error("%s still running after %.0f s: killed; its log ends:\n%s", name, timeout, self.tail(name))
+            # Where it hangs, before it dies: the children's stop_on_signals dump their stacks on SIGQUIT.
+            self.procs[name].send_signal(signal.SIGQUIT)
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                self.procs[name].wait(STACK_DUMP_S)
+            stacks = self.tail(name, STACK_DUMP_LINES)
+            log.error("%s still running after %.0f s: killed; its log and stacks end:\n%s", name, timeout, stacks)
             self.kill(name)
             return self.procs[name].returncode
 
