@@ -16,7 +16,7 @@ from typing import Any, Literal
 import numpy as np
 
 from algorithm.discretization import Discretization
-from algorithm.qtable import greedy
+from algorithm.qtable import row_best
 from sim import ScenarioConfig
 from sim.controllers import wander
 from sim.features import lost
@@ -79,7 +79,9 @@ class Policy:
     def greedy(self, states: np.ndarray, robots: np.ndarray, cells: np.ndarray | None = None) -> np.ndarray:
         """(N,) argmax_a Q_robot(s, a) for states (N, d) of robots (N,)."""
         cells = self.discretization.cells(states) if cells is None else cells
-        return greedy(self.tables[self.rows(robots)], cells)
+        # One pass over the robots' rows in place: gathering each robot's whole row first copied the table once per
+        # robot (N × Σ P_a, 75 MB a step for the learner's 200 test trials of 10 robots).
+        return row_best(self.tables, self.rows(robots), cells)[1]
 
     def team(self) -> Policy:
         """The same policy with one table every robot uses: the rows merged cell by cell, each weighted by its visits

@@ -70,13 +70,6 @@ def step_sizes(before: np.ndarray, count: np.ndarray, alpha: float, alpha_floor:
     return 1.0 - kept * (1.0 - alpha_floor) ** (count - decaying)
 
 
-def greedy(table: np.ndarray, cells: np.ndarray) -> np.ndarray:
-    """(N,) argmax_a Q(s, a) (lowest action on a tie); ``table`` (Σ P_a,) or per-row (N, Σ P_a)."""
-    if table.ndim == 1:
-        return np.argmax(table[cells], axis=1)
-    return np.argmax(np.take_along_axis(table, cells, axis=1), axis=1)
-
-
 @njit(cache=True)
 def n_step_targets(
     trial_rows: np.ndarray,  # (N,) int64: each tuple's robot in the trial's queues
