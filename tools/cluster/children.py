@@ -41,6 +41,7 @@ log = logging.getLogger(__name__)
 STACK_DUMP_S = 1.0
 """How long a child that overran its stop gets to write its stacks (SIGQUIT) before it is killed."""
 STACK_DUMP_LINES = 80
+"""Lines of its log quoted when it is killed: enough for the stacks of its main and Zenoh's threads."""
 ACTOR_NICENESS = 10
 """Actors produce experience faster than one learner digests it on a shared machine: they yield the CPU to the
 learner so phase 1 and evaluations are not starved."""
