@@ -141,7 +141,9 @@ class RobotActor:
             policy_version=self.policy.version,
         )
 
-    def run(self, stop: threading.Event) -> ActorStatus:
+    def run(self, stop: threading.Event, urgent: threading.Event | None = None) -> ActorStatus:
+        """Learning trials until ``stop`` is set or the duration ends, then the outbox's flush, which ``urgent`` (a
+        second Ctrl-C) cuts short."""
         self._stop = stop
         start = time.monotonic()
         # The viewer's train_time: seconds since this loop began, as the learner's clock counts from its own loop.
@@ -171,7 +173,7 @@ class RobotActor:
                 self._publish_status()
                 next_status = time.monotonic() + self.config.status_interval
             self._pace(start)
-        left = self.outbox.flush(timeout=self.config.flush_timeout)
+        left = self.outbox.flush(timeout=self.config.flush_timeout, cut=urgent)
         if left:
             log.warning("actor %s stops with %d unacknowledged messages", self.config.actor_id, left)
         self._publish_status()

@@ -141,10 +141,11 @@ class Outbox:
                 self.waits += 1
                 self._cond.wait(timeout=1.0)
 
-    def flush(self, timeout: float) -> int:
-        """Re-send and wait up to ``timeout`` seconds for the outbox to drain; the messages still unacknowledged."""
+    def flush(self, timeout: float, cut: threading.Event | None = None) -> int:
+        """Re-send and wait up to ``timeout`` seconds for the outbox to drain, or until ``cut`` is set; the messages
+        still unacknowledged."""
         deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
+        while time.monotonic() < deadline and not (cut is not None and cut.is_set()):
             self._resend_due()
             with self._cond:
                 if not self._pending:

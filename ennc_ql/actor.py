@@ -2,7 +2,7 @@
 
 The flags are generated from ``actors.config.ActorConfig`` (the field docstrings are the ``--help`` text),
 ``--config FILE`` reads the same fields from TOML, and flags given override the file. SIGTERM / SIGINT stop it
-cleanly: it flushes its outbox for a few seconds. Usage::
+cleanly: it flushes its outbox for a few seconds; a second one cuts the flush short. Usage::
 
     ennc-ql actor --connect tcp/learner-host:7447 --actor-id actor-3 --learn 0-4 --seed 1
 """
@@ -32,7 +32,8 @@ HELP = CommandHelp(
     "policy arrives every robot explores at random; then the robots it learns (--learn) act epsilon-greedily on "
     "their own Q tables (option 2) and the others follow the broadcast policy. It streams experience and Q-table "
     "changes to the learner, keeps everything unacknowledged in a bounded outbox (re-sent after a learner "
-    "restart), and runs until --duration or SIGTERM/Ctrl-C, after which it flushes its outbox for a few seconds. "
+    "restart), and runs until --duration or SIGTERM/Ctrl-C, after which it flushes its outbox for a few seconds "
+    "(--flush-timeout; a second Ctrl-C cuts it short, dropping what is still unacknowledged). "
     "ennc-ql up starts these for you; start them by hand for several machines. Every actor needs its own "
     "--actor-id (auto: one made of the host name and the process id).",
     (
@@ -65,7 +66,7 @@ def cmd_actor(args: argparse.Namespace) -> int:
     with open_transport(conf, args, "actor") as transport, actor_monitor(sink, transport, config, args) as monitor:
         actor = RobotActor(transport, config, monitor=monitor)
         with connect(actor, transport):
-            status = actor.run(stop)
+            status = actor.run(stop, urgent=stop.urgent)
     line = (
         f"actor {config.actor_id}: {status.tuples_sent} tuples sent, {status.tuples_acked} acknowledged, policy "
         f"version {status.policy_version}"

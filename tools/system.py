@@ -25,14 +25,28 @@ INTERRUPTS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 """What stops a launcher: Ctrl-C, what job runners, ``timeout`` and systemd send, and a closed terminal."""
 
 
-def stop_on_signals() -> threading.Event:
-    """An event set by SIGTERM, SIGINT or SIGUSR1 (the process then winds down instead of dying mid-write). SIGUSR1 is
-    for SLURM: ``srun`` forwards it to its task, while it turns a SIGTERM into killing the job step. SIGQUIT dumps
-    every thread's stack to stderr."""
-    stop = threading.Event()
+class Stop(threading.Event):
+    """Set by the first stopping signal: wind down. ``urgent`` is set by the next one: cut short what winding down
+    still waits for (an actor's outbox flush), as a user who presses Ctrl-C again asks."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.urgent = threading.Event()
+
+
+def stop_on_signals() -> Stop:
+    """An event set by SIGTERM, SIGINT or SIGUSR1 (the process then winds down instead of dying mid-write), its
+    ``urgent`` by a second one. SIGUSR1 is for SLURM: ``srun`` forwards it to its task, while it turns a SIGTERM into
+    killing the job step. SIGQUIT dumps every thread's stack to stderr."""
+    stop = Stop()
 
     def handler(signum: int, _frame: object) -> None:
-        log.info("received %s, stopping", signal.Signals(signum).name)
+        name = signal.Signals(signum).name
+        if stop.is_set():
+            log.warning("received %s again, stopping now", name)
+            stop.urgent.set()
+            return
+        log.info("received %s, stopping", name)
         stop.set()
 
     signal.signal(signal.SIGTERM, handler)
