@@ -23,7 +23,7 @@ import numpy as np
 
 from algorithm.transitions import Transitions
 from sim import ScenarioConfig
-from sim.controllers import random_headings, wander
+from sim.controllers import random_headings
 from sim.features import lost
 from sim.formulation import Formulation
 from sim.recall import Recall, forget_all, view_of
@@ -185,11 +185,11 @@ class NetworkController:
     ) -> tuple[np.ndarray, _NetworkMemory]:
         heading, velocity, recall = memory
         view, recall = view_of(cfg, world, obs, recall)
+        moves = self.formulation.actions
+        heading = moves.steer(cfg, world, view, heading)
         if world.t % self.act_every == 0:
             states = self.formulation.featurizer.compute(cfg, view)
             chosen = self.q.greedy(states.reshape(-1, states.shape[-1])).reshape(states.shape[:2])
-            moves = self.formulation.actions
             velocity = moves.velocity(cfg, chosen, moves.frame(view, heading))
-        heading = wander(cfg, world, heading)
         move = np.where(lost(view)[..., None], cfg.robot_speed * heading, velocity)
         return move, (heading, velocity, recall)

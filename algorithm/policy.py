@@ -18,7 +18,6 @@ import numpy as np
 from algorithm.discretization import Discretization
 from algorithm.qtable import row_best
 from sim import ScenarioConfig
-from sim.controllers import wander
 from sim.features import lost
 from sim.formulation import Formulation
 from sim.recall import Recall, forget_all, view_of
@@ -166,16 +165,17 @@ class PolicyController:
         cell = memory.cell
         moves = p.formulation.actions
         frame = memory.frame
+        # The heading turns before the robots decide: a search set's move "law" is the law's own move of this step.
+        heading = moves.steer(cfg, world, view, memory.heading)
         if cells is not None and decide.any():
             chosen = p.greedy(states, robots, cells).reshape(n_arenas, m)
             action = np.where(decide, chosen, action)
             start_cell = cells[np.arange(n_arenas * m), action.reshape(-1)].reshape(n_arenas, m)
             cell = np.where(decide, start_cell, cell_now)
             if moves.relative:
-                frame = np.where(decide[..., None, None], moves.frame(view, memory.heading), frame)
+                frame = np.where(decide[..., None, None], moves.frame(view, heading), frame)
         held = np.where(decide, 1, held + 1)
         velocity = moves.velocity(cfg, action, frame)
-        heading = wander(cfg, world, memory.heading)
         if p.lost_behaviour != "policy":
             gone = lost(view)[..., None]
             search = cfg.robot_speed * heading if p.lost_behaviour == "wander" else 0.0

@@ -93,8 +93,10 @@ def _action_set(moves: ActionSet) -> dict[str, Any]:
     law = moves.law
     fields = ("do1", "do2", "do3", "do4", "dr1", "dr2", "shared_target_weight")
     frame = {"name": moves.name, "frame": "law", "law": {name: float(getattr(law, name)) for name in fields}}
-    # Where the law pulls nowhere: the target frame (``law``), or the robot's search heading (``law-search``).
-    return {**frame, "no_pull": "search-heading" if moves.search else "target"}
+    # Where the law pulls nowhere: the target frame (``law``), or the robot's search heading (``law-search``), which
+    # the law's pull turns (``law-track``).
+    no_pull = "search-heading" if moves.search else "target"
+    return {**frame, "no_pull": no_pull, "heading": "law" if moves.track else "wander"}
 
 
 def save_policy(policy: Policy, cfg: ScenarioConfig, path: str | os.PathLike[str]) -> Path:

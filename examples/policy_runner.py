@@ -211,11 +211,9 @@ def target_frame(obs: Observation) -> Floats:
     return np.stack([x_axis, y_axis], axis=-2)
 
 
-def law_frame(obs: Observation, law: dict[str, float], heading: Floats | None = None) -> Floats:
-    """(E, m, 2, 2) every robot's law frame (section "The law frame"): x along the pull of the force law ``law`` on
-    the six numbers, the shared flags and a remembered target beside one in view; y a quarter turn counter-clockwise
-    from it, mirrored where the target frame is; where the law pulls nowhere, the target frame, or given the search
-    ``heading`` (E, m, 2), x along it and y as above (``no_pull`` = ``search-heading``)."""
+def law_force(obs: Observation, law: dict[str, float]) -> Floats:
+    """(E, m, 2) the pull F of the force law ``law`` on the six numbers, the shared flags and a remembered target
+    beside one in view (section "The law frame")."""
     f = obs.full_state.astype(np.float64)
 
     def profile(d: Floats) -> Floats:
@@ -240,6 +238,14 @@ def law_frame(obs: Observation, law: dict[str, float], heading: Floats | None = 
     force = force + pull(f[..., 4:6], obs.sees_robot, np.ones(obs.lost.shape), repulsion)
     if obs.remembers is not None and obs.memory is not None:
         force = force + pull(obs.memory.astype(np.float64), obs.remembers, np.ones(obs.lost.shape), profile)
+    return force
+
+
+def law_frame(obs: Observation, law: dict[str, float], heading: Floats | None = None) -> Floats:
+    """(E, m, 2, 2) every robot's law frame (section "The law frame"): x along the law's pull; y a quarter turn
+    counter-clockwise from it, mirrored where the target frame is; where the law pulls nowhere, the target frame, or
+    given the search ``heading`` (E, m, 2), x along it and y as above (``no_pull`` = ``search-heading``)."""
+    force = law_force(obs, law)
     target = target_frame(obs)
     norm = np.sqrt(force[..., 0] * force[..., 0] + force[..., 1] * force[..., 1])
     pulls = norm > 1e-12
@@ -374,6 +380,13 @@ def run(policy: PolicyFile, trials: int, steps: int, seed: int, violate: str | N
     obs, memory = remember(policy, sense(sc, robots, targets, rng), robots, targets, memory)
     total = np.zeros(trials)
     for t in range(steps):
+        # Lost robots: the heading turns for every robot, every step, before anyone decides.
+        if violate != "no-reflect":
+            heading = reflect(heading, robots, radius)
+        if action_set.get("heading") == "law":
+            force = law_force(obs, action_set["law"])
+            norm = np.sqrt(force[..., 0] * force[..., 0] + force[..., 1] * force[..., 1])[..., None]
+            heading = np.where(norm > 1e-12, force / np.where(norm > 1e-12, norm, 1.0), heading)
         # When robots decide: a shared clock (fixed) or each robot's own (until_change); everyone at t = 0.
         if mode == "fixed":
             decide = np.full((trials, m), t % every == 0)
@@ -397,9 +410,7 @@ def run(policy: PolicyFile, trials: int, steps: int, seed: int, violate: str | N
                 else target_frame(obs)
             )
             frame = np.where(decide[..., None, None], now, frame)
-        # Lost robots: the heading is reflected for every robot, every step; lost-ness is checked every step.
-        if violate != "no-reflect":
-            heading = reflect(heading, robots, radius)
+        # Lost robots: lost-ness is checked every step.
         # A move's direction given in the frame, in world coordinates: its x component along the frame's x axis.
         displacement = speed * np.einsum("...k,...kd->...d", directions[action], frame)
         lost = obs.lost[..., None]

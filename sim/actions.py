@@ -25,8 +25,8 @@ import numpy as np
 
 from sim import _kernels
 from sim.config import ForceLawConfig, ScenarioConfig
-from sim.controllers import COMPASS, COMPASS_NAMES, STATE_FORCE_LAW
-from sim.world import Observation
+from sim.controllers import COMPASS, COMPASS_NAMES, STATE_FORCE_LAW, wander
+from sim.world import Observation, WorldState
 
 _EIGHTHS = np.arange(8) * np.pi / 4
 _TURNED = np.stack([np.cos(_EIGHTHS), np.sin(_EIGHTHS)], axis=-1)
@@ -53,7 +53,22 @@ class ActionSet:
     the world's."""
     search: bool = False
     """Where the law pulls nowhere, x along the robot's search heading instead of the target frame's
-    (``law-search``)."""
+    (``law-search``, ``law-track``)."""
+    track: bool = False
+    """The search heading follows the law: at every step it turns to the law's pull where the law pulls, and is kept
+    (reflected off the wall) where it pulls nowhere, as the hand-made law's own heading is (``law-track``); False: a
+    heading drawn at the trial's start, only ever reflected off the wall."""
+
+    def steer(self, cfg: ScenarioConfig, world: WorldState, obs: Observation, heading: np.ndarray) -> np.ndarray:
+        """(E, m, 2) every robot's search heading after this step (``track``): ``heading`` reflected off the wall,
+        or, for a ``track`` set, the direction of the law's pull on ``obs`` wherever it pulls."""
+        kept = wander(cfg, world, heading)
+        if not self.track:
+            return kept
+        assert self.law is not None, "a track set is a law set"
+        force = law_force(obs, self.law)
+        norm = np.linalg.norm(force, axis=-1, keepdims=True)
+        return np.where(norm > 1e-12, force / np.maximum(norm, 1e-300), kept)
 
     def frame(self, obs: Observation, heading: np.ndarray | None = None) -> np.ndarray:
         """(E, m, 2, 2) every robot's frame now: rows are its x and y axes in world coordinates. ``heading`` (E, m, 2)
@@ -107,6 +122,7 @@ ACTION_SETS: dict[str, ActionSet] = {
         ActionSet("relative", RELATIVE_NAMES, _TURNED, relative=True),
         ActionSet("law", LAW_NAMES, _TURNED, relative=True, law=STATE_FORCE_LAW),
         ActionSet("law-search", LAW_NAMES, _TURNED, relative=True, law=STATE_FORCE_LAW, search=True),
+        ActionSet("law-track", LAW_NAMES, _TURNED, relative=True, law=STATE_FORCE_LAW, search=True, track=True),
     )
 }
 """Every action set by name: ``compass``, the 8 compass moves, north = +y, clockwise [paper]; ``relative``, the 8
@@ -118,7 +134,9 @@ follows the law, one that picks another move departs from it [beyond the paper: 
 learned choices, in a frame that turns with the robot's exact situation inside a cell]; ``law-search``, the same
 moves, but where the law pulls nowhere (every target in view watched by a teammate) named from the robot's search
 heading, the way a lost robot searches, so that ``law`` there is the law's own move: leave and search along that
-heading [beyond the paper]."""
+heading [beyond the paper]; ``law-track``, the ``law-search`` moves with a search heading that follows the law's
+pull (:attr:`ActionSet.track`): where the law pulls nowhere, ``law`` goes on along its last pull, as the hand-made
+law searches [beyond the paper]."""
 
 
 def target_frame(obs: Observation) -> np.ndarray:
@@ -132,6 +150,28 @@ def target_frame(obs: Observation) -> np.ndarray:
     return frame
 
 
+def _remembered(obs: Observation) -> tuple[np.ndarray, np.ndarray]:
+    """(E, m, 2) offsets of the remembered targets and (E, m) whether each robot remembers one (zeros, False for a
+    view that does not remember)."""
+    shape = obs.n_seen.shape
+    memory = np.zeros((*shape, 2)) if obs.memory is None else np.asarray(obs.memory, np.float64)
+    remembers = np.zeros(shape, bool) if obs.remembers is None else obs.remembers
+    return memory, remembers
+
+
+def _law_params(law: ForceLawConfig) -> np.ndarray:
+    return np.array([law.do1, law.do2, law.do3, law.do4, law.dr1, law.dr2, law.shared_target_weight])
+
+
+def law_force(obs: Observation, law: ForceLawConfig = STATE_FORCE_LAW) -> np.ndarray:
+    """(E, m, 2) float64 the pull of the force law ``law`` on the observation's features (see :func:`law_frame`)."""
+    force = np.empty((*obs.n_seen.shape, 2))
+    _kernels.state_forces(
+        obs.features, obs.n_seen, obs.sees_robot, obs.shared, *_remembered(obs), _law_params(law), force
+    )
+    return force
+
+
 def law_frame(obs: Observation, law: ForceLawConfig = STATE_FORCE_LAW, heading: np.ndarray | None = None) -> np.ndarray:
     """(E, m, 2, 2) float64 the law frame of every robot: x along the pull of the force law ``law`` on the
     observation's features (the nearest and the furthest target in view, weighted ``shared_target_weight`` where a
@@ -142,14 +182,21 @@ def law_frame(obs: Observation, law: ForceLawConfig = STATE_FORCE_LAW, heading: 
     frame, or given ``heading`` (E, m, 2) x along each robot's search heading (y turned and mirrored as above). It
     reads what the state reads, and the robot's own heading."""
     target = target_frame(obs)
-    shape = obs.n_seen.shape
-    memory = np.zeros((*shape, 2)) if obs.memory is None else np.asarray(obs.memory, np.float64)
-    remembers = np.zeros(shape, bool) if obs.remembers is None else obs.remembers
-    params = np.array([law.do1, law.do2, law.do3, law.do4, law.dr1, law.dr2, law.shared_target_weight])
+    memory, remembers = _remembered(obs)
     search = heading is not None
     headings = np.asarray(heading, np.float64) if search else _NO_HEADING
-    frame = np.empty((*shape, 2, 2))
+    frame = np.empty((*obs.n_seen.shape, 2, 2))
     _kernels.law_frames(
-        obs.features, obs.n_seen, obs.sees_robot, obs.shared, memory, remembers, params, target, headings, search, frame
+        obs.features,
+        obs.n_seen,
+        obs.sees_robot,
+        obs.shared,
+        memory,
+        remembers,
+        _law_params(law),
+        target,
+        headings,
+        search,
+        frame,
     )
     return frame

@@ -225,6 +225,9 @@ FORMULATIONS: dict[str, Formulation] = {
     "frame-recall-search": Formulation.of(
         "frame11d-recall", "difference-redundancy", "law-search", act_every=1, trial_rules="guided-search"
     ),
+    "frame-recall-track": Formulation.of(
+        "frame11d-recall", "difference-redundancy", "law-track", act_every=1, trial_rules="guided-search"
+    ),
 }
 """Every formulation by name: ``paper`` is the paper's collaborative formulation [paper §4, Eq. 2];
 ``shared-difference`` the best with the world-frame state and compass moves that the README's ablations found;
@@ -239,8 +242,10 @@ named from the pull of the force law on the state's information (``law`` moves),
 of the learned choices [beyond the paper; the same document's "Tenth round"]; ``frame-recall-search``
 ``frame-recall-law`` with ``law-search`` moves: where the law pulls nowhere they are named from the robot's search
 heading, so that leaving a crowd to search along it is the move ``law`` [beyond the paper; the same document's
-"Twelfth round"]."""
-DEFAULT_FORMULATION = "frame-recall-law"
+"Twelfth round"]; ``frame-recall-track`` the same with ``law-track`` moves, whose search heading follows the law's
+pull, so that ``law`` is the hand-made law's own move everywhere, its search included [beyond the paper; the same
+document's "Seventeenth round"]."""
+DEFAULT_FORMULATION = "frame-recall-track"
 """The formulation of every process (``up``, ``learner``, ``actor``, compose's) unless another is named."""
 
 

@@ -46,7 +46,7 @@ import numpy as np
 
 from sim import _kernels
 from sim.config import ScenarioConfig
-from sim.controllers import N_ACTIONS, wander
+from sim.controllers import N_ACTIONS
 from sim.features import lost, step_value, trial_reward
 from sim.formulation import Formulation
 from sim.recall import Recall, forget_all, view_of
@@ -270,6 +270,12 @@ def step_trial(
     formulation = state.formulation
     moves, rules = formulation.actions, formulation.trial_rules
     held_action, start, held, frame, held_move = state.action, state.start_features, state.held, state.frame, state.move
+    # Only robots that do not learn search (and learners, where losing every target does not end their trial); with
+    # none in the batch, and moves not named from it, the headings are never read. They turn before the robots
+    # decide, so a search set's move "law" is the law's own move of this step.
+    seeker = ~state.learner | (not rules.lost_ends_trial)
+    steered = seeker.any() or moves.search
+    heading = moves.steer(cfg, state.world, state.view, state.heading) if steered else state.heading
     if decide.any():
         held_action = np.where(decide, action, held_action)
         if held_action.min() < 0 or held_action.max() >= N_ACTIONS:
@@ -277,12 +283,8 @@ def step_trial(
         start = np.where(decide[..., None], state.require_features(), start)
         held = np.where(decide, 0, held)
         if moves.relative:
-            frame = np.where(decide[..., None, None], moves.frame(state.view, state.heading), frame)
+            frame = np.where(decide[..., None, None], moves.frame(state.view, heading), frame)
         held_move = moves.velocity(cfg, held_action, frame)
-    # Only robots that do not learn search (and learners, where losing every target does not end their trial); with
-    # none in the batch the headings are never read.
-    seeker = ~state.learner | (not rules.lost_ends_trial)
-    heading = wander(cfg, state.world, state.heading) if seeker.any() else state.heading
     # A new array: the rules below overwrite its robots' rows.
     move = held_move.copy() if velocity is None else np.where(state.learner[..., None], held_move, velocity)
     if velocity is not None:

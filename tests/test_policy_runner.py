@@ -1,14 +1,15 @@
 """docs/policy-file.md is complete: a runner written from it alone (examples/policy_runner.py, plain numpy) gives the
 coverage `ennc-ql eval` gives on the same policy file, trials and seed, and breaking one documented rule does not.
 
-Six small policies cover both decision modes and every frame of the moves: ENNC-QL option 2 on the shared8d state
+Seven small policies cover both decision modes and every frame of the moves: ENNC-QL option 2 on the shared8d state
 (collab6d's six numbers and the two shared flags; per-robot tables, a `scale`, `fixed` shared clock, compass moves),
 VQQL local (local2d, one table, no `scale`, `until_change` per-robot clocks), and the default formulation of `ennc-ql
-up`, frame-recall-law (each robot remembers the targets it lost from step to step, and names its moves in the law
-frame: the pull of the force law on the state's information, the remembered target included; deciding every step);
-frame-guided (the frame9d state, the relative moves in the target frame) and frame-recall (remembering, relative
-moves) cover the target frame, frame-recall-search the law frame that turns to the search heading where the law pulls
-nowhere.
+up`, frame-recall-track (each robot remembers the targets it lost from step to step, and names its moves in the law
+frame: the pull of the force law on the state's information, the remembered target included, or where the law pulls
+nowhere its search heading, which the law's last pull set; deciding every step); frame-guided (the frame9d state, the
+relative moves in the target frame) and frame-recall (remembering, relative moves) cover the target frame,
+frame-recall-law the law frame that falls back to the target frame where the law pulls nowhere, frame-recall-search
+the search heading that only the wall turns.
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ SPECS = {
     "frame-guided": (OPTION2, FORMULATIONS["frame-guided"]),
     "frame-recall": (OPTION2, FORMULATIONS["frame-recall"]),
     "frame-recall-search": (OPTION2, FORMULATIONS["frame-recall-search"]),
+    "frame-recall-law": (OPTION2, FORMULATIONS["frame-recall-law"]),
 }
 
 

@@ -160,7 +160,7 @@ def test_a_bad_guide_is_refused(settings: dict[str, object], message: str) -> No
 
 def test_the_default_formulation_explores_guided_and_the_papers_does_not() -> None:
     default = ActorConfig().resolved
-    assert default == FORMULATIONS["frame-recall-law"] and default.trial_rules == TRIAL_RULES["guided-search"]
+    assert default == FORMULATIONS["frame-recall-track"] and default.trial_rules == TRIAL_RULES["guided-search"]
     assert GUIDED.trial_rules == TRIAL_RULES["guided-search"]
     assert GUIDED.trial_rules.guide == Guide("force-6d-shared", explore=0.5, epsilon=0.5)
     assert FORMULATIONS["paper"].trial_rules.guide is None and COOPERATIVE.trial_rules.guide is None

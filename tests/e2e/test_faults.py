@@ -126,9 +126,9 @@ def test_a_poisoned_message_is_rejected_and_its_stream_flows_on(cluster: Cluster
             "incarnation": 99,
             "seq": seq,
             "policy_version": 0,
-            "featurizer": "frame11d-recall",  # the learner's formulation: frame-recall-law, by default
+            "featurizer": "frame11d-recall",  # the learner's formulation: frame-recall-track, by default
             "reward_function": "difference-redundancy",
-            "action_set": "law",
+            "action_set": "law-track",
             "robot": array("int16", np.zeros(n)),
             "state": array("float32", np.ones((n, 11))),
             "action": array("uint8", np.zeros(n)),

@@ -218,3 +218,58 @@ def test_frame9d_keeps_lengths_puts_the_furthest_on_the_left_and_flags_presence_
     np.testing.assert_array_equal(state[..., 6], robot)
     np.testing.assert_array_equal(state[..., 7:9], obs.shared)
     assert two.sum() > 20 and robot.sum() > 20  # the arenas exercise every case
+
+
+def test_law_track_heading_turns_to_the_pull_where_the_law_pulls_and_is_kept_where_it_does_not() -> None:
+    from sim import reset
+    from sim.actions import law_force
+
+    cfg = scenario()
+    rng = np.random.default_rng(5)
+    world = reset(cfg, 600, rng)
+    obs = sense(cfg, world, rng)
+    angle = rng.uniform(0.0, 2.0 * np.pi, obs.n_seen.shape)
+    heading = np.stack([np.cos(angle), np.sin(angle)], -1)
+    force = law_force(obs)
+    norm = np.linalg.norm(force, axis=-1)
+    pulls = norm > 1e-12
+    assert pulls.sum() > 500 and (~pulls).sum() > 500
+    track, search = ACTION_SETS["law-track"], ACTION_SETS["law-search"]
+    kept = search.steer(cfg, world, obs, heading)
+    turned = track.steer(cfg, world, obs, heading)
+    # Where the law pulls the heading is its pull; elsewhere both sets keep it (reflected off the wall alike).
+    np.testing.assert_allclose(turned[pulls], force[pulls] / norm[pulls][:, None], atol=1e-12)
+    np.testing.assert_array_equal(turned[~pulls], kept[~pulls])
+    assert not np.allclose(kept[pulls], turned[pulls])
+    # law-search's heading never follows the law: only the wall turns it.
+    inside = np.linalg.norm(world.robot_pos, axis=-1) < cfg.arena_radius - 1.0
+    np.testing.assert_array_equal(kept[inside], heading[inside])
+
+
+def _law_everywhere(actions: str, m: int):
+    """A policy on the default state whose table picks the move ``law`` in every state, deciding every step."""
+    from algorithm.discretization import Discretization
+    from algorithm.policy import Policy
+    from sim.formulation import FORMULATIONS
+
+    formulation = FORMULATIONS["frame-recall-law"].replace(actions=actions)
+    disc = Discretization.from_per_action([np.zeros((1, formulation.dim))] * 8)
+    tables = np.zeros((1, disc.size), np.float32)
+    tables[0, disc.offsets[0]] = 1.0
+    return Policy(formulation, disc, tables, robot_table=np.zeros(m, np.int64), action_steps=1)
+
+
+def test_the_move_law_of_law_track_is_the_hand_made_law_trial_for_trial() -> None:
+    # The hand-made law on the learned state's information (force-recall) keeps its last pull's heading where it
+    # pulls nowhere; a law-track table that always picks "law" moves exactly as it does, search included, so the two
+    # cover the same targets at every step of every trial. law-search's "law" searches along a random heading.
+    from algorithm.policy import PolicyController
+    from sim.controllers import HAND_MADE
+    from sim.rollout import evaluate
+
+    cfg = scenario()
+    hand = evaluate(cfg, HAND_MADE["force-recall"], 12, 400, seed=11)
+    track = evaluate(cfg, PolicyController(_law_everywhere("law-track", cfg.n_robots)), 12, 400, seed=11)
+    search = evaluate(cfg, PolicyController(_law_everywhere("law-search", cfg.n_robots)), 12, 400, seed=11)
+    np.testing.assert_array_equal(track.coverage_per_trial, hand.coverage_per_trial)
+    assert not np.array_equal(search.coverage_per_trial, hand.coverage_per_trial)

@@ -138,7 +138,7 @@ def test_a_formulation_of_any_parts_pickles_for_worker_processes(featurizer: str
 
 def test_a_formulations_text_names_every_part_and_reads_back() -> None:
     default = resolve_formulation(DEFAULT_FORMULATION)
-    assert default.text == "frame11d-recall/difference-redundancy/law/1/guided-search"
+    assert default.text == "frame11d-recall/difference-redundancy/law-track/1/guided-search"
     assert Formulation.parse("collab6d/eq2/compass/none/search-on") == resolve_formulation(
         "paper", trial_rules="search-on"
     )
@@ -152,18 +152,18 @@ def test_a_formulations_text_names_every_part_and_reads_back() -> None:
 
 
 def test_a_formulation_is_resolved_by_name_with_explicit_parts_over_it() -> None:
-    assert DEFAULT_FORMULATION == "frame-recall-law"
+    assert DEFAULT_FORMULATION == "frame-recall-track"
     default = resolve_formulation(DEFAULT_FORMULATION)
     assert default == Formulation.of(
-        "frame11d-recall", "difference-redundancy", "law", act_every=1, trial_rules="guided-search"
+        "frame11d-recall", "difference-redundancy", "law-track", act_every=1, trial_rules="guided-search"
     )
     assert (default.featurizer, default.reward, default.actions, default.trial_rules) == (
         FEATURIZER_REGISTRY["frame11d-recall"],
         REWARDS["difference-redundancy"],
-        ACTION_SETS["law"],
+        ACTION_SETS["law-track"],
         TRIAL_RULES["guided-search"],
     )
-    assert default.names == ("frame11d-recall", "difference-redundancy", "law") and default.dim == 11
+    assert default.names == ("frame11d-recall", "difference-redundancy", "law-track") and default.dim == 11
     assert resolve_formulation("shared-difference") == Formulation.of("shared8d", "difference", "compass", act_every=1)
     assert resolve_formulation("paper", featurizer="local2d") == Formulation.of("local2d", "eq2", "compass")
     assert resolve_formulation("paper", featurizer="local2d", reward="paper").reward is REWARDS["observed"]
