@@ -762,6 +762,22 @@ def wander(
 
 
 @njit(cache=True)
+def pull_headings(
+    force: np.ndarray,  # (E, m, 2) float64 the law's pull
+    kept: np.ndarray,  # in/out (E, m, 2) float64 unit headings, reflected off the wall
+) -> None:
+    """A ``track`` action set's search headings: ``kept`` turned to the pull's direction wherever the law pulls
+    (in numpy this turn took 2.5 % of an actor's step, py-spy of ``ennc-ql bench actor``)."""
+    n_arenas, m, _ = force.shape
+    for e in range(n_arenas):
+        for i in range(m):
+            fx, fy = force[e, i, 0], force[e, i, 1]
+            norm = math.sqrt(fx * fx + fy * fy)
+            if norm > 1e-12:
+                kept[e, i, 0], kept[e, i, 1] = fx / norm, fy / norm
+
+
+@njit(cache=True)
 def frame_velocity(
     directions: np.ndarray,  # (L, 2) float64 unit moves in their frame
     actions: np.ndarray,  # (E, m) int64

@@ -63,12 +63,10 @@ class ActionSet:
         """(E, m, 2) every robot's search heading after this step (``track``): ``heading`` reflected off the wall,
         or, for a ``track`` set, the direction of the law's pull on ``obs`` wherever it pulls."""
         kept = wander(cfg, world, heading)
-        if not self.track:
-            return kept
-        assert self.law is not None, "a track set is a law set"
-        force = law_force(obs, self.law)
-        norm = np.linalg.norm(force, axis=-1, keepdims=True)
-        return np.where(norm > 1e-12, force / np.maximum(norm, 1e-300), kept)
+        if self.track:
+            assert self.law is not None, "a track set is a law set"
+            _kernels.pull_headings(law_force(obs, self.law), kept)
+        return kept
 
     def frame(self, obs: Observation, heading: np.ndarray | None = None) -> np.ndarray:
         """(E, m, 2, 2) every robot's frame now: rows are its x and y axes in world coordinates. ``heading`` (E, m, 2)

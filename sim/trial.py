@@ -12,7 +12,8 @@ The rules [paper §4; choices as tagged]:
   [paper]; the formulation's :class:`~sim.formulation.TrialRules` may let it search on instead, and let the time-out
   bootstrap [beyond the paper];
 * robots that do not learn follow the caller's actions, or a controller's velocity, and when lost search by keeping
-  a heading reflected off the wall [choice, as in test trials];
+  a heading reflected off the wall, which a ``track`` action set also turns to the law's pull
+  (:meth:`sim.actions.ActionSet.steer`) [choice, as in test trials];
 * a state that remembers (``Featurizer.recalls``) is read from :func:`sim.recall.recall`'s view, and so are the
   frame of a relative move and who counts as lost for the search: a robot still remembering its last target decides
   instead of searching; the rewards and the trial rules read what is sensed [beyond the paper].
@@ -87,7 +88,8 @@ class TrialState:
     """(E, m) bool: learners whose trial goes on."""
     heading: np.ndarray
     """(E, m, 2) float64 unit vectors: the search heading of robots that search while they are lost (those that do not
-    learn, and learners whose rules let them search on)."""
+    learn, and learners whose rules let them search on), and the x axis of a ``search`` action set's frame where the
+    law pulls nowhere."""
     earned: np.ndarray
     """(E, m) float32: a per-decision reward's value summed over the held action's steps so far (0 otherwise)."""
 
