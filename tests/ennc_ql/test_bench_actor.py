@@ -61,7 +61,7 @@ def _frame_policy(tmp_path: Path, featurizer: str = "frame9d", actions: str = "r
 @pytest.mark.parametrize(
     ("parts", "flags", "rules"),
     [
-        (("frame11d-recall", "law"), (), "guided-search"),
+        (("frame11d-recall", "law-track"), (), "guided-search"),
         (("frame9d", "relative"), (), "paper"),
         (("frame9d", "relative"), ("--formulation", "frame-cooperative"), "lost-searches"),
     ],
