@@ -25,6 +25,14 @@ INTERRUPTS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 """What stops a launcher: Ctrl-C, what job runners, ``timeout`` and systemd send, and a closed terminal."""
 
 
+def set_from_handler(event: threading.Event) -> None:
+    """``event.set()`` for a signal handler, on a thread of its own. A handler runs on the main thread between two
+    bytecodes, possibly inside ``event.wait()`` just as that has taken back the event's lock: ``set()`` there waits for
+    that lock forever (a learner hung so on SIGTERM, its stack dump showed). From another thread it waits only until
+    the main thread's ``wait`` releases it."""
+    threading.Thread(target=event.set, name=f"set-{id(event):x}", daemon=True).start()
+
+
 class Stop(threading.Event):
     """Set by the first stopping signal: wind down. ``urgent`` is set by the next one: cut short what winding down
     still waits for (an actor's outbox flush), as a user who presses Ctrl-C again asks."""
@@ -39,15 +47,18 @@ def stop_on_signals() -> Stop:
     ``urgent`` by a second one. SIGUSR1 is for SLURM: ``srun`` forwards it to its task, while it turns a SIGTERM into
     killing the job step. SIGQUIT dumps every thread's stack to stderr."""
     stop = Stop()
+    received = 0
 
     def handler(signum: int, _frame: object) -> None:
+        nonlocal received
+        received += 1
         name = signal.Signals(signum).name
-        if stop.is_set():
+        if received > 1:
             log.warning("received %s again, stopping now", name)
-            stop.urgent.set()
+            set_from_handler(stop.urgent)
             return
         log.info("received %s, stopping", name)
-        stop.set()
+        set_from_handler(stop)
 
     signal.signal(signal.SIGTERM, handler)
     signal.signal(signal.SIGINT, handler)
@@ -122,7 +133,7 @@ class Interrupts:
         self.received.append(sig)
         n = len(self.received)
         if n == 1:
-            self.stop.set()
+            set_from_handler(self.stop)
             self._say(
                 f"{sig.name}: winding down cleanly (the learner checkpoints and scores its policy); again to "
                 "stop sooner"

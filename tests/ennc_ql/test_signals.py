@@ -1,0 +1,65 @@
+"""The stop signals' handlers never hang the process they stop.
+
+A handler runs on the main thread between two bytecodes, so it can land inside ``stop.wait()`` just as that has taken
+back the event's lock; a handler that called ``stop.set()`` there waited for that lock forever (a learner hung so on
+SIGTERM in the suite, its stack dump showed). Each test lands the handler exactly there: it calls it while holding
+the lock CPython's ``threading.Event`` keeps in ``_cond``.
+"""
+
+from __future__ import annotations
+
+import faulthandler
+import signal
+import threading
+from collections.abc import Callable, Iterator
+
+import pytest
+
+from tools.system import Interrupts, stop_on_signals
+
+STOPPING = (signal.SIGTERM, signal.SIGINT, signal.SIGUSR1)
+
+
+@pytest.fixture
+def own_handlers() -> Iterator[None]:
+    saved = {sig: signal.getsignal(sig) for sig in STOPPING}
+    try:
+        yield
+    finally:
+        for sig, handler in saved.items():
+            signal.signal(sig, handler)
+        faulthandler.unregister(signal.SIGQUIT)
+
+
+def handled_inside_wait(event: threading.Event, handle: Callable[[int, object], None], sig: int) -> bool:
+    """Whether ``handle(sig)``, called while ``event``'s lock is held as inside its ``wait``, returns."""
+    returned = threading.Event()
+
+    def land() -> None:
+        with event._cond:  # type: ignore[attr-defined]
+            handle(sig, None)
+        returned.set()
+
+    threading.Thread(target=land, daemon=True).start()
+    return returned.wait(10)
+
+
+def test_a_stop_signal_inside_the_stop_events_wait_stops_the_process(own_handlers: None) -> None:
+    stop = stop_on_signals()
+    handler = signal.getsignal(signal.SIGTERM)
+    assert callable(handler)
+    assert handled_inside_wait(stop, handler, signal.SIGTERM), "the handler hung on the stop event's own lock"
+    assert stop.wait(10) and not stop.urgent.is_set()
+    # The second signal asks to hurry, from inside the same wait.
+    assert handled_inside_wait(stop, handler, signal.SIGINT), "the second signal's handler hung"
+    assert stop.urgent.wait(10)
+
+
+def test_a_launchers_first_interrupt_inside_its_stop_events_wait_stops_the_run(own_handlers: None) -> None:
+    said: list[str] = []
+    interrupts = Interrupts(say=said.append)
+    with interrupts.installed():
+        assert handled_inside_wait(interrupts.stop, interrupts.handle, signal.SIGTERM)
+    assert interrupts.stop.wait(10)
+    assert interrupts.first == signal.SIGTERM and interrupts.exit_code == 143
+    assert len(said) == 1 and said[0].startswith("SIGTERM: winding down cleanly")
