@@ -54,7 +54,7 @@ def stop_on_signals() -> Stop:
         received += 1
         name = signal.Signals(signum).name
         if received > 1:
-            log.warning("received %s again, stopping now", name)
+            log.warning("received %s again while stopping", name)
             set_from_handler(stop.urgent)
             return
         log.info("received %s, stopping", name)

@@ -136,16 +136,22 @@ def test_the_law_move_is_the_state_force_laws_move_wherever_it_pulls_and_the_tar
     np.testing.assert_allclose(frame[seen & ~pulls], target_frame(obs)[seen & ~pulls], atol=1e-12)
 
 
-def test_law_search_moves_follow_the_law_where_it_pulls_and_the_search_heading_where_it_does_not() -> None:
+def _arenas_with_headings(seed: int):
+    """600 random arenas of the default scenario, sensed, and a random unit search heading for every robot."""
     from sim import reset
-    from sim.controllers import HAND_MADE
 
     cfg = scenario()
-    rng = np.random.default_rng(3)
+    rng = np.random.default_rng(seed)
     world = reset(cfg, 600, rng)
     obs = sense(cfg, world, rng)
     angle = rng.uniform(0.0, 2.0 * np.pi, obs.n_seen.shape)
-    heading = np.stack([np.cos(angle), np.sin(angle)], -1)
+    return cfg, world, obs, np.stack([np.cos(angle), np.sin(angle)], -1), rng
+
+
+def test_law_search_moves_follow_the_law_where_it_pulls_and_the_search_heading_where_it_does_not() -> None:
+    from sim.controllers import HAND_MADE
+
+    cfg, world, obs, heading, rng = _arenas_with_headings(3)
     search = ACTION_SETS["law-search"]
     with pytest.raises(ValueError, match="search heading"):
         search.frame(obs)
@@ -221,15 +227,9 @@ def test_frame9d_keeps_lengths_puts_the_furthest_on_the_left_and_flags_presence_
 
 
 def test_law_track_heading_turns_to_the_pull_where_the_law_pulls_and_is_kept_where_it_does_not() -> None:
-    from sim import reset
     from sim.actions import law_force
 
-    cfg = scenario()
-    rng = np.random.default_rng(5)
-    world = reset(cfg, 600, rng)
-    obs = sense(cfg, world, rng)
-    angle = rng.uniform(0.0, 2.0 * np.pi, obs.n_seen.shape)
-    heading = np.stack([np.cos(angle), np.sin(angle)], -1)
+    cfg, world, obs, heading, _ = _arenas_with_headings(5)
     force = law_force(obs)
     norm = np.linalg.norm(force, axis=-1)
     pulls = norm > 1e-12
