@@ -273,3 +273,14 @@ def test_the_move_law_of_law_track_is_the_hand_made_law_trial_for_trial() -> Non
     search = evaluate(cfg, PolicyController(_law_everywhere("law-search", cfg.n_robots)), 12, 400, seed=11)
     np.testing.assert_array_equal(track.coverage_per_trial, hand.coverage_per_trial)
     assert not np.array_equal(search.coverage_per_trial, hand.coverage_per_trial)
+
+
+def test_a_target_beyond_every_robots_range_does_not_turn_the_law_track_heading() -> None:
+    # Robot 0 at the origin, robot 1 far away, the only target 151 away from robot 0: nobody senses it, so the law
+    # pulls nowhere and the search heading keeps its course; at 149 the same target turns it towards itself.
+    track = ACTION_SETS["law-track"]
+    heading = np.array([[[1.0, 0.0], [1.0, 0.0]]])
+    for distance, want in ((151.0, [1.0, 0.0]), (149.0, [0.0, 1.0])):
+        cfg, obs = _observe([(0.0, 0.0), (-600.0, 0.0)], [(0.0, distance)])
+        steered = track.steer(cfg, _world([(0.0, 0.0), (-600.0, 0.0)], [(0.0, distance)]), obs, heading)
+        np.testing.assert_allclose(steered[0, 0], want, atol=1e-12)
