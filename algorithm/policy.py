@@ -4,6 +4,7 @@ Usage::
 
     policy = Policy(FORMULATIONS["paper"], discretization=disc, tables=q, robot_table=np.arange(10), ...)
     actions = policy.greedy(states, robots)            # (N,) action indices for states (N, d) of robots (N,)
+    cautious = dataclasses.replace(policy, law_margin=0.3)   # a law set's readout that departs from "law" less
     evaluate(cfg, PolicyController(policy), trials=10, steps=1000)
 """
 
@@ -57,8 +58,17 @@ class Policy:
     """Name of the method that learned it, e.g. ``ennc-ql-collab-option2``."""
     meta: dict[str, Any] = field(default_factory=dict)
     """Free-form provenance (seeds, configs) kept in the policy file header."""
+    law_margin: float = 0.0
+    """With a law action set: a robot takes another move than ``law`` (action 0) only where its value beats
+    ``law``'s by more than this; 0: the plain argmax [beyond the paper: a cell's value of a departure averages over
+    every state the cell holds, so it can beat the law's there while losing in most states where the argmax takes
+    it; docs/learning-quality.md, "Eighteenth round"]."""
 
     def __post_init__(self) -> None:
+        if not (np.isfinite(self.law_margin) and self.law_margin >= 0):
+            raise ValueError(f"law_margin must be a finite number >= 0, got {self.law_margin}")
+        if self.law_margin > 0 and self.formulation.actions.law is None:
+            raise ValueError(f"law_margin needs a law action set, not {self.formulation.actions.name!r}")
         if self.formulation.dim != self.discretization.dim:
             raise ValueError("featurizer dimension and discretization dimension differ")
         if self.tables.ndim != 2 or self.tables.shape[1] != self.discretization.size:
@@ -76,11 +86,17 @@ class Policy:
         return self.robot_table[np.asarray(robots) % self.robot_table.size]
 
     def greedy(self, states: np.ndarray, robots: np.ndarray, cells: np.ndarray | None = None) -> np.ndarray:
-        """(N,) argmax_a Q_robot(s, a) for states (N, d) of robots (N,)."""
+        """(N,) argmax_a Q_robot(s, a) for states (N, d) of robots (N,); with a ``law_margin``, action 0 (``law``)
+        unless the best value beats its value by more than the margin."""
         cells = self.discretization.cells(states) if cells is None else cells
+        rows = self.rows(robots)
         # One pass over the robots' rows in place: gathering each robot's whole row first copied the table once per
         # robot (N × Σ P_a, 75 MB a step for the learner's 200 test trials of 10 robots).
-        return row_best(self.tables, self.rows(robots), cells)[1]
+        best, action = row_best(self.tables, rows, cells)
+        if self.law_margin == 0:
+            return action
+        law = self.tables[rows, cells[:, 0]]
+        return np.where(best - law > self.law_margin, action, 0)
 
     def team(self) -> Policy:
         """The same policy with one table every robot uses: the rows merged cell by cell, each weighted by its visits

@@ -81,6 +81,7 @@ def header_for(policy: Policy, cfg: ScenarioConfig) -> dict[str, Any]:
         "action_mode": policy.action_mode,
         "max_action_steps": policy.max_action_steps,
         "lost_behaviour": policy.lost_behaviour,
+        "law_margin": policy.law_margin,
         "prototypes_per_action": [int(s) for s in policy.discretization.sizes()],
         "meta": policy.meta,
     }
@@ -167,6 +168,8 @@ def load_policy(path: str | os.PathLike[str]) -> tuple[Policy, dict[str, Any]]:
             version=int(header["version"]),
             method=str(header["method"]),
             meta=dict(header.get("meta", {})),
+            # Files written before the margin existed were read by the plain argmax.
+            law_margin=float(header.get("law_margin", 0.0)),
         )
     except (KeyError, TypeError, ValueError) as exc:
         raise PolicyFileError(f"{path}: inconsistent policy file ({exc})") from exc

@@ -7,6 +7,7 @@ ennc-ql eval --policy runs/<id>/policy.npz --rerun save trial.rrd --record-trial
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from pathlib import Path
 from typing import Any
@@ -60,6 +61,14 @@ def add_eval_parser(sub: Any) -> None:
         help="a second policy (a name or a policy file) scored on the same trials: both, and their paired "
         "difference per trial with its standard error (default: none)",
     )
+    p.add_argument(
+        "--law-margin",
+        type=non_negative(float),
+        metavar="M",
+        help="read the --policy file (a law action set's) with this law margin instead of its own: a robot departs "
+        "from the move law only where another move's value beats it by more than M; 0: the plain argmax "
+        "(default: the file's)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument(
         "--record-trial", type=non_negative(int), default=0, metavar="K", help="with --rerun: the trial to draw"
@@ -71,7 +80,7 @@ def add_eval_parser(sub: Any) -> None:
 def cmd_eval(args: argparse.Namespace) -> int:
     if args.record_trial >= args.trials:
         fail("eval", f"--record-trial {args.record_trial}: only trials 0 to {args.trials - 1} run (--trials)")
-    controller, cfg, info = _controller(args.policy, args.scenario)
+    controller, cfg, info = _controller(args.policy, args.scenario, law_margin=args.law_margin)
     other = None if args.against is None else _controller(args.against, args.scenario, "--against")
     start = time.perf_counter()
     with open_monitor(sink_from_args(args), process="eval", recording_id=args.recording_id) as monitor:
@@ -132,15 +141,21 @@ def _spread_line(scores: dict[str, Any]) -> str:
 
 
 def _title(policy: str, info: dict[str, Any]) -> str:
-    """The policy's name, with a learned policy's formulation."""
-    return f"{policy} ({info['formulation']})" if "formulation" in info else policy
+    """The policy's name, with a learned policy's formulation (and its law margin, where it has one)."""
+    if "formulation" not in info:
+        return policy
+    margin = f", law margin {info['law_margin']:g}" if "law_margin" in info else ""
+    return f"{policy} ({info['formulation']}{margin})"
 
 
 def _controller(
-    policy: str, scenario_name: str, flag: str = "--policy"
+    policy: str, scenario_name: str, flag: str = "--policy", law_margin: float | None = None
 ) -> tuple[Controller, ScenarioConfig, dict[str, Any]]:
-    """A hand-made controller by name, or a learned policy from a policy file; a one-line error otherwise."""
+    """A hand-made controller by name, or a learned policy from a policy file (read with ``law_margin`` when
+    given); a one-line error otherwise."""
     if policy in CONTROLLERS:
+        if law_margin is not None:
+            fail("eval", f"--law-margin: {policy} is a hand-made controller, not a learned policy file")
         return CONTROLLERS[policy], scenario(scenario_name), {}
     path = Path(policy)
     if path.is_dir():
@@ -155,9 +170,16 @@ def _controller(
         cfg = scenario_from_header(header)
     except (PolicyFileError, TypeError, ValueError) as exc:
         fail("eval", f"{flag} {policy}: {str(exc).removeprefix(f'{path}: ')}")
+    if law_margin is not None:
+        try:
+            learned = dataclasses.replace(learned, law_margin=law_margin)
+        except ValueError as exc:
+            fail("eval", f"--law-margin {law_margin:g}: {exc}")
     info = {
         "method": learned.method,
         "formulation": "{0} state, {2} moves, {1} reward".format(*learned.formulation.names),
         "prototypes_per_action": header["prototypes_per_action"],
     }
+    if learned.formulation.actions.law is not None:
+        info["law_margin"] = learned.law_margin
     return PolicyController(learned), cfg, info

@@ -177,6 +177,9 @@ def result_rows(report: Mapping[str, Any]) -> list[tuple[str, str]]:
     kept = report.get("kept")
     if kept:
         rows.insert(-1, ("kept policy", _kept(kept)))
+    margin = report.get("law_margin")
+    if margin:
+        rows.insert(-1, ("law margin", _margin(margin)))
     formulation = _formulation(report)
     if formulation in FORMULATIONS:
         rows.insert(1, ("formulation", f"{formulation} ({FORMULATIONS[formulation].describe()})"))
@@ -190,6 +193,18 @@ def _kept(kept: Mapping[str, Any]) -> str:
     return (
         f"version {kept['version']} of {kept['at_s']:.0f} s, the best on {kept['validation_trials']} validation "
         f"trials (seed {kept['validation_seed']}, not the test trials): {kept['validation_coverage']:.2f} %{last}"
+    )
+
+
+def _margin(margin: Mapping[str, Any]) -> str:
+    """The margin the saved policy departs from the move law by, and the validation scores it was chosen on."""
+    scores = margin.get("validation_coverage")
+    if not scores:
+        return f"{margin['margin']:g} (given)"
+    tried = ", ".join(f"{m} {c:.2f} %" for m, c in scores.items())
+    return (
+        f"{margin['margin']:g}, the best on {margin['validation_trials']} validation trials (seed "
+        f"{margin['validation_seed']}): {tried}"
     )
 
 

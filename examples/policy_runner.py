@@ -313,8 +313,14 @@ def cells(policy: PolicyFile, states: NDArray[np.float32]) -> Ints:
 
 
 def greedy(policy: PolicyFile, cell: Ints, rows: Ints) -> Ints:
-    """(N,) argmax_a tables[row, cell[:, a]], lowest action on a tie (np.argmax takes the first maximum)."""
-    return np.argmax(policy.tables[rows[:, None], cell], axis=1)
+    """(N,) argmax_a tables[row, cell[:, a]], lowest action on a tie (np.argmax takes the first maximum); with a
+    ``law_margin`` δ, action 0 unless the best value beats action 0's by more than δ."""
+    q = policy.tables[rows[:, None], cell]
+    best = np.argmax(q, axis=1)
+    margin = float(policy.header.get("law_margin", 0.0))
+    if margin == 0.0:
+        return best
+    return np.where(q.max(axis=1) - q[:, 0] > margin, best, 0)
 
 
 def reflect(heading: Floats, pos: Floats, radius: float) -> Floats:

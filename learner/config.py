@@ -7,6 +7,7 @@ reads the same fields from TOML, and ``ennc-ql up`` builds one of these instead 
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 
 from algorithm.checks import require_at_least, require_id, require_known, require_positive
@@ -72,6 +73,13 @@ class LearnerConfig:
     either way. Off: the last policy."""
     validation_trials: int = 30
     """Validation trials of each periodic evaluation when ``keep_best`` (the same trials every time)."""
+    law_margin: float | None = None
+    """With a law action set (the default formulation's): the saved and scored policy departs from the move law
+    only where another move's value beats law's by more than this (0: the plain argmax); none: the margin of
+    algorithm.selection.LAW_MARGINS that scores best on margin_trials validation trials of seed 1000, chosen at the
+    end of the run [beyond the paper, docs/learning-quality.md "Eighteenth round"]. Other action sets: the argmax."""
+    margin_trials: int = 300
+    """Validation trials on which each margin is scored when law_margin is none."""
     eval_steps: int = 1000
     """Steps of each test trial [paper]."""
     checkpoint_interval: float = 0.5
@@ -102,6 +110,7 @@ class LearnerConfig:
             eval_trials=self.eval_trials,
             final_eval_trials=self.final_eval_trials,
             validation_trials=self.validation_trials,
+            margin_trials=self.margin_trials,
             eval_steps=self.eval_steps,
         )
         require_positive(
@@ -112,6 +121,8 @@ class LearnerConfig:
             duration=self.duration,
         )
         require_at_least(0, threads=self.threads, seed=self.seed)
+        if self.law_margin is not None and not (math.isfinite(self.law_margin) and self.law_margin >= 0):
+            raise ValueError(f"law_margin must be none or a finite number >= 0, got {self.law_margin}")
         if self.refit_growth != 0 and not self.refit_growth > 1:
             raise ValueError(f"refit_growth must be 0 (never) or above 1, got {self.refit_growth}")
 

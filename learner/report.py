@@ -22,7 +22,8 @@ from typing import TYPE_CHECKING, Any
 from algorithm.wire import figures_from_counters, status_counters
 
 if TYPE_CHECKING:  # the parts; readers of the figures (``ennc-ql up``) need none of them
-    from algorithm.selection import BestPolicy
+    from algorithm.policy import Policy
+    from algorithm.selection import BestPolicy, MarginChoice
     from learner.config import LearnerConfig
     from learner.evaluator import Evaluator
     from learner.intake import IntakeFigures
@@ -146,6 +147,11 @@ class LearnerReport:
     ``validation_coverage``), those trials (``validation_trials``, ``validation_seed``) and every evaluated
     policy's score on them (``validation_curve``, [[seconds, %], ...], the last one scored at the end); None
     without ``keep_best`` or before a policy was scored."""
+    law_margin: dict[str, Any] | None = None
+    """With a law action set: the margin the saved policy is read with (``margin``; a robot departs from the move law
+    only where another move's value beats it by more) and, when the run chose it, every margin's score on the
+    validation trials (``validation_coverage``: {margin: %}, ``validation_trials``, ``validation_seed``); None for
+    other action sets or before a policy was learned."""
     resumes: list[dict[str, Any]] = field(default_factory=list)
     """Every time the run was resumed from its checkpoint: the run clock it resumed at (``at_s``), the policy version
     of its first broadcast, that broadcast's wall time and the seconds from the process's start to it."""
@@ -166,6 +172,8 @@ class LearnerReport:
         checkpoint: Path,
         resumes: list[dict[str, Any]] | None = None,
         keeper: BestPolicy | None = None,
+        margin: MarginChoice | None = None,
+        policy: Policy | None = None,
     ) -> LearnerReport:
         """The report of a run that ended with ``status`` (built from the same ``intake`` figures) and the final
         figure ``final`` (None: no policy was learned, and no reference is measured)."""
@@ -203,6 +211,7 @@ class LearnerReport:
             seconds=round(status.elapsed, 2),
             resumes=list(resumes or []),
             kept=None if keeper is None or keeper.best is None else _kept(keeper),
+            law_margin=_law_margin(policy, margin),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -225,6 +234,19 @@ class LearnerReport:
 
     def with_extra(self, **extra: Any) -> LearnerReport:
         return dataclasses.replace(self, extra={**self.extra, **extra})
+
+
+def _law_margin(policy: Policy | None, margin: MarginChoice | None) -> dict[str, Any] | None:
+    if policy is None or policy.formulation.actions.law is None:
+        return None
+    if margin is None:
+        return {"margin": policy.law_margin}
+    return {
+        "margin": margin.margin,
+        "validation_coverage": {f"{m:g}": round(c, 3) for m, c in margin.scores.items()},
+        "validation_trials": margin.trials,
+        "validation_seed": margin.seed,
+    }
 
 
 def _kept(keeper: BestPolicy) -> dict[str, Any]:

@@ -33,7 +33,7 @@ from algorithm.discretization import Discretization
 from algorithm.phase1 import estimator
 from algorithm.policy import Policy
 from algorithm.policy_file import PolicyFileError, load_policy, save_policy
-from algorithm.selection import BestPolicy
+from algorithm.selection import BestPolicy, MarginChoice, choose_margin
 from learner.checkpoint import Checkpointer, CheckpointError, VersionMark
 from learner.config import LearnerConfig
 from learner.evaluator import Evaluator
@@ -84,6 +84,8 @@ class LearnerService:
         self.keeper = None
         if config.keep_best:
             self.keeper = BestPolicy(self.scenario, config.validation_trials, config.eval_steps)
+        self.margin: MarginChoice | None = None
+        """The law margin chosen at the end on validation trials (``law_margin`` none, a law action set)."""
         self.checkpointer = Checkpointer(run_dir)
         # The viewer's train_time is the run clock of the learning curve.
         self.watch = LearnerWatch(monitor or Monitor(), self.scenario, clock=self.elapsed)
@@ -206,10 +208,33 @@ class LearnerService:
         log.info("validation of policy version %d: %.2f%% of targets observed", policy.version, validation)
 
     def _chosen(self) -> Policy | None:
-        """The policy the run saves and scores: the best on the validation trials with ``keep_best``, else the last."""
+        """The policy the run saves and scores: the best on the validation trials with ``keep_best``, else the last,
+        read with the law margin (a law action set's)."""
         if self.keeper is not None and self.keeper.best is not None:
-            return self.keeper.best.policy
-        return self.state.policy()
+            policy: Policy | None = self.keeper.best.policy
+        else:
+            policy = self.state.policy()
+        if policy is None or policy.formulation.actions.law is None:
+            return policy
+        margin = self.config.law_margin if self.margin is None else self.margin.margin
+        return policy if margin is None else dataclasses.replace(policy, law_margin=margin)
+
+    def _choose_margin(self) -> None:
+        """With ``law_margin`` none and a law action set: the margin that scores best on the validation trials."""
+        policy = self._chosen()
+        if self.config.law_margin is not None or policy is None or policy.formulation.actions.law is None:
+            return
+        log.info(
+            "choosing the law margin of policy version %d on %d validation trials",
+            policy.version,
+            self.config.margin_trials,
+        )
+        self.margin = choose_margin(self.scenario, policy, self.config.margin_trials, self.config.eval_steps)
+        log.info(
+            "law margin %g: %s",
+            self.margin.margin,
+            ", ".join(f"{m:g} {c:.2f}%" for m, c in self.margin.scores.items()),
+        )
 
     # -- status, checkpoints, report --------------------------------------------------------------------------------
 
@@ -292,6 +317,7 @@ class LearnerService:
             assert last is not None
             if self.keeper is not None and self.keeper.scores:  # else the last is the only candidate: not scored
                 self._offer(last)
+            self._choose_margin()
             policy = self._chosen()
             assert policy is not None
             final = self.evaluator.final(policy)
@@ -324,6 +350,8 @@ class LearnerService:
             checkpoint,
             resumes=self.resumes,
             keeper=self.keeper,
+            margin=self.margin,
+            policy=policy,
         )
 
 

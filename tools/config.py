@@ -122,15 +122,15 @@ def non_negative(kind: type[N]) -> Callable[[str], N]:
     >>> non_negative(int)("0")
     0
     """
-    noun = "integer" if kind is int else "finite number"
+    noun = "an integer" if kind is int else "a finite number"
 
     def parse(text: str) -> N:
         try:
             value = kind(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an {noun} of 0 or more, got {text!r}") from None
+            raise argparse.ArgumentTypeError(f"expected {noun} of 0 or more, got {text!r}") from None
         if not 0 <= value < math.inf:
-            raise argparse.ArgumentTypeError(f"expected an {noun} of 0 or more, got {text!r}")
+            raise argparse.ArgumentTypeError(f"expected {noun} of 0 or more, got {text!r}")
         return value
 
     parse.__name__ = f"non_negative_{kind.__name__}"

@@ -86,6 +86,36 @@ def test_the_header_names_the_action_set_and_a_file_without_one_used_the_compass
     assert load_policy(tmp_path / "old.npz")[0].formulation.actions.name == "compass"
 
 
+def test_the_header_carries_the_law_margin_and_a_file_without_one_is_read_by_the_argmax(tmp_path: Path) -> None:
+    paper = make_policy(np.random.default_rng(0))
+    law = paper.formulation.replace(featurizer="frame11d-recall", actions="law-track")
+    disc = Discretization.from_per_action([np.zeros((1, law.dim), np.float32)] * 8)
+    policy = dataclasses.replace(
+        paper,
+        formulation=law,
+        discretization=disc,
+        tables=np.zeros((1, 8), np.float32),
+        robot_table=np.zeros(10, np.int64),
+        visits=None,
+        law_margin=0.3,
+    )
+    path = save_policy(policy, scenario(), tmp_path / "p.npz")
+    loaded, header = load_policy(path)
+    assert header["law_margin"] == 0.3 and loaded.law_margin == 0.3
+    with np.load(path) as data:
+        arrays = {name: data[name] for name in data.files}
+    old = json.loads(arrays["header"].tobytes())
+    del old["law_margin"]
+    arrays["header"] = np.frombuffer(json.dumps(old).encode(), np.uint8)
+    np.savez(tmp_path / "old.npz", **arrays)
+    assert load_policy(tmp_path / "old.npz")[0].law_margin == 0.0
+    old["law_margin"] = -1
+    arrays["header"] = np.frombuffer(json.dumps(old).encode(), np.uint8)
+    np.savez(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(PolicyFileError, match="law_margin must be a finite number >= 0"):
+        load_policy(tmp_path / "bad.npz")
+
+
 def test_the_file_is_a_plain_npz_with_a_json_header(tmp_path: Path) -> None:
     path = save_policy(make_policy(np.random.default_rng(0)), scenario(), tmp_path / "p.npz")
     with zipfile.ZipFile(path) as zf:

@@ -1,12 +1,15 @@
-"""Keeping a run's best policy by its validation trials (``algorithm.selection``)."""
+"""Keeping a run's best policy, and the law margin it is read with, by validation trials (``algorithm.selection``)."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
+import pytest
 
 from algorithm.discretization import Discretization
 from algorithm.policy import Policy, PolicyController
-from algorithm.selection import VALIDATION_SEED, BestPolicy
+from algorithm.selection import LAW_MARGINS, VALIDATION_SEED, BestPolicy, choose_margin
 from sim import N_ACTIONS, evaluate, scenario
 from sim.formulation import DEFAULT_FORMULATION, FORMULATIONS
 
@@ -76,3 +79,45 @@ def test_the_kept_policy_survives_a_restore_and_is_forgotten_without_its_file() 
     assert lost.best is None and lost.scores == keeper.scores
     lost.offer(first, at=3.0)  # the next offer is kept, whatever its score
     assert lost.best is not None and lost.best.policy is first
+
+
+def law_or_back(gap: float) -> Policy:
+    """A policy whose only departure is ``back``, valued ``gap`` above the move ``law`` everywhere."""
+    policy = constant(0, version=1)
+    tables = np.zeros_like(policy.tables)
+    tables[0, FORMULATION.actions.moves.index("back")] = gap
+    return dataclasses.replace(policy, tables=tables)
+
+
+def test_a_law_margin_departs_from_law_only_where_another_move_beats_it_by_more() -> None:
+    states = np.zeros((4, FORMULATION.dim), np.float32)
+    robots = np.arange(4)
+    back = FORMULATION.actions.moves.index("back")
+    policy = law_or_back(0.2)
+    for margin, expected in [(0.0, back), (0.1, back), (0.2, 0), (0.3, 0)]:
+        chosen = dataclasses.replace(policy, law_margin=margin).greedy(states, robots)
+        assert chosen.tolist() == [expected] * 4, margin
+
+
+def test_a_law_margin_is_refused_without_a_law_action_set_or_when_not_a_finite_number_above_0() -> None:
+    policy = constant(0, version=1)
+    for bad in (-0.1, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="law_margin"):
+            dataclasses.replace(policy, law_margin=bad)
+    compass = Policy(
+        formulation=FORMULATIONS["paper"],
+        discretization=Discretization.from_per_action([np.zeros((1, FORMULATIONS["paper"].dim), np.float32)] * 8),
+        tables=np.zeros((1, 8), np.float32),
+        robot_table=np.zeros(CFG.n_robots, np.int64),
+    )
+    with pytest.raises(ValueError, match="law action set"):
+        dataclasses.replace(compass, law_margin=0.1)
+
+
+def test_the_margin_chosen_is_the_smallest_that_scores_best_on_the_validation_trials() -> None:
+    # Running from every target (back) scores far under the law; margins at or above the gap of 0.25 read the law.
+    choice = choose_margin(CFG, law_or_back(0.25), trials=3, steps=100)
+    assert choice.margin == 0.3 and (choice.trials, choice.seed) == (3, VALIDATION_SEED)
+    assert list(choice.scores) == list(LAW_MARGINS)
+    assert choice.scores[0.3] == choice.scores[0.5] == validation(constant(0, version=1), 3)
+    assert choice.scores[0.0] == choice.scores[0.2] < choice.scores[0.3] - 10

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -183,3 +184,26 @@ def test_eval_refuses_to_record_a_trial_it_does_not_run(capsys: pytest.CaptureFi
         main(argv)
     assert exc.value.code == 2 and list(tmp_path.iterdir()) == []
     assert capsys.readouterr().err == "ennc-ql eval: error: --record-trial 3: only trials 0 to 2 run (--trials)\n"
+
+
+def test_eval_reads_a_policy_with_the_law_margin_given_and_names_it(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    from algorithm.policy import PolicyController
+    from algorithm.policy_file import save_policy
+    from tests.algorithm.test_selection import law_or_back
+
+    policy = law_or_back(0.25)  # argmax: back everywhere; a margin of 0.3 reads the law
+    path = str(save_policy(policy, scenario(), tmp_path / "p.npz"))
+    argv = ["eval", "--policy", path, "--trials", "3", "--steps", "150", "--json"]
+    plain, margin = run_json(capsys, *argv), run_json(capsys, *argv, "--law-margin", "0.3")
+    assert (plain["law_margin"], margin["law_margin"]) == (0.0, 0.3)
+    law = evaluate(scenario(), PolicyController(dataclasses.replace(policy, law_margin=0.3)), 3, 150)
+    np.testing.assert_allclose(margin["coverage_per_trial"], law.coverage_per_trial, atol=1e-4)
+    assert margin["coverage_mean"] > plain["coverage_mean"] + 10
+    for bad, message in [("a-cmommt", "is a hand-made controller"), (path, None)]:
+        extra = ["--law-margin", "-1"] if message is None else ["--law-margin", "0.3"]
+        with pytest.raises(SystemExit) as exc:
+            main(["eval", "--policy", bad, *extra])
+        assert exc.value.code == 2
+        assert (message or "expected a finite number of 0 or more") in capsys.readouterr().err

@@ -341,3 +341,20 @@ def test_a_kept_policy_is_named_with_its_validation_score_beside_the_last_one_s(
         "62.50 %; the last policy's 60.12 % |" in text
     )
     assert "kept policy" not in write_run_report(run_report(tmp_path), tmp_path)[0].read_text()
+
+
+def test_the_law_margin_is_given_with_every_margin_s_validation_score(tmp_path: Path) -> None:
+    chosen = {
+        "margin": 1.0,
+        "validation_coverage": {"0": 76.62, "0.5": 77.85, "1": 78.13, "2": 77.76},
+        "validation_trials": 300,
+        "validation_seed": 1000,
+    }
+    text = write_run_report({**run_report(tmp_path), "law_margin": chosen}, tmp_path)[0].read_text()
+    assert (
+        "| law margin | 1, the best on 300 validation trials (seed 1000): 0 76.62 %, 0.5 77.85 %, 1 78.13 %, "
+        "2 77.76 % |" in text
+    )
+    given = write_run_report({**run_report(tmp_path), "law_margin": {"margin": 0.0}}, tmp_path)[0].read_text()
+    assert "| law margin | 0 (given) |" in given
+    assert "law margin" not in write_run_report(run_report(tmp_path), tmp_path)[0].read_text()

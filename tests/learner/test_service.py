@@ -35,6 +35,7 @@ FAST = LearnerConfig(
     eval_steps=100,
     checkpoint_interval=0.5,
     duration=120.0,
+    margin_trials=3,
 )
 
 
@@ -393,6 +394,40 @@ def test_the_run_saves_and_scores_the_policy_best_on_validation_trials_and_resum
     with InMemoryTransport(InMemoryBus()) as t:
         forgot = LearnerService(t, config, tmp_path, resume=True)
     assert forgot.keeper is not None and forgot.keeper.best is None and len(forgot.keeper.scores) == 3
+
+
+@pytest.mark.parametrize("given", [None, 0.0, 0.5])
+def test_the_saved_policy_is_read_with_the_law_margin_chosen_on_validation_trials_or_given(
+    tmp_path: Path, given: float | None
+) -> None:
+    from algorithm.policy_file import load_policy
+    from algorithm.selection import LAW_MARGINS, choose_margin
+    from tests.algorithm.test_selection import law_or_back
+
+    config = dataclasses.replace(FAST, validation_trials=3, final_eval_trials=3, duration=0.5, law_margin=given)
+    policy = law_or_back(0.25)  # its argmax runs from every target; a margin of 0.3 or more reads the law
+    with InMemoryTransport(InMemoryBus()) as t:
+        service = LearnerService(t, config, tmp_path)
+        service.state.adopt(one_cell_per_action(DIM))
+        service.state.policy = lambda: policy  # type: ignore[method-assign]
+        report = service.run(threading.Event())
+    saved, _ = load_policy(tmp_path / "policy.npz")
+    if given is None:
+        expected = choose_margin(service.scenario, policy, 3, FAST.eval_steps)
+        assert expected.margin == 0.3 and saved.law_margin == 0.3
+        assert report.law_margin == {
+            "margin": 0.3,
+            "validation_coverage": {f"{m:g}": round(expected.scores[m], 3) for m in LAW_MARGINS},
+            "validation_trials": 3,
+            "validation_seed": 1000,
+        }
+    else:
+        assert saved.law_margin == given and report.law_margin == {"margin": given}
+    # The final figure is that of the policy as saved, margin and all.
+    read = dataclasses.replace(policy, law_margin=saved.law_margin)
+    assert report.final_coverage_mean == round(
+        evaluate(service.scenario, PolicyController(read), 3, FAST.eval_steps, seed=0).coverage_mean, 3
+    )
 
 
 def test_experience_is_acknowledged_while_an_evaluation_holds_the_loop(tmp_path: Path) -> None:
