@@ -200,7 +200,8 @@ def _margin(margin: Mapping[str, Any]) -> str:
     """The margin the saved policy departs from the move law by, and the validation scores it was chosen on."""
     scores = margin.get("validation_coverage")
     if not scores:
-        return f"{margin['margin']:g} (given)"
+        # Given with --learner-law-margin, or a learner stopped before it chose one.
+        return f"{margin['margin']:g} (not chosen on validation trials)"
     tried = ", ".join(f"{m} {c:.2f} %" for m, c in scores.items())
     return (
         f"{margin['margin']:g}, the best on {margin['validation_trials']} validation trials (seed "

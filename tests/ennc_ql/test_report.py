@@ -356,5 +356,5 @@ def test_the_law_margin_is_given_with_every_margin_s_validation_score(tmp_path: 
         "2 77.76 % |" in text
     )
     given = write_run_report({**run_report(tmp_path), "law_margin": {"margin": 0.0}}, tmp_path)[0].read_text()
-    assert "| law margin | 0 (given) |" in given
+    assert "| law margin | 0 (not chosen on validation trials) |" in given
     assert "law margin" not in write_run_report(run_report(tmp_path), tmp_path)[0].read_text()
