@@ -5,7 +5,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -15,6 +17,18 @@ from algorithm.policy import Policy, PolicyController
 from algorithm.policy_file import FORMAT_VERSION, PolicyFileError, load_policy, save_policy, scenario_from_header
 from sim import FORMULATIONS, Formulation, evaluate, scenario
 from tests.fakes import make_policy
+
+
+def rewritten(path: Path, out: Path, edit: Callable[[dict[str, Any]], None]) -> Path:
+    """A copy of the policy file at ``path`` whose header ``edit`` changed in place, as an older or foreign writer
+    would have written it."""
+    with np.load(path) as data:
+        arrays = {name: data[name] for name in data.files}
+    header = json.loads(arrays["header"].tobytes())
+    edit(header)
+    arrays["header"] = np.frombuffer(json.dumps(header).encode(), np.uint8)
+    np.savez(out, **arrays)
+    return out
 
 
 def test_round_trip_keeps_every_array_and_field(tmp_path: Path) -> None:
@@ -52,18 +66,11 @@ def test_the_header_names_the_reward_and_a_file_without_one_had_its_featurizers_
         header["reward"] == {"name": "difference", "per_decision": False}
         and loaded.formulation.reward.name == "difference"
     )
-    with np.load(path) as data:
-        arrays = {name: data[name] for name in data.files}
-    old = json.loads(arrays["header"].tobytes())
-    del old["reward"]
-    arrays["header"] = np.frombuffer(json.dumps(old).encode(), np.uint8)
-    np.savez(tmp_path / "old.npz", **arrays)
-    assert load_policy(tmp_path / "old.npz")[0].formulation.reward.name == "eq2"
-    old["reward"] = {"name": "money", "per_decision": False}
-    arrays["header"] = np.frombuffer(json.dumps(old).encode(), np.uint8)
-    np.savez(tmp_path / "money.npz", **arrays)
+    old = rewritten(path, tmp_path / "old.npz", lambda h: h.pop("reward"))
+    assert load_policy(old)[0].formulation.reward.name == "eq2"
+    money = rewritten(path, tmp_path / "money.npz", lambda h: h.update(reward={"name": "money", "per_decision": False}))
     with pytest.raises(PolicyFileError, match="unknown reward 'money'"):
-        load_policy(tmp_path / "money.npz")
+        load_policy(money)
 
 
 def test_the_header_names_the_action_set_and_a_file_without_one_used_the_compass(tmp_path: Path) -> None:
@@ -77,13 +84,8 @@ def test_the_header_names_the_action_set_and_a_file_without_one_used_the_compass
     )
     assert [a["name"] for a in header["actions"]][:3] == ["toward", "toward-left", "left"]
     assert header["actions"][2]["direction"] == pytest.approx([0.0, 1.0])  # left: +y of the target frame
-    with np.load(path) as data:
-        arrays = {name: data[name] for name in data.files}
-    old = json.loads(arrays["header"].tobytes())
-    del old["action_set"]
-    arrays["header"] = np.frombuffer(json.dumps(old).encode(), np.uint8)
-    np.savez(tmp_path / "old.npz", **arrays)
-    assert load_policy(tmp_path / "old.npz")[0].formulation.actions.name == "compass"
+    old = rewritten(path, tmp_path / "old.npz", lambda h: h.pop("action_set"))
+    assert load_policy(old)[0].formulation.actions.name == "compass"
 
 
 def test_the_header_carries_the_law_margin_and_a_file_without_one_is_read_by_the_argmax(tmp_path: Path) -> None:
@@ -102,18 +104,10 @@ def test_the_header_carries_the_law_margin_and_a_file_without_one_is_read_by_the
     path = save_policy(policy, scenario(), tmp_path / "p.npz")
     loaded, header = load_policy(path)
     assert header["law_margin"] == 0.3 and loaded.law_margin == 0.3
-    with np.load(path) as data:
-        arrays = {name: data[name] for name in data.files}
-    old = json.loads(arrays["header"].tobytes())
-    del old["law_margin"]
-    arrays["header"] = np.frombuffer(json.dumps(old).encode(), np.uint8)
-    np.savez(tmp_path / "old.npz", **arrays)
-    assert load_policy(tmp_path / "old.npz")[0].law_margin == 0.0
-    old["law_margin"] = -1
-    arrays["header"] = np.frombuffer(json.dumps(old).encode(), np.uint8)
-    np.savez(tmp_path / "bad.npz", **arrays)
+    assert load_policy(rewritten(path, tmp_path / "old.npz", lambda h: h.pop("law_margin")))[0].law_margin == 0.0
+    bad = rewritten(path, tmp_path / "bad.npz", lambda h: h.update(law_margin=-1))
     with pytest.raises(PolicyFileError, match="law_margin must be a finite number >= 0"):
-        load_policy(tmp_path / "bad.npz")
+        load_policy(bad)
 
 
 def test_the_file_is_a_plain_npz_with_a_json_header(tmp_path: Path) -> None:
