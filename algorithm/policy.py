@@ -18,10 +18,11 @@ import numpy as np
 
 from algorithm.discretization import Discretization
 from algorithm.qtable import row_best
-from sim import ScenarioConfig
+from sim import ScenarioConfig, evaluate
 from sim.features import lost
 from sim.formulation import Formulation
 from sim.recall import Recall, forget_all, view_of
+from sim.rollout import EvalResult
 from sim.world import Observation, WorldState
 
 LostBehaviour = Literal["wander", "stay", "policy"]
@@ -131,6 +132,19 @@ class Policy:
         return [disc.prototypes[lo:hi] / scale for lo, hi in bounds], [q[lo:hi] for lo, hi in bounds]
 
 
+def evaluate_off_law(
+    cfg: ScenarioConfig, policy: Policy, trials: int, steps: int, seed: int
+) -> tuple[EvalResult, float | None]:
+    """``sim.evaluate`` of ``policy`` on those trials, and with a law action set the percentage of the robots'
+    decisions that took another move than ``law`` (None for other sets): how far the learned policy departs from
+    the hand-made law it holds as one of its moves."""
+    if policy.formulation.actions.law is None:
+        return evaluate(cfg, PolicyController(policy), trials, steps, seed=seed), None
+    tally = np.zeros(2, np.int64)
+    result = evaluate(cfg, PolicyController(policy, tally=tally), trials, steps, seed=seed)
+    return result, 100.0 * float(tally[1]) / max(int(tally[0]), 1)
+
+
 @dataclass(frozen=True, slots=True)
 class _Memory:
     action: np.ndarray  # (E, m) int64 current action index
@@ -147,6 +161,9 @@ class PolicyController:
 
     policy: Policy
     name: str = "policy"
+    tally: np.ndarray | None = None
+    """(2,) int64 added to in place: the robots' decisions, and those that took another move than action 0 (``law``
+    for a law action set); None: not counted."""
 
     def init(self, cfg: ScenarioConfig, world: WorldState, rng: np.random.Generator) -> _Memory:
         shape = (world.n_arenas, cfg.n_robots)
@@ -185,6 +202,9 @@ class PolicyController:
         heading = moves.steer(cfg, world, view, memory.heading)
         if cells is not None and decide.any():
             chosen = p.greedy(states, robots, cells).reshape(n_arenas, m)
+            if self.tally is not None:
+                self.tally[0] += int(decide.sum())
+                self.tally[1] += int((decide & (chosen != 0)).sum())
             action = np.where(decide, chosen, action)
             start_cell = cells[np.arange(n_arenas * m), action.reshape(-1)].reshape(n_arenas, m)
             cell = np.where(decide, start_cell, cell_now)

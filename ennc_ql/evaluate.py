@@ -12,6 +12,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from algorithm.policy import PolicyController
 from algorithm.policy_file import PolicyFileError, load_policy, scenario_from_header
 from ennc_ql.command import emit, fail
@@ -89,6 +91,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
             monitor.send_blueprint(eval_trial=True)
             hook = trial_hook(monitor, cfg, arena=args.record_trial)
         result = evaluate(cfg, controller, trials=args.trials, steps=args.steps, seed=args.seed, on_step=hook)
+    tally = getattr(controller, "tally", None)
     out = {
         "policy": args.policy,
         **info,
@@ -98,12 +101,16 @@ def cmd_eval(args: argparse.Namespace) -> int:
         "seed": args.seed,
         **_scores(result),
     }
+    if tally is not None:
+        out["off_law_pct"] = round(100.0 * float(tally[1]) / max(int(tally[0]), 1), 4)
     rows = "\n".join(f"  trial {i:>3}  {c:6.2f} %" for i, c in enumerate(out["coverage_per_trial"]))
     table = (
         f"policy {_title(args.policy, info)} on {cfg.name}: {args.trials} trials x {args.steps} steps, seed {args.seed}"
         f"\n{rows}\n  mean       {out['coverage_mean']:6.2f} %  (std {out['coverage_std']:.2f})\n"
         f"  {_spread_line(out)}"
     )
+    if "off_law_pct" in out:
+        table += f"\n  {out['off_law_pct']:.1f} % of the robots' decisions took another move than law"
     if other is not None:
         # The second policy runs on the scenario of the first: a paired comparison needs the same trials.
         against = evaluate(cfg, other[0], trials=args.trials, steps=args.steps, seed=args.seed)
@@ -180,6 +187,9 @@ def _controller(
         "formulation": "{0} state, {2} moves, {1} reward".format(*learned.formulation.names),
         "prototypes_per_action": header["prototypes_per_action"],
     }
-    if learned.formulation.actions.law is not None:
-        info["law_margin"] = learned.law_margin
-    return PolicyController(learned), cfg, info
+    if learned.formulation.actions.law is None:
+        return PolicyController(learned), cfg, info
+    info["law_margin"] = learned.law_margin
+    # Counted for the --policy only: how far the learned policy departs from the law it holds as a move.
+    tally = np.zeros(2, np.int64) if flag == "--policy" else None
+    return PolicyController(learned, tally=tally), cfg, info

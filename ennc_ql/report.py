@@ -180,6 +180,9 @@ def result_rows(report: Mapping[str, Any]) -> list[tuple[str, str]]:
     margin = report.get("law_margin")
     if margin:
         rows.insert(-1, ("law margin", _margin(margin)))
+    off_law = (report.get("final_comparison") or {}).get("learned", {}).get("off_law_pct")
+    if off_law is not None:
+        rows.insert(-1, ("decisions off law", f"{off_law:.1f} % of the learned robots' decisions on the final trials"))
     formulation = _formulation(report)
     if formulation in FORMULATIONS:
         rows.insert(1, ("formulation", f"{formulation} ({FORMULATIONS[formulation].describe()})"))

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from algorithm.policy import Policy, PolicyController
+from algorithm.policy import Policy, PolicyController, evaluate_off_law
 from sim import CONTROLLERS, EvalResult, ScenarioConfig, evaluate
 
 TEST_SEED = 0
@@ -35,6 +35,7 @@ class Evaluator:
         """How the team of the newest evaluated policy spread over the targets (``sim.rollout.Cooperation``)."""
         self._references: dict[int, dict[str, EvalResult]] = {}
         self._final: EvalResult | None = None
+        self._off_law: float | None = None
 
     def periodic(self, policy: Policy, at: float) -> float:
         """Coverage (%) of ``policy``, kept on the curve at ``at`` seconds of training."""
@@ -59,16 +60,19 @@ class Evaluator:
 
     def final(self, policy: Policy) -> float:
         """The final figure; the curve keeps one protocol, so this point stays off it."""
-        self._final = self._evaluate(policy, self.final_trials)
+        self._final, self._off_law = evaluate_off_law(self.cfg, policy, self.final_trials, self.steps, TEST_SEED)
         return self._final.coverage_mean
 
     def comparison(self) -> dict[str, dict[str, float]]:
         """The final policy (``learned``) and every reference on the final figure's trials: coverage, the team's
-        spread over the targets, and for each reference the paired difference learned − it with its standard
+        spread over the targets (and for a law action set's policy ``off_law_pct``, its decisions off the move law),
+        and for each reference the paired difference learned − it with its standard
         error; empty before :meth:`final`."""
         if self._final is None:
             return {}
         rows = {"learned": {"coverage": round(self._final.coverage_mean, 3), **_spread(self._final)}}
+        if self._off_law is not None:
+            rows["learned"]["off_law_pct"] = round(self._off_law, 3)
         for name, result in self._reference_results(self.final_trials).items():
             mean, se = self._final.minus(result)
             rows[name] = {

@@ -137,8 +137,9 @@ class LearnerReport:
     final_comparison: dict[str, dict[str, float]]
     """On the final figure's trials, the final policy (``learned``) and every reference: ``coverage``, how the team
     spread over the targets per robot-step (``only_shared_pct``, ``none_in_view_pct``,
-    ``robots_per_covered_target``) and, for a reference, the paired difference learned − it (``learned_minus``)
-    with its standard error (``learned_minus_se``); empty when no policy was learned."""
+    ``robots_per_covered_target``), for a law action set's learned policy the percentage of its robots' decisions
+    that took another move than law (``off_law_pct``) and, for a reference, the paired difference learned − it
+    (``learned_minus``) with its standard error (``learned_minus_se``); empty when no policy was learned."""
     policy_file: str | None
     checkpoint: str
     seconds: float

@@ -121,3 +121,22 @@ def test_the_margin_chosen_is_the_smallest_that_scores_best_on_the_validation_tr
     assert list(choice.scores) == list(LAW_MARGINS)
     assert choice.scores[0.3] == choice.scores[0.5] == validation(constant(0, version=1), 3)
     assert choice.scores[0.0] == choice.scores[0.2] < choice.scores[0.3] - 10
+
+
+def test_the_decisions_off_law_are_counted_for_a_law_set_only() -> None:
+    from algorithm.policy import evaluate_off_law
+
+    runs_away = law_or_back(0.25)
+    plain, off = evaluate_off_law(CFG, runs_away, 2, 50, seed=0)
+    assert off == 100.0 and plain.coverage_mean == coverage_on_two_trials(runs_away)
+    _, off = evaluate_off_law(CFG, dataclasses.replace(runs_away, law_margin=0.3), 2, 50, seed=0)
+    assert off == 0.0
+    # Half the robots' rows favour back: half the decisions leave law.
+    tables = np.concatenate([runs_away.tables, np.zeros_like(runs_away.tables)])
+    split = dataclasses.replace(runs_away, tables=tables, robot_table=np.arange(CFG.n_robots) % 2)
+    _, off = evaluate_off_law(CFG, split, 2, 50, seed=0)
+    assert off == 50.0
+
+
+def coverage_on_two_trials(policy: Policy) -> float:
+    return evaluate(CFG, PolicyController(policy), 2, 50, seed=0).coverage_mean

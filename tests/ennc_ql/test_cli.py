@@ -198,6 +198,7 @@ def test_eval_reads_a_policy_with_the_law_margin_given_and_names_it(
     argv = ["eval", "--policy", path, "--trials", "3", "--steps", "150", "--json"]
     plain, margin = run_json(capsys, *argv), run_json(capsys, *argv, "--law-margin", "0.3")
     assert (plain["law_margin"], margin["law_margin"]) == (0.0, 0.3)
+    assert (plain["off_law_pct"], margin["off_law_pct"]) == (100.0, 0.0)
     law = evaluate(scenario(), PolicyController(dataclasses.replace(policy, law_margin=0.3)), 3, 150)
     np.testing.assert_allclose(margin["coverage_per_trial"], law.coverage_per_trial, atol=1e-4)
     assert margin["coverage_mean"] > plain["coverage_mean"] + 10

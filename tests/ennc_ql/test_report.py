@@ -358,3 +358,12 @@ def test_the_law_margin_is_given_with_every_margin_s_validation_score(tmp_path: 
     given = write_run_report({**run_report(tmp_path), "law_margin": {"margin": 0.0}}, tmp_path)[0].read_text()
     assert "| law margin | 0 (not chosen on validation trials) |" in given
     assert "law margin" not in write_run_report(run_report(tmp_path), tmp_path)[0].read_text()
+
+
+def test_the_learned_policy_s_decisions_off_law_are_given_when_counted(tmp_path: Path) -> None:
+    report = run_report(tmp_path)
+    comparison = {**report["final_comparison"]}
+    comparison["learned"] = {**comparison["learned"], "off_law_pct": 26.022}
+    text = write_run_report({**report, "final_comparison": comparison}, tmp_path)[0].read_text()
+    assert "| decisions off law | 26.0 % of the learned robots' decisions on the final trials |" in text
+    assert "decisions off law" not in write_run_report(report, tmp_path)[0].read_text()

@@ -423,6 +423,8 @@ def test_the_saved_policy_is_read_with_the_law_margin_chosen_on_validation_trial
         }
     else:
         assert saved.law_margin == given and report.law_margin == {"margin": given}
+    # Below the gap of 0.25 every decision leaves law for back; at or above it none does.
+    assert report.final_comparison["learned"]["off_law_pct"] == (100.0 if saved.law_margin < 0.25 else 0.0)
     # The final figure is that of the policy as saved, margin and all.
     read = dataclasses.replace(policy, law_margin=saved.law_margin)
     assert report.final_coverage_mean == round(
