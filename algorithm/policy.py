@@ -140,9 +140,9 @@ def evaluate_off_law(
     the hand-made law it holds as one of its moves."""
     if policy.formulation.actions.law is None:
         return evaluate(cfg, PolicyController(policy), trials, steps, seed=seed), None
-    tally = np.zeros(2, np.int64)
-    result = evaluate(cfg, PolicyController(policy, tally=tally), trials, steps, seed=seed)
-    return result, 100.0 * float(tally[1]) / max(int(tally[0]), 1)
+    controller = PolicyController(policy, tally=np.zeros(2, np.int64))
+    result = evaluate(cfg, controller, trials, steps, seed=seed)
+    return result, controller.off_law_pct()
 
 
 @dataclass(frozen=True, slots=True)
@@ -164,6 +164,12 @@ class PolicyController:
     tally: np.ndarray | None = None
     """(2,) int64 added to in place: the robots' decisions, and those that took another move than action 0 (``law``
     for a law action set); None: not counted."""
+
+    def off_law_pct(self) -> float | None:
+        """The percentage of the counted decisions that took another move than action 0; None when not counted."""
+        if self.tally is None:
+            return None
+        return 100.0 * float(self.tally[1]) / max(int(self.tally[0]), 1)
 
     def init(self, cfg: ScenarioConfig, world: WorldState, rng: np.random.Generator) -> _Memory:
         shape = (world.n_arenas, cfg.n_robots)

@@ -91,7 +91,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
             monitor.send_blueprint(eval_trial=True)
             hook = trial_hook(monitor, cfg, arena=args.record_trial)
         result = evaluate(cfg, controller, trials=args.trials, steps=args.steps, seed=args.seed, on_step=hook)
-    tally = getattr(controller, "tally", None)
+    off_law = controller.off_law_pct() if isinstance(controller, PolicyController) else None
     out = {
         "policy": args.policy,
         **info,
@@ -101,8 +101,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
         "seed": args.seed,
         **_scores(result),
     }
-    if tally is not None:
-        out["off_law_pct"] = round(100.0 * float(tally[1]) / max(int(tally[0]), 1), 4)
+    if off_law is not None:
+        out["off_law_pct"] = round(off_law, 4)
     rows = "\n".join(f"  trial {i:>3}  {c:6.2f} %" for i, c in enumerate(out["coverage_per_trial"]))
     table = (
         f"policy {_title(args.policy, info)} on {cfg.name}: {args.trials} trials x {args.steps} steps, seed {args.seed}"
