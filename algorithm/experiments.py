@@ -25,7 +25,7 @@ from algorithm.discretization import Discretization
 from algorithm.fqi import FQIConfig, NetworkController, QNetwork, collect, fit_q
 from algorithm.phase1 import CMOMMT_PHASE1, Phase1Config, phase1
 from algorithm.policy import ActionMode, LostBehaviour, Policy, PolicyController
-from algorithm.selection import BestPolicy
+from algorithm.selection import BestPolicy, choose_margin
 from algorithm.transitions import Transitions
 from algorithm.trials import ExperienceSlice, SliceConfig
 from algorithm.vqql import lbg
@@ -92,6 +92,7 @@ UNUSED_BUDGET: dict[str, tuple[str, ...]] = {
         "refit_seed_prototypes",
         "validate_every",
         "validation_trials",
+        "law_margin_trials",
     ),
     "vqql": ("phase1", "refits", "refit_tuples", "refit_seed_prototypes", "fqi"),
     "enncql": ("codebook_patterns", "fqi"),
@@ -133,10 +134,18 @@ class Budget:
     (:mod:`algorithm.selection`, never the test trials) and test the best one instead of the last; 0: test the last
     [beyond the paper]."""
     validation_trials: int = 30
+    law_margin_trials: int = 0
+    """A law action set's policy, after the one kept: read with the margin of
+    :data:`algorithm.selection.LAW_MARGINS` that scores best on this many validation trials, as the learner reads its
+    own (:func:`algorithm.selection.choose_margin`); 0: the argmax [beyond the paper]."""
     test_trials: int = 10
     test_steps: int = 1000
     test_seed: int = 0
     """Every method is tested on the same seeded trials, as the hand-made controllers are."""
+
+    def __post_init__(self) -> None:
+        if self.law_margin_trials < 0:
+            raise ValueError(f"law_margin_trials must be >= 0 (0: the argmax), got {self.law_margin_trials}")
 
     @classmethod
     def quick(cls) -> Budget:
@@ -319,6 +328,10 @@ def train(
         assert keeper.best is not None
         policy = keeper.best.policy
         say(f"kept the policy of batch {keeper.best.at:.0f}: {keeper.best.coverage:.2f}% on validation trials")
+    if budget.law_margin_trials:
+        choice = choose_margin(base, policy, budget.law_margin_trials, budget.test_steps)
+        policy = dataclasses.replace(policy, law_margin=choice.margin)
+        say(f"law margin {choice.margin:g}: the best on {choice.trials} validation trials")
     result = evaluate(base, PolicyController(policy), budget.test_trials, budget.test_steps, seed=budget.test_seed)
     say(f"test coverage {result.coverage_mean:.2f}%")
     states = float(spec.codebook) if spec.algorithm == "vqql" else float(disc.sizes().mean())

@@ -3,6 +3,7 @@ policies carry the overrides and whose rows are scored, with the hand-made refer
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -11,7 +12,9 @@ import pytest
 
 from algorithm.experiments import Budget
 from algorithm.phase1 import Phase1Config
+from algorithm.policy import PolicyController
 from algorithm.policy_file import load_policy
+from algorithm.selection import choose_margin
 from ennc_ql.cli import main
 from sim import CONTROLLERS, evaluate, scenario
 from tools.config import ConfigError
@@ -30,6 +33,12 @@ from tools.sweeps.ablate import REFERENCES, Setup, ablate, parse_sets, variants
         (["--set", "featurizer=pixels"], "unknown featurizer 'pixels'; known: local2d, collab6d, shared8d"),
         (["--set", "reward=money"], "unknown reward 'money'; known: paper, observed, eq2, difference"),
         (["--set", "trial_rules=lenient"], "unknown trial rules 'lenient'; known: paper, search-on"),
+        (["--set", "budget.law_margin_trials=-1"], "budget.law_margin_trials: law_margin_trials must be >= 0"),
+        (
+            ["--set", "budget.law_margin_trials=300", "--set", "actions=relative"],
+            "budget.law_margin_trials: a law margin reads a law action set (actions=law, law-search or law-track), "
+            "not 'relative'",
+        ),
     ],
 )
 def test_bad_settings_are_one_line_errors(
@@ -129,3 +138,41 @@ def test_the_neural_reference_is_scored_beside_without_a_policy_file(tmp_path: P
     assert row["references"]["a-cmommt"] == pytest.approx(honest, abs=1e-3)
     assert report["paper_coverage"] is None
     assert not (tmp_path / "policies").exists()  # the network is a reference, not a policy file
+
+
+def test_rows_carry_the_paired_difference_and_the_law_margin_each_process_chose(tmp_path: Path) -> None:
+    """A law-track variant read by its argmax and the same processes read with a margin chosen on validation trials:
+    the same tables, the margins the processes saved, and every reference's paired difference per trial, recomputed
+    here from the saved policies on the same trials."""
+    budget = Budget(
+        arenas=6,
+        explore_trials=1,
+        phase2_trials=1,
+        phase1=Phase1Config(max_iterations=1, max_patterns=1500, n_cycles=5),
+        test_trials=3,
+        test_steps=60,
+    )
+    sweep = parse_sets(["budget.law_margin_trials=0,2", "actions=law-track", "reward=difference"])
+    report = ablate("ennc-ql-collab-option2", sweep, Setup(budget=budget), processes=2, out_dir=tmp_path)
+    cfg = scenario()
+    references = {name: evaluate(cfg, CONTROLLERS[name], 3, 60, seed=0).coverage_per_trial for name in REFERENCES}
+    for variant, row in enumerate(report["variants"], start=1):
+        policies = [load_policy(tmp_path / "policies" / f"v{variant}-{seed}.npz")[0] for seed in (0, 1)]
+        assert row["law_margin_per_run"] == [p.law_margin for p in policies]
+        team = np.mean([evaluate(cfg, PolicyController(p), 3, 60, seed=0).coverage_per_trial for p in policies], axis=0)
+        for name, ref in references.items():
+            diff = team - ref
+            mean, se = row["paired"][name]
+            assert mean == pytest.approx(diff.mean(), abs=1e-3)
+            assert se == pytest.approx(diff.std(ddof=1) / np.sqrt(3), abs=1e-3)
+        line = next(line for line in (tmp_path / "results.md").read_text().splitlines() if row["label"] in line)
+        assert f"{row['paired']['a-cmommt'][0]:+.2f} ± {row['paired']['a-cmommt'][1]:.2f}" in line
+    assert report["variants"][0]["law_margin_per_run"] == [0.0, 0.0]
+    for seed in (0, 1):  # what choose_margin picks on the 2 validation trials (0.3 and 0.2 here), as the learner would
+        policy = load_policy(tmp_path / "policies" / f"v2-{seed}.npz")[0]
+        argmax = dataclasses.replace(policy, law_margin=0.0)
+        assert policy.law_margin == choose_margin(cfg, argmax, 2, 60).margin
+    for seed in (0, 1):  # the margin reads the tables; it changes no learning
+        a = load_policy(tmp_path / "policies" / f"v1-{seed}.npz")[0]
+        b = load_policy(tmp_path / "policies" / f"v2-{seed}.npz")[0]
+        np.testing.assert_array_equal(a.tables, b.tables)

@@ -11,8 +11,11 @@ values sweep it, and several ``--set`` sweep their product. Usage::
     report = ablate("ennc-ql-collab-option2", [("budget.phase2.alpha", [0.05, 0.2])], Setup(), 3, Path("runs/a"))
     report["variants"][0]["coverage_mean"], report["variants"][0]["references"]["a-cmommt"]
 
-Every variant's row carries the coverage of :data:`REFERENCES` on the same test trials of its scenario, and the
-paper's figure for the method, so a result is read beside what the hand-made controllers and the paper reach.
+Every variant's row carries the coverage of :data:`REFERENCES` on the same test trials of its scenario, its paired
+difference with each of them (the processes' mean per trial less the reference's, ± its standard error over the
+trials), and the paper's figure for the method, so a result is read beside what the hand-made controllers and the
+paper reach. ``--set budget.law_margin_trials=300`` reads each process's policy (a law action set's) with the law
+margin the learner would choose on that many validation trials, instead of its argmax.
 """
 
 from __future__ import annotations
@@ -46,11 +49,14 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 Sweep = list[tuple[str, list[Any]]]
-REFERENCES = ("a-cmommt", "a-cmommt-public", "a-cmommt-oracle", "force-6d", "force-6d-shared")
+REFERENCES = ("a-cmommt", "a-cmommt-public", "a-cmommt-oracle", "force-6d", "force-6d-shared", "force-recall")
 """Hand-made controllers scored beside every variant: A-CMOMMT tuned on training trials (on what its robots sense or
 are told), the public code's untuned A-CMOMMT, the tuned law on true target positions no robot senses (the oracle, a
 labelled reference only), and its force law limited to the 6-D state (without, and tuned with, the
-shared-observation flags), i.e. what the learned policy's own state allows a hand-made law."""
+shared-observation flags) and to the remembering state of the default formulation (``force-recall``), i.e. what the
+learned policy's own state allows a hand-made law."""
+PAIRED = "a-cmommt"
+"""The reference the table gives every variant's paired difference with (``results.json`` has every reference's)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -75,10 +81,11 @@ class Setup:
 
     def formulation(self, method: str) -> Formulation:
         """What ``method`` learns on in this setup: its own formulation's parts with this setup's over them.
-        ``ConfigError`` names an unknown part (the registries' names are checked here, by the formulation)."""
+        ``ConfigError`` names an unknown part (the registries' names are checked here, by the formulation), or a law
+        margin asked of an action set without the law's move."""
         spec = METHODS[method]
         try:
-            return Formulation.of(
+            formulation = Formulation.of(
                 self.featurizer or spec.featurizer,
                 self.reward or spec.reward,
                 self.actions or spec.actions,
@@ -87,6 +94,12 @@ class Setup:
             )
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
+        if self.budget.law_margin_trials and formulation.actions.law is None:
+            raise ConfigError(
+                f"budget.law_margin_trials: a law margin reads a law action set (actions=law, law-search or "
+                f"law-track), not {formulation.actions.name!r}"
+            )
+        return formulation
 
 
 def parse_sets(texts: Sequence[str]) -> Sweep:
@@ -204,23 +217,33 @@ def ablate(
     return report
 
 
-def _references(setups: list[Setup], progress: JobsBar) -> dict[TestTrials, dict[str, float]]:
-    """:data:`REFERENCES` on each variant's test trials, measured once per distinct set of trials."""
-    references: dict[TestTrials, dict[str, float]] = {}
+def _references(setups: list[Setup], progress: JobsBar) -> dict[TestTrials, dict[str, np.ndarray]]:
+    """:data:`REFERENCES`' coverage per trial on each variant's test trials, measured once per distinct set."""
+    references: dict[TestTrials, dict[str, np.ndarray]] = {}
     for setup in setups:
         trials = _trials(setup)
         if trials not in references:
             progress.running("the references on the variant's test trials")
             cfg, n, steps, seed = trials
             references[trials] = {
-                name: round(evaluate(cfg, CONTROLLERS[name], n, steps, seed).coverage_mean, 3) for name in REFERENCES
+                name: evaluate(cfg, CONTROLLERS[name], n, steps, seed).coverage_per_trial for name in REFERENCES
             }
-        progress.finished(", ".join(f"{name} {value:.2f}%" for name, value in references[trials].items()))
+        progress.finished(", ".join(f"{name} {value.mean():.2f}%" for name, value in references[trials].items()))
     return references
 
 
-def _row(i: int, overrides: dict[str, Any], runs: list[Outcome], references: dict[str, float]) -> dict[str, Any]:
+def paired(runs: list[Outcome], reference: np.ndarray) -> tuple[float, float | None]:
+    """The variant's processes against a reference on the same trials: the mean over trials of (the processes' mean
+    coverage on the trial − the reference's) and its standard error over trials (None with one trial). The spread
+    between processes is the row's std, not in this error."""
+    diff = np.mean([o.coverage_per_trial for o in runs], axis=0) - reference
+    se = float(diff.std(ddof=1) / np.sqrt(diff.size)) if diff.size > 1 else None
+    return float(diff.mean()), se
+
+
+def _row(i: int, overrides: dict[str, Any], runs: list[Outcome], references: dict[str, np.ndarray]) -> dict[str, Any]:
     coverage = np.array([o.coverage_mean for o in runs])
+    margins = [o.policy.law_margin for o in runs if o.policy is not None]
     return {
         "variant": i,
         "overrides": dict(overrides),
@@ -231,7 +254,12 @@ def _row(i: int, overrides: dict[str, Any], runs: list[Outcome], references: dic
         "states_per_run": [round(o.states, 2) for o in runs],
         "tuples_per_run": [o.tuples for o in runs],
         "seconds_per_run": [round(o.seconds, 1) for o in runs],
-        "references": references,
+        "law_margin_per_run": margins,
+        "references": {name: round(float(c.mean()), 3) for name, c in references.items()},
+        "paired": {
+            name: [round(d, 3), None if se is None else round(se, 3)]
+            for name, (d, se) in ((name, paired(runs, c)) for name, c in references.items())
+        },
     }
 
 
@@ -243,15 +271,19 @@ def markdown_table(report: dict[str, Any]) -> str:
         + (f"; the paper reports {paper:g} %." if paper is not None else "."),
         "",
         "| variant | coverage % (mean ± std) | per process | prototypes per action | "
+        + f"− {PAIRED}, paired ± s.e. | "
         + " | ".join(f"{name} %" for name in REFERENCES)
         + " |",
-        "|---|---|---|---|" + "---|" * len(REFERENCES),
+        "|---|---|---|---|---|" + "---|" * len(REFERENCES),
     ]
     for row in report["variants"]:
         per_run = ", ".join(f"{c:.1f}" for c in row["coverage_per_run"])
         states = float(np.mean(row["states_per_run"])) if row["states_per_run"] else float("nan")
+        diff, se = row["paired"][PAIRED]
         lines.append(
             f"| {row['label']} | {row['coverage_mean']:.2f} ± {row['coverage_std']:.2f} | {per_run} | {states:.0f} | "
+            + (f"{diff:+.2f}" if se is None else f"{diff:+.2f} ± {se:.2f}")
+            + " | "
             + " | ".join(f"{row['references'][name]:.2f}" for name in REFERENCES)
             + " |"
         )
@@ -270,7 +302,7 @@ def chart(report: dict[str, Any]) -> Figure:
     ax.bar(x, means, 0.6, yerr=[r["coverage_std"] for r in rows], color="#3b7dd8", capsize=4)
     for i, row in enumerate(rows):
         ax.text(i, row["coverage_mean"] + row["coverage_std"] + 1.5, f"{row['coverage_mean']:.1f}", ha="center")
-    for name, style in zip(REFERENCES, ("--", (0, (3, 1)), (0, (5, 1, 1, 1)), "-.", ":"), strict=True):
+    for name, style in zip(REFERENCES, ("--", (0, (3, 1)), (0, (5, 1, 1, 1)), "-.", ":", (0, (1, 1))), strict=True):
         color = tuple(c / 255 for c in STYLES[name][1])
         for value in sorted({r["references"][name] for r in rows}):
             ax.axhline(value, color=color, linestyle=style, linewidth=1)
