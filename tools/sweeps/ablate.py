@@ -256,11 +256,12 @@ def _row(i: int, overrides: dict[str, Any], runs: list[Outcome], references: dic
         "seconds_per_run": [round(o.seconds, 1) for o in runs],
         "law_margin_per_run": margins,
         "references": {name: round(float(c.mean()), 3) for name, c in references.items()},
-        "paired": {
-            name: [round(d, 3), None if se is None else round(se, 3)]
-            for name, (d, se) in ((name, paired(runs, c)) for name, c in references.items())
-        },
+        "paired": {name: _rounded(*paired(runs, c)) for name, c in references.items()},
     }
+
+
+def _rounded(diff: float, se: float | None) -> list[float | None]:
+    return [round(diff, 3), None if se is None else round(se, 3)]
 
 
 def markdown_table(report: dict[str, Any]) -> str:
