@@ -79,15 +79,20 @@ def test_the_sweep_is_the_product_of_the_values_applied_by_path() -> None:
         ablate("ennc-ql-nonsense", [], Setup(), 1, Path("unused"))
 
 
-def test_a_tiny_sweep_scores_every_variant_on_the_same_trials_and_saves_the_overrides(tmp_path: Path) -> None:
-    budget = Budget(
+def tiny(test_trials: int) -> Budget:
+    """A sweep's process in about a second: 6 arenas, one batch of each phase, tested on ``test_trials`` of 60 steps."""
+    return Budget(
         arenas=6,
         explore_trials=1,
         phase2_trials=1,
         phase1=Phase1Config(max_iterations=1, max_patterns=1500, n_cycles=5),
-        test_trials=2,
+        test_trials=test_trials,
         test_steps=60,
     )
+
+
+def test_a_tiny_sweep_scores_every_variant_on_the_same_trials_and_saves_the_overrides(tmp_path: Path) -> None:
+    budget = tiny(test_trials=2)
     sweep = parse_sets(
         ["lost_behaviour=wander,stay", "scenario.action_steps=3", "featurizer=shared8d", "reward=difference"]
     )
@@ -144,14 +149,7 @@ def test_rows_carry_the_paired_difference_and_the_law_margin_each_process_chose(
     """A law-track variant read by its argmax and the same processes read with a margin chosen on validation trials:
     the same tables, the margins the processes saved, and every reference's paired difference per trial, recomputed
     here from the saved policies on the same trials."""
-    budget = Budget(
-        arenas=6,
-        explore_trials=1,
-        phase2_trials=1,
-        phase1=Phase1Config(max_iterations=1, max_patterns=1500, n_cycles=5),
-        test_trials=3,
-        test_steps=60,
-    )
+    budget = tiny(test_trials=3)
     sweep = parse_sets(["budget.law_margin_trials=0,2", "actions=law-track", "reward=difference"])
     report = ablate("ennc-ql-collab-option2", sweep, Setup(budget=budget), processes=2, out_dir=tmp_path)
     cfg = scenario()
