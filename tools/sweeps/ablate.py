@@ -33,7 +33,7 @@ import numpy as np
 from algorithm.experiments import METHODS, UNUSED_BUDGET, Budget, Outcome
 from algorithm.policy import LostBehaviour
 from monitor.style import REFERENCES as STYLES
-from sim import CONTROLLERS, ScenarioConfig, evaluate
+from sim import CONTROLLERS, EvalResult, ScenarioConfig, evaluate
 from sim.formulation import Formulation
 from tools.config import (
     ConfigError,
@@ -217,31 +217,28 @@ def ablate(
     return report
 
 
-def _references(setups: list[Setup], progress: JobsBar) -> dict[TestTrials, dict[str, np.ndarray]]:
-    """:data:`REFERENCES`' coverage per trial on each variant's test trials, measured once per distinct set."""
-    references: dict[TestTrials, dict[str, np.ndarray]] = {}
+def _references(setups: list[Setup], progress: JobsBar) -> dict[TestTrials, dict[str, EvalResult]]:
+    """:data:`REFERENCES` on each variant's test trials, measured once per distinct set of trials."""
+    references: dict[TestTrials, dict[str, EvalResult]] = {}
     for setup in setups:
         trials = _trials(setup)
         if trials not in references:
             progress.running("the references on the variant's test trials")
             cfg, n, steps, seed = trials
-            references[trials] = {
-                name: evaluate(cfg, CONTROLLERS[name], n, steps, seed).coverage_per_trial for name in REFERENCES
-            }
-        progress.finished(", ".join(f"{name} {value.mean():.2f}%" for name, value in references[trials].items()))
+            references[trials] = {name: evaluate(cfg, CONTROLLERS[name], n, steps, seed) for name in REFERENCES}
+        progress.finished(", ".join(f"{name} {value.coverage_mean:.2f}%" for name, value in references[trials].items()))
     return references
 
 
-def paired(runs: list[Outcome], reference: np.ndarray) -> tuple[float, float | None]:
-    """The variant's processes against a reference on the same trials: the mean over trials of (the processes' mean
-    coverage on the trial − the reference's) and its standard error over trials (None with one trial). The spread
-    between processes is the row's std, not in this error."""
-    diff = np.mean([o.coverage_per_trial for o in runs], axis=0) - reference
-    se = float(diff.std(ddof=1) / np.sqrt(diff.size)) if diff.size > 1 else None
-    return float(diff.mean()), se
+def paired(runs: list[Outcome], reference: EvalResult) -> list[float | None]:
+    """The variant's processes against a reference on the same trials, rounded: the mean over trials of (the
+    processes' mean coverage on the trial − the reference's) and its standard error over trials (None with one
+    trial). The spread between processes is the row's std, not in this error."""
+    diff, se = EvalResult(np.mean([o.coverage_per_trial for o in runs], axis=0)).minus(reference)
+    return [round(diff, 3), None if np.isnan(se) else round(se, 3)]
 
 
-def _row(i: int, overrides: dict[str, Any], runs: list[Outcome], references: dict[str, np.ndarray]) -> dict[str, Any]:
+def _row(i: int, overrides: dict[str, Any], runs: list[Outcome], references: dict[str, EvalResult]) -> dict[str, Any]:
     coverage = np.array([o.coverage_mean for o in runs])
     margins = [o.policy.law_margin for o in runs if o.policy is not None]
     return {
@@ -255,13 +252,9 @@ def _row(i: int, overrides: dict[str, Any], runs: list[Outcome], references: dic
         "tuples_per_run": [o.tuples for o in runs],
         "seconds_per_run": [round(o.seconds, 1) for o in runs],
         "law_margin_per_run": margins,
-        "references": {name: round(float(c.mean()), 3) for name, c in references.items()},
-        "paired": {name: _rounded(*paired(runs, c)) for name, c in references.items()},
+        "references": {name: round(r.coverage_mean, 3) for name, r in references.items()},
+        "paired": {name: paired(runs, r) for name, r in references.items()},
     }
-
-
-def _rounded(diff: float, se: float | None) -> list[float | None]:
-    return [round(diff, 3), None if se is None else round(se, 3)]
 
 
 def markdown_table(report: dict[str, Any]) -> str:
