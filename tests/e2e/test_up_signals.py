@@ -36,6 +36,7 @@ SMALL = [
     "--learner-eval-interval=1000",
     "--learner-eval-trials=1",
     "--learner-final-eval-trials=2",
+    "--learner-margin-trials=2",  # the default 300 validation trials x 7 margins take a wind-down 20-60 s
     "--rerun=off",
 ]
 EXIT = {signal.SIGINT: 130, signal.SIGTERM: 143, signal.SIGHUP: 129}

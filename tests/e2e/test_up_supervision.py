@@ -38,6 +38,7 @@ SMALL = [
     "--learner-eval-interval=1000",
     "--learner-eval-trials=1",
     "--learner-final-eval-trials=2",
+    "--learner-margin-trials=2",  # the default 300 validation trials x 7 margins take a wind-down 20-60 s
     "--rerun=off",
     "--json",
 ]
