@@ -177,6 +177,9 @@ def result_rows(report: Mapping[str, Any]) -> list[tuple[str, str]]:
     kept = report.get("kept")
     if kept:
         rows.insert(-1, ("kept policy", _kept(kept)))
+    candidates = report.get("candidates")
+    if candidates:
+        rows.insert(-1, ("kept or early", _candidates(candidates)))
     margin = report.get("law_margin")
     if margin:
         rows.insert(-1, ("law margin", _margin(margin)))
@@ -196,6 +199,18 @@ def _kept(kept: Mapping[str, Any]) -> str:
     return (
         f"version {kept['version']} of {kept['at_s']:.0f} s, the best on {kept['validation_trials']} validation "
         f"trials (seed {kept['validation_seed']}, not the test trials): {kept['validation_coverage']:.2f} %{last}"
+    )
+
+
+def _candidates(candidates: list[Mapping[str, Any]]) -> str:
+    """The kept policy and the early candidate as scored at the end, and which one the run saved."""
+    return (
+        "; ".join(
+            f"{c['source']}: version {c['version']} of {c['at_s']:.0f} s, {c['validation_coverage']:.2f} %"
+            + (" (saved)" if c["chosen"] else "")
+            for c in candidates
+        )
+        + ", both scored on the same validation trials at the end"
     )
 
 
@@ -244,7 +259,8 @@ def _result(report: Mapping[str, Any], curve_png: str) -> list[str]:
         return [*lines, headline(report)[0].removeprefix("result: ").capitalize() + ".", ""]
     trials = report.get("final_eval_trials", 200)
     formulation = _formulation(report)
-    version = (report.get("kept") or {}).get("version", report["policy_version"])
+    chosen = next((c for c in report.get("candidates") or [] if c.get("chosen")), None)
+    version = (chosen or report.get("kept") or {}).get("version", report["policy_version"])
     learned = f"version {version}" + (f", formulation {formulation}" if formulation else "")
     rows = [("**learned policy**", learned, f"**{final:.2f}**")]
     rows += [

@@ -73,6 +73,12 @@ class LearnerConfig:
     either way. Off: the last policy."""
     validation_trials: int = 30
     """Validation trials of each periodic evaluation when ``keep_best`` (the same trials every time)."""
+    early_window: float = 30.0
+    """With ``keep_best``: every policy version published within this many seconds of the first is scored on the
+    validation trials, and the best of them is a second candidate beside the kept policy; at the end of the run the
+    two are scored on ``margin_trials`` validation trials (a law action set's each read with the margin that scores
+    best, or with ``law_margin``) and the better is saved. Phase 2's first seconds can hold tables that more
+    experience loses [beyond the paper, docs/learning-quality.md "Twentieth round"]. 0: no early candidate."""
     law_margin: float | None = None
     """With a law action set (the default formulation's): the saved and scored policy departs from the move law
     only where another move's value beats law's by more than this (0: the plain argmax); none: the margin of
@@ -121,6 +127,8 @@ class LearnerConfig:
             duration=self.duration,
         )
         require_at_least(0, threads=self.threads, seed=self.seed)
+        if not (math.isfinite(self.early_window) and self.early_window >= 0):
+            raise ValueError(f"early_window must be a finite number of seconds >= 0, got {self.early_window}")
         if self.law_margin is not None and not (math.isfinite(self.law_margin) and self.law_margin >= 0):
             raise ValueError(f"law_margin must be none or a finite number >= 0, got {self.law_margin}")
         if self.refit_growth != 0 and not self.refit_growth > 1:

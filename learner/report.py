@@ -153,6 +153,10 @@ class LearnerReport:
     only where another move's value beats it by more) and, when the run chose it, every margin's score on the
     validation trials (``validation_coverage``: {margin: %}, ``validation_trials``, ``validation_seed``); None for
     other action sets or before a policy was learned."""
+    candidates: list[dict[str, Any]] = field(default_factory=list)
+    """With an early candidate (``early_window``) other than the kept policy: both, as scored at the end on the
+    margin's validation trials (``source`` kept or early, ``version``, ``at_s``, ``validation_coverage``, a law
+    margin choice's ``margin``, and which one was saved, ``chosen``); empty otherwise."""
     resumes: list[dict[str, Any]] = field(default_factory=list)
     """Every time the run was resumed from its checkpoint: the run clock it resumed at (``at_s``), the policy version
     of its first broadcast, that broadcast's wall time and the seconds from the process's start to it."""
@@ -175,6 +179,7 @@ class LearnerReport:
         keeper: BestPolicy | None = None,
         margin: MarginChoice | None = None,
         policy: Policy | None = None,
+        candidates: list[dict[str, Any]] | None = None,
     ) -> LearnerReport:
         """The report of a run that ended with ``status`` (built from the same ``intake`` figures) and the final
         figure ``final`` (None: no policy was learned, and no reference is measured)."""
@@ -213,6 +218,7 @@ class LearnerReport:
             resumes=list(resumes or []),
             kept=None if keeper is None or keeper.best is None else _kept(keeper),
             law_margin=_law_margin(policy, margin),
+            candidates=list(candidates or []),
         )
 
     def to_dict(self) -> dict[str, Any]:

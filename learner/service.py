@@ -31,9 +31,9 @@ import psutil
 
 from algorithm.discretization import Discretization
 from algorithm.phase1 import estimator
-from algorithm.policy import Policy
+from algorithm.policy import Policy, PolicyController
 from algorithm.policy_file import PolicyFileError, load_policy, save_policy
-from algorithm.selection import BestPolicy, MarginChoice, choose_margin
+from algorithm.selection import VALIDATION_SEED, BestPolicy, MarginChoice, choose_margin
 from learner.checkpoint import Checkpointer, CheckpointError, VersionMark
 from learner.config import LearnerConfig
 from learner.evaluator import Evaluator
@@ -45,12 +45,14 @@ from learner.report import LearnerReport, LearnerStatus
 from monitor import Monitor
 from monitor.learner import LearnerWatch
 from protocol import Ack, QTableIncrement, Status, Transport
-from sim import scenario
+from sim import evaluate, scenario
 
 log = logging.getLogger(__name__)
 
 BEST_POLICY = "best-policy.npz"
 """The run folder's copy of the policy ``keep_best`` holds, written when it changes, so a resumed learner has it."""
+EARLY_POLICY = "early-policy.npz"
+"""The same for the early candidate (``early_window``)."""
 
 
 class LearnerService:
@@ -84,8 +86,18 @@ class LearnerService:
         self.keeper = None
         if config.keep_best:
             self.keeper = BestPolicy(self.scenario, config.validation_trials, config.eval_steps)
+        self.early = None
+        if config.keep_best and config.early_window > 0:
+            self.early = BestPolicy(self.scenario, config.validation_trials, config.eval_steps)
+        self._first_policy_at: float | None = None
+        """The run clock at the first policy: where the early window starts."""
+        self._early_version = 0
         self.margin: MarginChoice | None = None
         """The law margin chosen at the end on validation trials (``law_margin`` none, a law action set)."""
+        self._selected: Policy | None = None
+        """The policy chosen at the end among the kept one and the early candidate."""
+        self.candidates: list[dict[str, Any]] = []
+        """When the early candidate and the kept policy were both scored at the end: each one's figures."""
         self.checkpointer = Checkpointer(run_dir)
         # The viewer's train_time is the run clock of the learning curve.
         self.watch = LearnerWatch(monitor or Monitor(), self.scenario, clock=self.elapsed)
@@ -158,6 +170,7 @@ class LearnerService:
                 if fitted and now >= next_broadcast:
                     self._broadcast()
                     next_broadcast = now + c.broadcast_interval
+                    self._offer_early()
                 if fitted and now >= next_eval:
                     self._evaluate()
                     next_eval = time.monotonic() + c.eval_interval
@@ -171,6 +184,8 @@ class LearnerService:
     def _adopt(self, disc: Discretization) -> None:
         """A fit's new discretization (on the fit's thread): on disk before its first broadcast, so a resumed
         learner knows every discretization it ever published."""
+        if self._first_policy_at is None:
+            self._first_policy_at = self.elapsed()
         self.state.adopt(disc)
         self.checkpoint()
         self._broadcast()
@@ -207,34 +222,85 @@ class LearnerService:
                 save_policy(policy, self.scenario, self.run_dir / BEST_POLICY)
         log.info("validation of policy version %d: %.2f%% of targets observed", policy.version, validation)
 
-    def _chosen(self) -> Policy | None:
-        """The policy the run saves and scores: the best on the validation trials with ``keep_best``, else the last,
-        read with the law margin (a law action set's)."""
+    def _offer_early(self) -> None:
+        """Within ``early_window`` seconds of the first policy: score each new version for the early candidate; a new
+        best goes to disk before the checkpoint that names it."""
+        if self.early is None or self._first_policy_at is None:
+            return
+        at = self.elapsed()
+        policy = self.state.policy()
+        if at - self._first_policy_at > self.config.early_window or policy is None:
+            return
+        if policy.version == self._early_version:
+            return
+        self._early_version = policy.version
+        validation = self.early.score(policy)
+        with self._checkpoint_lock:
+            if self.early.keep(policy, validation, at):
+                save_policy(policy, self.scenario, self.run_dir / EARLY_POLICY)
+        log.info("early validation of policy version %d: %.2f%% of targets observed", policy.version, validation)
+
+    def _kept_or_last(self) -> Policy | None:
         if self.keeper is not None and self.keeper.best is not None:
-            policy: Policy | None = self.keeper.best.policy
-        else:
-            policy = self.state.policy()
+            return self.keeper.best.policy
+        return self.state.policy()
+
+    def _chosen(self) -> Policy | None:
+        """The policy the run saves and scores: the one chosen at the end, else the best on the validation trials
+        with ``keep_best``, else the last; read with the law margin (a law action set's)."""
+        policy = self._selected if self._selected is not None else self._kept_or_last()
         if policy is None or policy.formulation.actions.law is None:
             return policy
         margin = self.config.law_margin if self.margin is None else self.margin.margin
         return policy if margin is None else dataclasses.replace(policy, law_margin=margin)
 
-    def _choose_margin(self) -> None:
-        """With ``law_margin`` none and a law action set: the margin that scores best on the validation trials."""
-        policy = self._chosen()
-        if self.config.law_margin is not None or policy is None or policy.formulation.actions.law is None:
+    def _select(self) -> None:
+        """The policy the run saves: the kept one (or the last), or the early candidate where that scores more on
+        ``margin_trials`` validation trials; a law action set's read with the margin that scores best (``law_margin``
+        none) or with the one given."""
+        kept = self._kept_or_last()
+        if kept is None:
             return
-        log.info(
-            "choosing the law margin of policy version %d on %d validation trials",
-            policy.version,
-            self.config.margin_trials,
-        )
-        self.margin = choose_margin(self.scenario, policy, self.config.margin_trials, self.config.eval_steps)
-        log.info(
-            "law margin %g: %s",
-            self.margin.margin,
-            ", ".join(f"{m:g} {c:.2f}%" for m, c in self.margin.scores.items()),
-        )
+        at = self.elapsed() if self.keeper is None or self.keeper.best is None else self.keeper.best.at
+        candidates = [("kept", kept, at)]
+        early = None if self.early is None else self.early.best
+        if early is not None and early.policy.version != kept.version:
+            candidates.append(("early", early.policy, early.at))
+        choose = self.config.law_margin is None and kept.formulation.actions.law is not None
+        if len(candidates) == 1 and not choose:
+            return
+        scored = [(*self._score(policy, choose), name, policy, at) for name, policy, at in candidates]
+        best = max(scored, key=lambda s: s[0])  # the first of the best: the kept policy on a tie
+        _, self.margin, _, self._selected, _ = best
+        if len(scored) > 1:
+            self.candidates = [
+                {
+                    "source": name,
+                    "version": policy.version,
+                    "at_s": round(at, 2),
+                    "validation_coverage": round(score, 3),
+                    **({} if margin is None else {"margin": margin.margin}),
+                    "chosen": policy is self._selected,
+                }
+                for score, margin, name, policy, at in scored
+            ]
+            log.info("saving the %s policy (version %d)", best[2], best[3].version)
+
+    def _score(self, policy: Policy, choose: bool) -> tuple[float, MarginChoice | None]:
+        """``policy``'s coverage on ``margin_trials`` validation trials: with ``choose``, read with the law margin
+        that scores best (and that choice), else as :meth:`_chosen` reads it."""
+        trials = self.config.margin_trials
+        if choose:
+            log.info("choosing the law margin of policy version %d on %d validation trials", policy.version, trials)
+            margin = choose_margin(self.scenario, policy, trials, self.config.eval_steps)
+            log.info("law margin %g: %s", margin.margin, ", ".join(f"{m:g} {c:.2f}%" for m, c in margin.scores.items()))
+            return margin.scores[margin.margin], margin
+        if policy.formulation.actions.law is not None and self.config.law_margin is not None:
+            policy = dataclasses.replace(policy, law_margin=self.config.law_margin)
+        controller = PolicyController(policy)
+        result = evaluate(self.scenario, controller, trials, self.config.eval_steps, seed=VALIDATION_SEED)
+        log.info("policy version %d: %.2f%% on %d validation trials", policy.version, result.coverage_mean, trials)
+        return result.coverage_mean, None
 
     # -- status, checkpoints, report --------------------------------------------------------------------------------
 
@@ -258,6 +324,8 @@ class LearnerService:
                 **self.fitter.to_meta(),
                 **self.evaluator.to_meta(),
                 **({} if self.keeper is None else self.keeper.to_meta()),
+                **({} if self.early is None else {"early": self.early.to_meta()}),
+                "first_policy_at": self._first_policy_at,
                 **self.members.to_meta(),
                 "elapsed": self.elapsed(),
                 "resumes": self.resumes,
@@ -287,7 +355,12 @@ class LearnerService:
             self.fitter.restore(meta)
             self.evaluator.restore(meta)
             if self.keeper is not None:
-                self.keeper.restore(meta, self._kept_file() if meta.get("kept") else None)
+                self.keeper.restore(meta, self._kept_file(BEST_POLICY) if meta.get("kept") else None)
+            early = meta.get("early")
+            if self.early is not None and isinstance(early, dict):
+                self.early.restore(early, self._kept_file(EARLY_POLICY) if early.get("kept") else None)
+            first = meta.get("first_policy_at")
+            self._first_policy_at = None if first is None else float(first)
             self.members.restore(meta)
             self._elapsed_before = float(meta["elapsed"])
             self.resumes = list(meta["resumes"])
@@ -301,11 +374,11 @@ class LearnerService:
             self.state.version,
         )
 
-    def _kept_file(self) -> Policy | None:
+    def _kept_file(self, name: str) -> Policy | None:
         try:
-            return load_policy(self.run_dir / BEST_POLICY)[0]
+            return load_policy(self.run_dir / name)[0]
         except PolicyFileError as exc:
-            log.warning("--resume: the kept policy is lost (%s); the next evaluated policy is kept instead", exc)
+            log.warning("--resume: the kept policy %s is lost (%s); the next one scored is kept instead", name, exc)
             return None
 
     def _finish(self) -> LearnerReport:
@@ -317,7 +390,7 @@ class LearnerService:
             assert last is not None
             if self.keeper is not None and self.keeper.scores:  # else the last is the only candidate: not scored
                 self._offer(last)
-            self._choose_margin()
+            self._select()
             policy = self._chosen()
             assert policy is not None
             final = self.evaluator.final(policy)
@@ -352,6 +425,7 @@ class LearnerService:
             keeper=self.keeper,
             margin=self.margin,
             policy=policy,
+            candidates=self.candidates,
         )
 
 

@@ -343,6 +343,30 @@ def test_a_kept_policy_is_named_with_its_validation_score_beside_the_last_one_s(
     assert "kept policy" not in write_run_report(run_report(tmp_path), tmp_path)[0].read_text()
 
 
+def test_the_early_candidate_and_the_kept_policy_are_named_with_the_one_saved(tmp_path: Path) -> None:
+    kept = {
+        "version": 31,
+        "at_s": 337.9,
+        "validation_coverage": 62.5,
+        "validation_trials": 30,
+        "validation_seed": 1000,
+        "validation_curve": [[95.2, 50.25], [337.9, 62.5]],
+    }
+    candidates = [
+        {"source": "kept", "version": 31, "at_s": 337.9, "validation_coverage": 78.52, "margin": 0.3, "chosen": False},
+        {"source": "early", "version": 7, "at_s": 46.5, "validation_coverage": 78.99, "margin": 0.5, "chosen": True},
+    ]
+    report = {**run_report(tmp_path), "kept": kept, "candidates": candidates}
+    text = write_run_report(report, tmp_path)[0].read_text()
+    # The learned policy is the one saved, not the kept one.
+    assert "| **learned policy** | version 7, formulation shared-difference | **61.23** |" in text
+    assert (
+        "| kept or early | kept: version 31 of 338 s, 78.52 %; early: version 7 of 46 s, 78.99 % (saved), both "
+        "scored on the same validation trials at the end |" in text
+    )
+    assert "kept or early" not in write_run_report({**run_report(tmp_path), "kept": kept}, tmp_path)[0].read_text()
+
+
 def test_the_law_margin_is_given_with_every_margin_s_validation_score(tmp_path: Path) -> None:
     chosen = {
         "margin": 1.0,

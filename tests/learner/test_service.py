@@ -396,6 +396,84 @@ def test_the_run_saves_and_scores_the_policy_best_on_validation_trials_and_resum
     assert forgot.keeper is not None and forgot.keeper.best is None and len(forgot.keeper.scores) == 3
 
 
+@pytest.mark.parametrize("early_window", [0.0, 1e6])
+def test_an_early_candidate_that_scores_more_on_validation_trials_is_saved_and_resumes(
+    tmp_path: Path, early_window: float
+) -> None:
+    from algorithm.policy_file import load_policy
+    from learner.service import EARLY_POLICY
+    from tests.algorithm.test_selection import constant, validation
+
+    # The margin given (0: the argmax), so each candidate scores as it is: the early one the best action's.
+    config = dataclasses.replace(
+        FAST, validation_trials=3, final_eval_trials=3, duration=0.5, law_margin=0.0, early_window=early_window
+    )
+    scores = {a: validation(constant(a, version=1), 3) for a in range(8)}
+    good, bad = max(scores, key=scores.__getitem__), min(scores, key=scores.__getitem__)
+    current = [constant(good, version=2)]
+    with InMemoryTransport(InMemoryBus()) as t:
+        service = LearnerService(t, config, tmp_path)
+        service._adopt(one_cell_per_action(DIM))  # the first policy: the early window opens
+        service.state.policy = lambda: current[0]  # type: ignore[method-assign]
+        service._offer_early()
+        current[0] = constant(bad, version=3)
+        service._offer_early()
+        service._evaluate()  # the keeper's only offer before the end: bad, version 3
+        service.checkpoint()
+        report = service.run(threading.Event())
+    saved, _ = load_policy(tmp_path / "policy.npz")
+    if early_window == 0:
+        assert service.early is None and not (tmp_path / EARLY_POLICY).exists() and report.candidates == []
+        assert int(np.argmax(saved.tables[0])) == bad and saved.version == 3
+        return
+    assert int(np.argmax(saved.tables[0])) == good and saved.version == 2
+    assert [(c["source"], c["version"], c["chosen"]) for c in report.candidates] == [
+        ("kept", 3, False),
+        ("early", 2, True),
+    ]
+    # Each scored on the margin's validation trials (3 of them here), not the keeper's.
+    assert [c["validation_coverage"] for c in report.candidates] == [round(scores[bad], 3), round(scores[good], 3)]
+    assert report.final_coverage_mean == round(
+        evaluate(service.scenario, PolicyController(constant(good, 1)), 3, FAST.eval_steps, seed=0).coverage_mean, 3
+    )
+    # A resumed learner has the early candidate (from its file) and the window's start.
+    with InMemoryTransport(InMemoryBus()) as t:
+        resumed = LearnerService(t, config, tmp_path, resume=True)
+    assert resumed.early is not None and resumed.early.best is not None
+    assert resumed.early.best.policy.version == 2 and int(np.argmax(resumed.early.best.policy.tables[0])) == good
+    assert resumed._first_policy_at == service._first_policy_at is not None
+
+
+def test_the_early_candidate_loses_to_the_kept_policy_on_a_tie_and_both_read_with_their_own_law_margin(
+    tmp_path: Path,
+) -> None:
+    from algorithm.policy_file import load_policy
+    from algorithm.selection import choose_margin
+    from tests.algorithm.test_selection import law_or_back
+
+    config = dataclasses.replace(FAST, validation_trials=3, final_eval_trials=3, duration=0.5, early_window=1e6)
+    # Both run from every target under a small margin and read the law above their gaps: the same best score.
+    early, kept = dataclasses.replace(law_or_back(0.25), version=2), dataclasses.replace(law_or_back(0.75), version=3)
+    current = [early]
+    with InMemoryTransport(InMemoryBus()) as t:
+        service = LearnerService(t, config, tmp_path)
+        service._adopt(one_cell_per_action(DIM))
+        service.state.policy = lambda: current[0]  # type: ignore[method-assign]
+        service._offer_early()
+        current[0] = kept
+        service._evaluate()
+        report = service.run(threading.Event())
+    saved, _ = load_policy(tmp_path / "policy.npz")
+    assert saved.version == 3 and saved.law_margin == 1.0  # the smallest margin at or above 0.75 that reads law
+    expected = [choose_margin(service.scenario, p, 3, FAST.eval_steps) for p in (kept, early)]
+    assert [(c["source"], c["margin"], c["chosen"]) for c in report.candidates] == [
+        ("kept", 1.0, True),
+        ("early", 0.3, False),
+    ]
+    assert [c["validation_coverage"] for c in report.candidates] == [round(e.scores[e.margin], 3) for e in expected]
+    assert expected[0].scores[1.0] == expected[1].scores[0.3]  # a tie: the law on the same trials
+
+
 @pytest.mark.parametrize("given", [None, 0.0, 0.5])
 def test_the_saved_policy_is_read_with_the_law_margin_chosen_on_validation_trials_or_given(
     tmp_path: Path, given: float | None
