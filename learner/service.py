@@ -269,22 +269,12 @@ class LearnerService:
         choose = self.config.law_margin is None and kept.formulation.actions.law is not None
         if len(candidates) == 1 and not choose:
             return
-        scored = [(*self._score(policy, choose), name, policy, at) for name, policy, at in candidates]
-        best = max(scored, key=lambda s: s[0])  # the first of the best: the kept policy on a tie
-        _, self.margin, _, self._selected, _ = best
+        scored = [_Scored(name, policy, at, *self._score(policy, choose)) for name, policy, at in candidates]
+        best = max(scored, key=lambda c: c.coverage)  # the first of the best: the kept policy on a tie
+        self._selected, self.margin = best.policy, best.margin
         if len(scored) > 1:
-            self.candidates = [
-                {
-                    "source": name,
-                    "version": policy.version,
-                    "at_s": round(at, 2),
-                    "validation_coverage": round(score, 3),
-                    **({} if margin is None else {"margin": margin.margin}),
-                    "chosen": policy is self._selected,
-                }
-                for score, margin, name, policy, at in scored
-            ]
-            log.info("saving the %s policy (version %d)", best[2], best[3].version)
+            self.candidates = [c.figures(chosen=c is best) for c in scored]
+            log.info("saving the %s policy (version %d)", best.source, best.policy.version)
 
     def _score(self, policy: Policy, choose: bool) -> tuple[float, MarginChoice | None]:
         """``policy``'s coverage on ``margin_trials`` validation trials: with ``choose``, read with the law margin
@@ -427,6 +417,30 @@ class LearnerService:
             policy=policy,
             candidates=self.candidates,
         )
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class _Scored:
+    """A candidate for the saved policy as scored at the end of the run."""
+
+    source: str
+    """``kept`` or ``early``."""
+    policy: Policy
+    at: float
+    """When it was kept (the run clock)."""
+    coverage: float
+    """Its coverage on the margin's validation trials, read with ``margin`` when one was chosen."""
+    margin: MarginChoice | None
+
+    def figures(self, chosen: bool) -> dict[str, Any]:
+        return {
+            "source": self.source,
+            "version": self.policy.version,
+            "at_s": round(self.at, 2),
+            "validation_coverage": round(self.coverage, 3),
+            **({} if self.margin is None else {"margin": self.margin.margin}),
+            "chosen": chosen,
+        }
 
 
 class _Checkpoints:
