@@ -75,10 +75,11 @@ class LearnerConfig:
     """Validation trials of each periodic evaluation when ``keep_best`` (the same trials every time)."""
     early_window: float = 30.0
     """With ``keep_best``: every policy version published within this many seconds of the first is scored on the
-    validation trials, and the best of them is a second candidate beside the kept policy; at the end of the run the
-    two are scored on ``margin_trials`` validation trials (a law action set's each read with the margin that scores
-    best, or with ``law_margin``) and the better is saved. Phase 2's first seconds can hold tables that more
-    experience loses [beyond the paper, docs/learning-quality.md "Twentieth round"]. 0: no early candidate."""
+    validation trials, and the best of them is a second candidate beside the kept policy. It is scored on
+    ``margin_trials`` validation trials when the window closes (a law action set's read with the margin that scores
+    best, or with ``law_margin``), the kept policy at the end of the run, and the better is saved. Phase 2's first
+    seconds can hold tables that more experience loses [beyond the paper, docs/learning-quality.md "Twentieth
+    round"]. 0: no early candidate."""
     law_margin: float | None = None
     """With a law action set (the default formulation's): the saved and scored policy departs from the move law
     only where another move's value beats law's by more than this (0: the plain argmax); none: the margin of

@@ -92,6 +92,9 @@ class LearnerService:
         self._first_policy_at: float | None = None
         """The run clock at the first policy: where the early window starts."""
         self._early_version = 0
+        self._early_scored: _Scored | None = None
+        """The early candidate as scored on the margin's validation trials once its window closed, so the wind-down
+        (which a SIGTERM under SLURM gives KillWait seconds) scores only the kept policy."""
         self.margin: MarginChoice | None = None
         """The law margin chosen at the end on validation trials (``law_margin`` none, a law action set)."""
         self._selected: Policy | None = None
@@ -229,7 +232,12 @@ class LearnerService:
             return
         at = self.elapsed()
         policy = self.state.policy()
-        if at - self._first_policy_at > self.config.early_window or policy is None:
+        if at - self._first_policy_at > self.config.early_window:
+            best = self.early.best
+            if best is not None and self._early_scored is None:
+                self._early_scored = _Scored("early", best.policy, best.at, *self._score(best.policy))
+            return
+        if policy is None:
             return
         if policy.version == self._early_version:
             return
@@ -266,21 +274,29 @@ class LearnerService:
         early = None if self.early is None else self.early.best
         if early is not None and early.policy.version != kept.version:
             candidates.append(("early", early.policy, early.at))
-        choose = self.config.law_margin is None and kept.formulation.actions.law is not None
-        if len(candidates) == 1 and not choose:
+        if len(candidates) == 1 and not self._chooses_margin(kept):
             return
-        scored = [_Scored(name, policy, at, *self._score(policy, choose)) for name, policy, at in candidates]
+        scored = [self._scored(name, policy, at) for name, policy, at in candidates]
         best = max(scored, key=lambda c: c.coverage)  # the first of the best: the kept policy on a tie
         self._selected, self.margin = best.policy, best.margin
         if len(scored) > 1:
             self.candidates = [c.figures(chosen=c is best) for c in scored]
             log.info("saving the %s policy (version %d)", best.source, best.policy.version)
 
-    def _score(self, policy: Policy, choose: bool) -> tuple[float, MarginChoice | None]:
-        """``policy``'s coverage on ``margin_trials`` validation trials: with ``choose``, read with the law margin
-        that scores best (and that choice), else as :meth:`_chosen` reads it."""
+    def _scored(self, name: str, policy: Policy, at: float) -> _Scored:
+        early = self._early_scored
+        if early is not None and early.policy is policy:
+            return early
+        return _Scored(name, policy, at, *self._score(policy))
+
+    def _chooses_margin(self, policy: Policy) -> bool:
+        return self.config.law_margin is None and policy.formulation.actions.law is not None
+
+    def _score(self, policy: Policy) -> tuple[float, MarginChoice | None]:
+        """``policy``'s coverage on ``margin_trials`` validation trials: read with the law margin that scores best
+        (and that choice) when the run chooses one, else as :meth:`_chosen` reads it."""
         trials = self.config.margin_trials
-        if choose:
+        if self._chooses_margin(policy):
             log.info("choosing the law margin of policy version %d on %d validation trials", policy.version, trials)
             margin = choose_margin(self.scenario, policy, trials, self.config.eval_steps)
             log.info("law margin %g: %s", margin.margin, ", ".join(f"{m:g} {c:.2f}%" for m, c in margin.scores.items()))

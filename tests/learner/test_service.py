@@ -444,6 +444,50 @@ def test_an_early_candidate_that_scores_more_on_validation_trials_is_saved_and_r
     assert resumed._first_policy_at == service._first_policy_at is not None
 
 
+def test_the_early_candidate_is_scored_once_its_window_closes_so_the_wind_down_scores_only_the_kept_policy(
+    tmp_path: Path,
+) -> None:
+    # The wind-down must fit a SIGTERM's grace (SLURM's KillWait): one margin choice there, as before the candidate.
+    from tests.algorithm.test_selection import constant, validation
+
+    config = dataclasses.replace(
+        FAST, validation_trials=3, final_eval_trials=3, duration=0.5, law_margin=0.0, early_window=30.0
+    )
+    scores = {a: validation(constant(a, version=1), 3) for a in range(8)}
+    good, bad = max(scores, key=scores.__getitem__), min(scores, key=scores.__getitem__)
+    clock, current = [0.0], [constant(good, version=2)]
+    with InMemoryTransport(InMemoryBus()) as t:
+        service = LearnerService(t, config, tmp_path)
+        service.elapsed = lambda: clock[0]  # type: ignore[method-assign]
+        service._adopt(one_cell_per_action(DIM))  # the window opens at 0 s
+        service.state.policy = lambda: current[0]  # type: ignore[method-assign]
+        clock[0] = 10.0
+        service._offer_early()
+        current[0] = constant(bad, version=3)
+        clock[0] = 31.0
+        scored: list[int] = []
+        score = service._score
+
+        def counted(policy: Any) -> Any:
+            scored.append(policy.version)
+            return score(policy)
+
+        service._score = counted  # type: ignore[method-assign]
+        service._offer_early()  # the window has closed: version 3 is not offered, the early candidate is scored
+        assert scored == [2] and service._early_scored is not None
+        service._offer_early()
+        assert scored == [2]  # once
+        service._evaluate()
+        del service.elapsed  # the run's own clock for run()
+        report = service.run(threading.Event())
+    assert scored == [2, 3]  # the wind-down scored only the kept policy
+    assert [(c["source"], c["version"], c["chosen"]) for c in report.candidates] == [
+        ("kept", 3, False),
+        ("early", 2, True),
+    ]
+    assert report.candidates[1]["validation_coverage"] == round(scores[good], 3)
+
+
 def test_the_early_candidate_loses_to_the_kept_policy_on_a_tie_and_both_read_with_their_own_law_margin(
     tmp_path: Path,
 ) -> None:
