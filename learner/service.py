@@ -100,7 +100,7 @@ class LearnerService:
         self._selected: Policy | None = None
         """The policy chosen at the end among the kept one and the early candidate."""
         self.candidates: list[dict[str, Any]] = []
-        """When the early candidate and the kept policy were both scored at the end: each one's figures."""
+        """When the early candidate and the kept policy were both scored: each one's figures."""
         self.checkpointer = Checkpointer(run_dir)
         # The viewer's train_time is the run clock of the learning curve.
         self.watch = LearnerWatch(monitor or Monitor(), self.scenario, clock=self.elapsed)
@@ -231,15 +231,13 @@ class LearnerService:
         if self.early is None or self._first_policy_at is None:
             return
         at = self.elapsed()
-        policy = self.state.policy()
         if at - self._first_policy_at > self.config.early_window:
             best = self.early.best
             if best is not None and self._early_scored is None:
                 self._early_scored = _Scored("early", best.policy, best.at, *self._score(best.policy))
             return
-        if policy is None:
-            return
-        if policy.version == self._early_version:
+        policy = self.state.policy()
+        if policy is None or policy.version == self._early_version:
             return
         self._early_version = policy.version
         validation = self.early.score(policy)
@@ -437,7 +435,7 @@ class LearnerService:
 
 @dataclasses.dataclass(frozen=True, slots=True)
 class _Scored:
-    """A candidate for the saved policy as scored at the end of the run."""
+    """A candidate for the saved policy as scored on the margin's validation trials."""
 
     source: str
     """``kept`` or ``early``."""
