@@ -325,16 +325,19 @@ def test_after_a_slurm_job_the_next_commands_are_new_jobs_not_arguments_to_its_s
     assert again in lines and f"{again} --duration 960" in lines
 
 
+KEPT = {
+    "version": 31,
+    "at_s": 337.9,
+    "validation_coverage": 62.5,
+    "validation_trials": 30,
+    "validation_seed": 1000,
+    "validation_curve": [[95.2, 50.25], [337.9, 62.5], [480.3, 60.125]],
+}
+"""A run report's ``kept``."""
+
+
 def test_a_kept_policy_is_named_with_its_validation_score_beside_the_last_one_s(tmp_path: Path) -> None:
-    kept = {
-        "version": 31,
-        "at_s": 337.9,
-        "validation_coverage": 62.5,
-        "validation_trials": 30,
-        "validation_seed": 1000,
-        "validation_curve": [[95.2, 50.25], [337.9, 62.5], [480.3, 60.125]],
-    }
-    text = write_run_report({**run_report(tmp_path), "kept": kept}, tmp_path)[0].read_text()
+    text = write_run_report({**run_report(tmp_path), "kept": KEPT}, tmp_path)[0].read_text()
     assert "| **learned policy** | version 31, formulation shared-difference | **61.23** |" in text
     assert (
         "| kept policy | version 31 of 338 s, the best on 30 validation trials (seed 1000, not the test trials): "
@@ -344,19 +347,11 @@ def test_a_kept_policy_is_named_with_its_validation_score_beside_the_last_one_s(
 
 
 def test_the_early_candidate_and_the_kept_policy_are_named_with_the_one_saved(tmp_path: Path) -> None:
-    kept = {
-        "version": 31,
-        "at_s": 337.9,
-        "validation_coverage": 62.5,
-        "validation_trials": 30,
-        "validation_seed": 1000,
-        "validation_curve": [[95.2, 50.25], [337.9, 62.5]],
-    }
     candidates = [
         {"source": "kept", "version": 31, "at_s": 337.9, "validation_coverage": 78.52, "margin": 0.3, "chosen": False},
         {"source": "early", "version": 7, "at_s": 46.5, "validation_coverage": 78.99, "margin": 0.5, "chosen": True},
     ]
-    report = {**run_report(tmp_path), "kept": kept, "candidates": candidates}
+    report = {**run_report(tmp_path), "kept": KEPT, "candidates": candidates}
     text = write_run_report(report, tmp_path)[0].read_text()
     # The learned policy is the one saved, not the kept one.
     assert "| **learned policy** | version 7, formulation shared-difference | **61.23** |" in text
@@ -364,7 +359,7 @@ def test_the_early_candidate_and_the_kept_policy_are_named_with_the_one_saved(tm
         "| kept or early | kept: version 31 of 338 s, 78.52 %; early: version 7 of 46 s, 78.99 % (saved), both "
         "scored on the same validation trials at the end |" in text
     )
-    assert "kept or early" not in write_run_report({**run_report(tmp_path), "kept": kept}, tmp_path)[0].read_text()
+    assert "kept or early" not in write_run_report({**run_report(tmp_path), "kept": KEPT}, tmp_path)[0].read_text()
 
 
 def test_the_law_margin_is_given_with_every_margin_s_validation_score(tmp_path: Path) -> None:
