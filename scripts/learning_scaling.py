@@ -5,7 +5,7 @@ core of a 2-core machine) for every D, F and S asked for, keeps each run's ``rep
 coverage against D beside the run-measured A-CMOMMT levels (tuned and public, the same trials). Runs already
 in ``--out`` are reused, so the grid can be grown over several sittings::
 
-    python scripts/learning_scaling.py --minutes 1 2 4 8 16 --seeds 0 1 --formulations frame-cooperative paper
+    python scripts/learning_scaling.py --minutes 1 2 4 8 16 --seeds 0 1 --formulations frame-recall-track paper
     python scripts/learning_scaling.py --plot-only      # redraw from the runs kept in --out
 
 Writes ``--out``/scaling.json (one row per run) and ``--figure`` (default docs/learning_scaling.png).
@@ -29,6 +29,7 @@ import numpy as np
 
 from monitor.style import ORANGE
 from monitor.style import REFERENCES as STYLE
+from sim.formulation import DEFAULT_FORMULATION
 
 ENNC_QL = Path(sys.executable).with_name("ennc-ql")
 REFERENCES = ("a-cmommt", "a-cmommt-public")
@@ -52,6 +53,8 @@ def train(out: Path, formulation: str, minutes: float, seed: int) -> dict[str, A
 
 
 def row(formulation: str, minutes: float, seed: int, report: dict[str, Any]) -> dict[str, Any]:
+    comparison = report.get("final_comparison") or {}
+    chosen = [c for c in report.get("candidates") or [] if c["chosen"]]
     return {
         "formulation": formulation,
         "minutes": minutes,
@@ -61,6 +64,10 @@ def row(formulation: str, minutes: float, seed: int, report: dict[str, Any]) -> 
         "tuples_per_s": report["tuples_per_s"],
         "prototypes": sum(report["prototypes_per_action"]),
         "references": report["final_reference_coverage"],
+        "versus_a_cmommt": comparison.get("a-cmommt", {}).get("learned_minus"),
+        "versus_a_cmommt_se": comparison.get("a-cmommt", {}).get("learned_minus_se"),
+        "robots_per_covered_target": comparison.get("learned", {}).get("robots_per_covered_target"),
+        "saved": chosen[0] if chosen else None,
     }
 
 
@@ -99,7 +106,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--minutes", type=float, nargs="+", default=[1, 2, 4, 8, 16], help="training times")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1], help="seeds of every training time")
-    parser.add_argument("--formulations", nargs="+", default=["frame-cooperative", "paper"], help="formulations")
+    parser.add_argument("--formulations", nargs="+", default=[DEFAULT_FORMULATION], help="formulations")
     parser.add_argument("--out", type=Path, default=Path("runs/scaling"), help="where the runs are kept")
     parser.add_argument("--figure", type=Path, default=Path("docs/learning_scaling.png"), help="the figure")
     parser.add_argument("--plot-only", action="store_true", help="draw from the runs already in --out")
@@ -115,9 +122,12 @@ def main() -> int:
     (args.out / "scaling.json").write_text(json.dumps(rows, indent=1))
     for r in rows:
         refs = ", ".join(f"{k} {v:.2f}" for k, v in r["references"].items() if k in REFERENCES)
+        gap, se = r["versus_a_cmommt"], r["versus_a_cmommt_se"]
+        versus = "" if gap is None else f", {gap:+.2f} ± {se:.2f} over a-cmommt"
+        saved = "" if r["saved"] is None else f", saved {r['saved']['source']} v{r['saved']['version']}"
         print(
-            f"{r['formulation']:>18} {r['minutes']:>4g} min seed {r['seed']}: {r['final_coverage']:.2f} % "
-            f"({r['tuples'] / 1e6:.0f} M tuples, {r['prototypes']} prototypes; {refs})"
+            f"{r['formulation']:>18} {r['minutes']:>4g} min seed {r['seed']}: {r['final_coverage']:.2f} %{versus} "
+            f"({r['tuples'] / 1e6:.0f} M tuples, {r['prototypes']} prototypes{saved}; {refs})"
         )
     plot(rows, args.figure)
     print(f"figure: {args.figure}")
