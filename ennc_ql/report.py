@@ -180,6 +180,9 @@ def result_rows(report: Mapping[str, Any]) -> list[tuple[str, str]]:
     candidates = report.get("candidates")
     if candidates:
         rows.insert(-1, ("kept or early", _candidates(candidates)))
+    draws = report.get("draws") or []
+    if len(draws) > 1:
+        rows.insert(-1, ("draws", _draws(draws)))
     margin = report.get("law_margin")
     if margin:
         rows.insert(-1, ("law margin", _margin(margin)))
@@ -203,14 +206,25 @@ def _kept(kept: Mapping[str, Any]) -> str:
 
 
 def _candidates(candidates: list[Mapping[str, Any]]) -> str:
-    """The kept policy and the early candidate as scored at the end, and which one the run saved."""
+    """The kept policy and the early candidate as scored on the same validation trials, and which one the run
+    saved."""
     return (
         "; ".join(
-            f"{c['source']}: version {c['version']} of {c['at_s']:.0f} s, {c['validation_coverage']:.2f} %"
-            + (" (saved)" if c["chosen"] else "")
+            f"{c['source']}{'' if c.get('draw') is None else ' of draw ' + str(c['draw'])}: version {c['version']} "
+            f"of {c['at_s']:.0f} s, {c['validation_coverage']:.2f} %" + (" (saved)" if c["chosen"] else "")
             for c in candidates
         )
-        + ", both scored on the same validation trials at the end"
+        + ", both scored on the same validation trials"
+    )
+
+
+def _draws(draws: list[Mapping[str, Any]]) -> str:
+    """Each draw of phase 1 by its early candidate's validation score, and the best one."""
+    best = max(draws, key=lambda d: d["validation_coverage"])  # the earlier on a tie, as the learner keeps it
+    scores = ", ".join(f"{d['draw']}: {d['validation_coverage']:.2f} %" for d in draws)
+    return (
+        f"{len(draws)} draws of phase 1 on the first fit's tuples, each one's early candidate on the validation "
+        f"trials: {scores} (the best: draw {best['draw']})"
     )
 
 

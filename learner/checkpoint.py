@@ -54,9 +54,10 @@ class Checkpointer:
 
 
 def kept_visits(path: Path) -> int:
-    """Visits a checkpoint holds: in its tables, and in the increments acknowledged but not merged yet (none after a
-    run's final checkpoint). The saved policy file need not hold them all: it may be an earlier one (``keep_best``)."""
-    names = ("visits", "pending_visits")
+    """Visits a checkpoint accounts for: in its tables, in the increments acknowledged but not merged yet (none after
+    a run's final checkpoint), and those acknowledged and dropped (stale increments, and the tables a new draw
+    replaced). The saved policy file need not hold them all: it may be an earlier one (``keep_best``)."""
+    names = ("visits", "pending_visits", "dropped_visits")
     with np.load(path, allow_pickle=False) as data:
         return sum(int(data[name].astype(np.int64).sum()) for name in names if name in data.files)
 

@@ -80,6 +80,15 @@ class LearnerConfig:
     best, or with ``law_margin``), the kept policy at the end of the run, and the better is saved. Phase 2's first
     seconds can hold tables that more experience loses [beyond the paper, docs/learning-quality.md "Twentieth
     round"]. 0: no early candidate."""
+    draws: int = 8
+    """With ``keep_best`` and ``early_window``: independent draws of phase 1. When a draw's early window has closed
+    and its candidate is scored, phase 1 runs afresh (a new seed, no warm start) on the first fit's tuples, the
+    exploration before any policy (kept in the run folder's ``exploration.npz``), and the actors start again from
+    its cells, with tables from its labels; each draw has its own early window, and the early candidate that scores
+    best on ``margin_trials`` validation trials over the draws is the one beside the kept policy at the end. A draw
+    starts only when its window can close before ``duration`` (judged by the last fit's seconds), so a short run
+    makes fewer. Runs differ by a point from one phase-1 draw to the next, and the validation trials tell the better
+    ones [beyond the paper, docs/learning-quality.md "Twenty-second round"]. 1: the first fit only."""
     law_margin: float | None = None
     """With a law action set (the default formulation's): the saved and scored policy departs from the move law
     only where another move's value beats law's by more than this (0: the plain argmax); none: the margin of
@@ -128,12 +137,23 @@ class LearnerConfig:
             duration=self.duration,
         )
         require_at_least(0, threads=self.threads, seed=self.seed)
+        require_at_least(1, draws=self.draws)
+        if self.drawing and self.refit_growth != 0:
+            raise ValueError(
+                f"draws = {self.draws} and refit_growth = {self.refit_growth}: a refit would carry one draw's tables "
+                "into another's cells; give draws = 1 (--draws 1) to refit"
+            )
         if not (math.isfinite(self.early_window) and self.early_window >= 0):
             raise ValueError(f"early_window must be a finite number of seconds >= 0, got {self.early_window}")
         if self.law_margin is not None and not (math.isfinite(self.law_margin) and self.law_margin >= 0):
             raise ValueError(f"law_margin must be none or a finite number >= 0, got {self.law_margin}")
         if self.refit_growth != 0 and not self.refit_growth > 1:
             raise ValueError(f"refit_growth must be 0 (never) or above 1, got {self.refit_growth}")
+
+    @property
+    def drawing(self) -> bool:
+        """Whether the run makes more than one draw of phase 1 (``draws`` needs an early candidate to choose by)."""
+        return self.draws > 1 and self.keep_best and self.early_window > 0
 
     @property
     def method(self) -> str:

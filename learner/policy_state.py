@@ -4,6 +4,7 @@ Usage (thread-safe: every method takes the state's own lock)::
 
     state = PolicyState(n_robots=10, formulation=f, scenario="cmommt-v1", action_steps=5, method="...")
     state.adopt(discretization)            # after phase 1: tables from the labels, or carried over on a refit
+    state.adopt(discretization, fresh=True)  # a new draw: tables from its labels again
     state.add_increment(msg)               # an actor's table change; False if it was over another discretization
     update = state.publish()               # merge what is pending, bump the version: the PolicyUpdate to broadcast
     state.current                          # the latest broadcast (late joiners get it)
@@ -66,6 +67,9 @@ class PolicyState:
         """Increments received (each sequence number once)."""
         self.stale_increments = 0
         """Of those, increments over another discretization than the current one: not merged (docs/protocol.md §5)."""
+        self.dropped_visits = 0
+        """Visits acknowledged but in no table: those of stale increments, and of the tables and pending increments a
+        new draw replaced; with the visits the tables and pending increments hold, every visit acknowledged."""
 
     @property
     def version(self) -> int:
@@ -87,11 +91,14 @@ class PolicyState:
         with self._lock:
             return self._disc is not None
 
-    def adopt(self, disc: Discretization) -> None:
-        """Take a new discretization: the first one's tables start from its labels; a later one inherits the current
-        values (pending increments merged first), each new prototype from the nearest old one."""
+    def adopt(self, disc: Discretization, fresh: bool = False) -> None:
+        """Take a new discretization: the first one's tables, and a ``fresh`` one's (a new draw, whose increments
+        pending are dropped with the tables they were learned on), start from its labels; a later one inherits the
+        current values (pending increments merged first), each new prototype from the nearest old one."""
         with self._lock:
-            if self._disc is None:
+            if self._disc is None or fresh:
+                self.dropped_visits += int(self._visits.sum()) + sum(int(v.sum()) for _, v in self._pending.values())
+                self._pending.clear()
                 tables = np.tile(disc.labels.astype(np.float64), (self.n_robots, 1))
             else:
                 self._merge_pending()
@@ -108,6 +115,7 @@ class PolicyState:
             disc_id = self._disc_of_version.get(int(msg.policy_version))
             if disc_id != self._disc_id or msg.robot >= self.n_robots or msg.q.size != self._tables.shape[1]:
                 self.stale_increments += 1  # over another discretization: its cells mean something else now
+                self.dropped_visits += int(np.asarray(msg.visits, np.int64).sum())
                 return False
             robot, change, visits = increment_arrays(msg)
             key = (msg.actor_id, robot)
@@ -160,9 +168,11 @@ class PolicyState:
                 "increments": self.increments,
                 "stale_increments": self.stale_increments,
             }
+            dropped = {"dropped_visits": np.array(self.dropped_visits, np.int64)}
             if self._disc is None:
-                return {}, meta
+                return dropped, meta
             arrays = {
+                **dropped,
                 "prototypes": self._disc.prototypes,
                 "labels": self._disc.labels,
                 "offsets": self._disc.offsets,
@@ -187,6 +197,7 @@ class PolicyState:
             self._disc_of_version = _unranges(meta["disc_of_version"])
             self.increments = int(meta["increments"])
             self.stale_increments = int(meta["stale_increments"])
+            self.dropped_visits = int(arrays.get("dropped_visits", 0))  # none in checkpoints written before draws
             if "prototypes" not in arrays:
                 return
             self._disc = Discretization(arrays["prototypes"], arrays["labels"], arrays["offsets"], arrays.get("scale"))

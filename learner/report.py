@@ -154,9 +154,14 @@ class LearnerReport:
     validation trials (``validation_coverage``: {margin: %}, ``validation_trials``, ``validation_seed``); None for
     other action sets or before a policy was learned."""
     candidates: list[dict[str, Any]] = field(default_factory=list)
-    """With an early candidate (``early_window``) other than the kept policy: both, as scored at the end on the
-    margin's validation trials (``source`` kept or early, ``version``, ``at_s``, ``validation_coverage``, a law
-    margin choice's ``margin``, and which one was saved, ``chosen``); empty otherwise."""
+    """With an early candidate (``early_window``) other than the kept policy: both, as scored on the margin's
+    validation trials (``source`` kept or early, the early one's ``draw``, ``version``, ``at_s``,
+    ``validation_coverage``, a law margin choice's ``margin``, and which one was saved, ``chosen``); empty
+    otherwise. The early one is the best of the draws (``draws``)."""
+    draws: list[dict[str, Any]] = field(default_factory=list)
+    """Each draw's early candidate as scored when its window closed (``draw``, ``version``, ``at_s``,
+    ``validation_coverage``, a law margin choice's ``margin``, ``prototypes_per_action``); empty before the first
+    window closed."""
     resumes: list[dict[str, Any]] = field(default_factory=list)
     """Every time the run was resumed from its checkpoint: the run clock it resumed at (``at_s``), the policy version
     of its first broadcast, that broadcast's wall time and the seconds from the process's start to it."""
@@ -180,6 +185,7 @@ class LearnerReport:
         margin: MarginChoice | None = None,
         policy: Policy | None = None,
         candidates: list[dict[str, Any]] | None = None,
+        draws: list[dict[str, Any]] | None = None,
     ) -> LearnerReport:
         """The report of a run that ended with ``status`` (built from the same ``intake`` figures) and the final
         figure ``final`` (None: no policy was learned, and no reference is measured)."""
@@ -219,6 +225,7 @@ class LearnerReport:
             kept=None if keeper is None or keeper.best is None else _kept(keeper),
             law_margin=_law_margin(policy, margin),
             candidates=list(candidates or []),
+            draws=list(draws or []),
         )
 
     def to_dict(self) -> dict[str, Any]:

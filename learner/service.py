@@ -37,7 +37,7 @@ from algorithm.selection import VALIDATION_SEED, BestPolicy, MarginChoice, choos
 from learner.checkpoint import Checkpointer, CheckpointError, VersionMark
 from learner.config import LearnerConfig
 from learner.evaluator import Evaluator
-from learner.fitting import Fitter
+from learner.fitting import EXPLORATION, Fitter
 from learner.intake import ExperienceIntake
 from learner.membership import Membership
 from learner.policy_state import PolicyState
@@ -52,7 +52,9 @@ log = logging.getLogger(__name__)
 BEST_POLICY = "best-policy.npz"
 """The run folder's copy of the policy ``keep_best`` holds, written when it changes, so a resumed learner has it."""
 EARLY_POLICY = "early-policy.npz"
-"""The same for the early candidate (``early_window``)."""
+"""The same for the early candidate (``early_window``) of the draw under way."""
+DRAWN_POLICY = "drawn-policy.npz"
+"""The same for the early candidate that scored best on the margin's validation trials over the draws so far."""
 
 
 class LearnerService:
@@ -81,7 +83,9 @@ class LearnerService:
             team=config.team_policy,
             on_version=self.version_mark.record,
         )
-        self.fitter = Fitter(config, on_fitted=self._adopt)
+        self.fitter = Fitter(
+            config, on_fitted=self._adopt, exploration=run_dir / EXPLORATION if config.drawing else None
+        )
         self.evaluator = Evaluator(self.scenario, config.eval_trials, config.eval_steps, config.final_eval_trials)
         self.keeper = None
         if config.keep_best:
@@ -89,12 +93,22 @@ class LearnerService:
         self.early = None
         if config.keep_best and config.early_window > 0:
             self.early = BestPolicy(self.scenario, config.validation_trials, config.eval_steps)
-        self._first_policy_at: float | None = None
-        """The run clock at the first policy: where the early window starts."""
+        self._window_at: float | None = None
+        """The run clock at the first policy of the draw under way: where its early window starts."""
         self._early_version = 0
-        self._early_scored: _Scored | None = None
-        """The early candidate as scored on the margin's validation trials once its window closed, so the wind-down
-        (which a SIGTERM under SLURM gives KillWait seconds) scores only the kept policy."""
+        self._draw = 0
+        """The draw under way (0: the first fit's; ``draws``)."""
+        self._window_scored = False
+        """Whether the early candidate of the draw under way was scored once its window closed."""
+        self._drawn: _Scored | None = None
+        """The early candidate that scored best on the margin's validation trials over the windows closed so far, so
+        the wind-down (which a SIGTERM under SLURM gives KillWait seconds) scores only the kept policy."""
+        self.draws: list[dict[str, Any]] = []
+        """Each closed window's early candidate as scored (``draw``, ``version``, ``at_s``, ``validation_coverage``,
+        a margin choice's ``margin``, ``prototypes_per_action``)."""
+        # The fit's thread adopts a draw while the loop may be scoring a window: the draw's bookkeeping changes under
+        # this lock, so a window is never scored half-way into the next draw.
+        self._draw_lock = threading.Lock()
         self.margin: MarginChoice | None = None
         """The law margin chosen at the end on validation trials (``law_margin`` none, a law action set)."""
         self._selected: Policy | None = None
@@ -184,12 +198,24 @@ class LearnerService:
         self._stopped_at = self.elapsed()
         return self._finish()
 
-    def _adopt(self, disc: Discretization) -> None:
+    def _adopt(self, disc: Discretization, draw: bool = False) -> None:
         """A fit's new discretization (on the fit's thread): on disk before its first broadcast, so a resumed
-        learner knows every discretization it ever published."""
-        if self._first_policy_at is None:
-            self._first_policy_at = self.elapsed()
-        self.state.adopt(disc)
+        learner knows every discretization it ever published. A ``draw``'s tables start from its labels and its
+        early window opens."""
+        with self._draw_lock:
+            if draw and self._stopped_at is not None:
+                log.info("draw %d finished after training stopped: not adopted", self._draw + 1)
+                return
+            with self._checkpoint_lock:
+                self.state.adopt(disc, fresh=draw)
+                if self._window_at is None or draw:
+                    self._window_at = self.elapsed()
+                if draw:
+                    self._draw += 1
+                    self._window_scored = False
+                    self._early_version = 0
+                    self.early = BestPolicy(self.scenario, self.config.validation_trials, self.config.eval_steps)
+                    log.info("draw %d adopted: %.1f prototypes per action", self._draw, disc.sizes().mean())
         self.checkpoint()
         self._broadcast()
         policy = self.state.policy()
@@ -226,25 +252,61 @@ class LearnerService:
         log.info("validation of policy version %d: %.2f%% of targets observed", policy.version, validation)
 
     def _offer_early(self) -> None:
-        """Within ``early_window`` seconds of the first policy: score each new version for the early candidate; a new
-        best goes to disk before the checkpoint that names it."""
-        if self.early is None or self._first_policy_at is None:
-            return
-        at = self.elapsed()
-        if at - self._first_policy_at > self.config.early_window:
-            best = self.early.best
-            if best is not None and self._early_scored is None:
-                self._early_scored = _Scored("early", best.policy, best.at, *self._score(best.policy))
-            return
-        policy = self.state.policy()
-        if policy is None or policy.version == self._early_version:
-            return
-        self._early_version = policy.version
-        validation = self.early.score(policy)
+        """Within ``early_window`` seconds of a draw's first policy: score each new version for its early candidate;
+        a new best goes to disk before the checkpoint that names it. Once the window closed: score the candidate on
+        the margin's validation trials, then start the next draw if one is left and its window can close in time."""
+        with self._draw_lock:
+            if self.early is None or self._window_at is None:
+                return
+            at = self.elapsed()
+            if at - self._window_at > self.config.early_window:
+                if not self._window_scored:
+                    self._close_window()
+                self._next_draw(at)
+                return
+            policy = self.state.policy()
+            if policy is None or policy.version == self._early_version:
+                return
+            self._early_version = policy.version
+            validation = self.early.score(policy)
+            with self._checkpoint_lock:
+                if self.early.keep(policy, validation, at):
+                    save_policy(policy, self.scenario, self.run_dir / EARLY_POLICY)
+            log.info("early validation of policy version %d: %.2f%% of targets observed", policy.version, validation)
+
+    def _close_window(self) -> None:
+        """Score the closed window's early candidate on the margin's validation trials; the best over the draws goes
+        to disk before the checkpoint that names it."""
+        assert self.early is not None
+        best = self.early.best
+        scored = None if best is None else _Scored("early", best.policy, best.at, *self._score(best.policy), self._draw)
         with self._checkpoint_lock:
-            if self.early.keep(policy, validation, at):
-                save_policy(policy, self.scenario, self.run_dir / EARLY_POLICY)
-        log.info("early validation of policy version %d: %.2f%% of targets observed", policy.version, validation)
+            self._window_scored = True
+            if scored is None:
+                return
+            self.draws.append(scored.summary() | {"prototypes_per_action": _prototypes(scored.policy)})
+            if self._drawn is None or scored.coverage > self._drawn.coverage:  # the earlier draw on a tie
+                save_policy(scored.policy, self.scenario, self.run_dir / DRAWN_POLICY)
+                self._drawn = scored
+        log.info(
+            "draw %d: early candidate version %d scores %.2f%% on %d validation trials (best draw %d)",
+            self._draw,
+            scored.policy.version,
+            scored.coverage,
+            self.config.margin_trials,
+            self._drawn.draw,
+        )
+
+    def _next_draw(self, at: float) -> None:
+        """Start the next draw when one is left and its window can close before the run's duration, judged by the
+        last fit's seconds."""
+        c = self.config
+        if self._draw + 1 >= c.draws or self.fitter.busy:
+            return
+        if c.duration is not None and at + self.fitter.fit_s + c.early_window >= c.duration:
+            return
+        if self.fitter.draw(self._draw + 1):
+            log.info("draw %d: phase 1 afresh on the first fit's tuples", self._draw + 1)
 
     def _kept_or_last(self) -> Policy | None:
         if self.keeper is not None and self.keeper.best is not None:
@@ -268,24 +330,28 @@ class LearnerService:
         if kept is None:
             return
         at = self.elapsed() if self.keeper is None or self.keeper.best is None else self.keeper.best.at
-        candidates = [("kept", kept, at)]
-        early = None if self.early is None else self.early.best
-        if early is not None and early.policy.version != kept.version:
-            candidates.append(("early", early.policy, early.at))
-        if len(candidates) == 1 and not self._chooses_margin(kept):
+        early = self._early_candidate()
+        if early is not None and early.policy.version == kept.version:
+            early = None
+        if early is None and not self._chooses_margin(kept):
             return
-        scored = [self._scored(name, policy, at) for name, policy, at in candidates]
+        scored = [_Scored("kept", kept, at, *self._score(kept)), *([] if early is None else [early])]
         best = max(scored, key=lambda c: c.coverage)  # the first of the best: the kept policy on a tie
         self._selected, self.margin = best.policy, best.margin
         if len(scored) > 1:
             self.candidates = [c.figures(chosen=c is best) for c in scored]
             log.info("saving the %s policy (version %d)", best.source, best.policy.version)
 
-    def _scored(self, name: str, policy: Policy, at: float) -> _Scored:
-        early = self._early_scored
-        if early is not None and early.policy is policy:
-            return early
-        return _Scored(name, policy, at, *self._score(policy))
+    def _early_candidate(self) -> _Scored | None:
+        """The best draw's early candidate as scored when its window closed; before any window closed, the first
+        draw's as it stands, scored now. A later draw's window still open is no candidate: scoring it too would
+        double the wind-down."""
+        best = None if self.early is None else self.early.best
+        if best is not None and not self._window_scored:
+            if self._drawn is None:
+                return _Scored("early", best.policy, best.at, *self._score(best.policy), self._draw)
+            log.info("draw %d's window had not closed when training stopped: its candidate is not scored", self._draw)
+        return self._drawn
 
     def _chooses_margin(self, policy: Policy) -> bool:
         return self.config.law_margin is None and policy.formulation.actions.law is not None
@@ -329,7 +395,13 @@ class LearnerService:
                 **self.evaluator.to_meta(),
                 **({} if self.keeper is None else self.keeper.to_meta()),
                 **({} if self.early is None else {"early": self.early.to_meta()}),
-                "first_policy_at": self._first_policy_at,
+                "window_at": self._window_at,
+                "draws": {
+                    "draw": self._draw,
+                    "window_scored": self._window_scored,
+                    "scored": self.draws,
+                    "best": None if self._drawn is None else self._drawn.to_meta(),
+                },
                 **self.members.to_meta(),
                 "elapsed": self.elapsed(),
                 "resumes": self.resumes,
@@ -363,8 +435,9 @@ class LearnerService:
             early = meta.get("early")
             if self.early is not None and isinstance(early, dict):
                 self.early.restore(early, self._kept_file(EARLY_POLICY) if early.get("kept") else None)
-            first = meta.get("first_policy_at")
-            self._first_policy_at = None if first is None else float(first)
+            window = meta["window_at"]
+            self._window_at = None if window is None else float(window)
+            self._restore_draws(meta["draws"])
             self.members.restore(meta)
             self._elapsed_before = float(meta["elapsed"])
             self.resumes = list(meta["resumes"])
@@ -377,6 +450,14 @@ class LearnerService:
             len(self.intake),
             self.state.version,
         )
+
+    def _restore_draws(self, meta: dict[str, Any]) -> None:
+        self._draw = int(meta["draw"])
+        self._window_scored = bool(meta["window_scored"])
+        self.draws = list(meta["scored"])
+        best = meta["best"]
+        policy = None if best is None else self._kept_file(DRAWN_POLICY)
+        self._drawn = None if best is None or policy is None else _Scored.from_meta(best, policy)
 
     def _kept_file(self, name: str) -> Policy | None:
         try:
@@ -430,6 +511,7 @@ class LearnerService:
             margin=self.margin,
             policy=policy,
             candidates=self.candidates,
+            draws=self.draws,
         )
 
 
@@ -445,16 +527,47 @@ class _Scored:
     coverage: float
     """Its coverage on the margin's validation trials, read with ``margin`` when one was chosen."""
     margin: MarginChoice | None
+    draw: int | None = None
+    """An early candidate's draw."""
 
     def figures(self, chosen: bool) -> dict[str, Any]:
+        return {"source": self.source, **self.summary(), "chosen": chosen}
+
+    def summary(self) -> dict[str, Any]:
         return {
-            "source": self.source,
+            **({} if self.draw is None else {"draw": self.draw}),
             "version": self.policy.version,
             "at_s": round(self.at, 2),
             "validation_coverage": round(self.coverage, 3),
             **({} if self.margin is None else {"margin": self.margin.margin}),
-            "chosen": chosen,
         }
+
+    def to_meta(self) -> dict[str, Any]:
+        """What a checkpoint holds of it besides the policy (in its own file)."""
+        m = self.margin
+        choice = (
+            None
+            if m is None
+            else {"margin": m.margin, "scores": list(m.scores.items()), "trials": m.trials, "seed": m.seed}
+        )
+        return {"source": self.source, "at": self.at, "coverage": self.coverage, "margin": choice, "draw": self.draw}
+
+    @classmethod
+    def from_meta(cls, meta: dict[str, Any], policy: Policy) -> _Scored:
+        m = meta["margin"]
+        choice = None
+        if m is not None:
+            scores = {float(k): float(v) for k, v in m["scores"]}
+            choice = MarginChoice(float(m["margin"]), scores, int(m["trials"]), int(m["seed"]))
+        draw = meta["draw"]
+        return cls(
+            str(meta["source"]),
+            policy,
+            float(meta["at"]),
+            float(meta["coverage"]),
+            choice,
+            None if draw is None else int(draw),
+        )
 
 
 class _Checkpoints:
@@ -488,3 +601,7 @@ class _Checkpoints:
                     return
         except Exception as exc:  # raised again on the loop's thread by __exit__
             self.failure = exc
+
+
+def _prototypes(policy: Policy) -> float:
+    return round(float(policy.discretization.sizes().mean()), 1)

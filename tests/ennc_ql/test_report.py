@@ -357,9 +357,28 @@ def test_the_early_candidate_and_the_kept_policy_are_named_with_the_one_saved(tm
     assert "| **learned policy** | version 7, formulation shared-difference | **61.23** |" in text
     assert (
         "| kept or early | kept: version 31 of 338 s, 78.52 %; early: version 7 of 46 s, 78.99 % (saved), both "
-        "scored on the same validation trials at the end |" in text
+        "scored on the same validation trials |" in text
     )
     assert "kept or early" not in write_run_report({**run_report(tmp_path), "kept": KEPT}, tmp_path)[0].read_text()
+    assert "| draws |" not in text  # one draw: the row above says it all
+
+
+def test_the_draws_are_named_by_their_early_candidates_scores_with_the_best(tmp_path: Path) -> None:
+    draws = [
+        {"draw": d, "version": v, "at_s": a, "validation_coverage": c, "prototypes_per_action": 1700.0}
+        for d, v, a, c in [(0, 10, 38.3, 78.76), (1, 24, 83.2, 78.22), (2, 40, 134.6, 78.91), (3, 56, 185.6, 78.91)]
+    ]
+    candidates = [
+        {"source": "kept", "version": 105, "at_s": 346.5, "validation_coverage": 78.42, "chosen": False},
+        {"source": "early", "draw": 2, "version": 40, "at_s": 134.6, "validation_coverage": 78.91, "chosen": True},
+    ]
+    report = {**run_report(tmp_path), "kept": KEPT, "candidates": candidates, "draws": draws}
+    text = write_run_report(report, tmp_path)[0].read_text()
+    assert "; early of draw 2: version 40 of 135 s, 78.91 % (saved), both scored" in text
+    assert (
+        "| draws | 4 draws of phase 1 on the first fit's tuples, each one's early candidate on the validation trials: "
+        "0: 78.76 %, 1: 78.22 %, 2: 78.91 %, 3: 78.91 % (the best: draw 2) |" in text
+    )
 
 
 def test_the_law_margin_is_given_with_every_margin_s_validation_score(tmp_path: Path) -> None:

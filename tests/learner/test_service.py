@@ -228,6 +228,7 @@ def test_refits_warm_start_and_carry_q_values_over(tmp_path: Path) -> None:
     config = LearnerConfig(
         min_tuples=6000,
         refit_growth=2.0,
+        draws=1,
         phase1=Phase1Config(max_iterations=1, n_cycles=15, max_patterns=600),
         broadcast_interval=0.3,
         eval_interval=1000.0,
@@ -441,7 +442,7 @@ def test_an_early_candidate_that_scores_more_on_validation_trials_is_saved_and_r
         resumed = LearnerService(t, config, tmp_path, resume=True)
     assert resumed.early is not None and resumed.early.best is not None
     assert resumed.early.best.policy.version == 2 and int(np.argmax(resumed.early.best.policy.tables[0])) == good
-    assert resumed._first_policy_at == service._first_policy_at is not None
+    assert resumed._window_at == service._window_at is not None
 
 
 def test_the_early_candidate_is_scored_once_its_window_closes_so_the_wind_down_scores_only_the_kept_policy(
@@ -474,7 +475,7 @@ def test_the_early_candidate_is_scored_once_its_window_closes_so_the_wind_down_s
 
         service._score = counted  # type: ignore[method-assign]
         service._offer_early()  # the window has closed: version 3 is not offered, the early candidate is scored
-        assert scored == [2] and service._early_scored is not None
+        assert scored == [2] and service._drawn is not None and service._drawn.policy.version == 2
         service._offer_early()
         assert scored == [2]  # once
         service._evaluate()
