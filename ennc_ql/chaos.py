@@ -115,9 +115,9 @@ HELP = CommandHelp(
     "poisoned batch, batches spoofing another actor, a peer without a password, a peer with another CA's "
     "certificate, a 160 MiB message, and (in network namespaces it creates, as root) a partition, delay and loss "
     "on an actor's link. It then checks the reliability contract from the figures of different "
-    "processes (exactly-once storage, every acknowledged visit in the final tables, versions strictly increasing "
-    "across restarts, the poisoned stream flowing on, nothing stored from hostile peers, bounded memory), prints "
-    "them and exits 1 if a check fails. RUN/chaos.json holds what --json prints.",
+    "processes (exactly-once storage, every acknowledged visit in the final tables or counted as dropped, versions "
+    "strictly increasing across restarts, the poisoned stream flowing on, nothing stored from hostile peers, bounded "
+    "memory), prints them and exits 1 if a check fails. RUN/chaos.json holds what --json prints.",
     (
         ("ennc-ql chaos", "120 s, secure, every fault, one every 20 s"),
         ("ennc-ql chaos --no-secure --duration 90", "plain TCP (the two TLS faults do not apply)"),
