@@ -161,4 +161,4 @@ class Fitter:
     def restore(self, meta: dict[str, Any]) -> None:
         self.fits = int(meta["fits"])
         self._fitted_at = int(meta["fitted_at"])
-        self.fit_s = float(meta.get("fit_s", 0.0))
+        self.fit_s = float(meta.get("fit_s", 0.0))  # none in checkpoints written before the draws

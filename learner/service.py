@@ -435,9 +435,10 @@ class LearnerService:
             early = meta.get("early")
             if self.early is not None and isinstance(early, dict):
                 self.early.restore(early, self._kept_file(EARLY_POLICY) if early.get("kept") else None)
-            window = meta["window_at"]
+            # A checkpoint written before the draws names the window's start first_policy_at and holds no draws.
+            window = meta.get("window_at", meta.get("first_policy_at"))
             self._window_at = None if window is None else float(window)
-            self._restore_draws(meta["draws"])
+            self._restore_draws(meta.get("draws", {"draw": 0, "window_scored": False, "scored": [], "best": None}))
             self.members.restore(meta)
             self._elapsed_before = float(meta["elapsed"])
             self.resumes = list(meta["resumes"])

@@ -307,3 +307,24 @@ def test_a_learner_with_actors_runs_its_draws_each_on_new_cells_of_the_first_fit
         report.candidates
         and report.candidates[1]["draw"] == max(report.draws, key=lambda d: d["validation_coverage"])["draw"]
     )
+
+
+def test_a_checkpoint_written_before_the_draws_resumes_as_its_first_draw(tmp_path: Path) -> None:
+    from learner.checkpoint import Checkpointer
+
+    config = dataclasses.replace(FAST, validation_trials=3, law_margin=0.0, early_window=30.0)
+    with InMemoryTransport(InMemoryBus()) as t:
+        service = LearnerService(t, config, tmp_path)
+        service._adopt(one_cell_per_action(DIM))
+        service.checkpoint()
+    checkpointer = Checkpointer(tmp_path)
+    arrays, meta = checkpointer.load()
+    meta["first_policy_at"] = meta.pop("window_at")
+    del meta["draws"], meta["fit_s"]
+    arrays.pop("dropped_visits")
+    checkpointer.save(arrays, meta)
+    with InMemoryTransport(InMemoryBus()) as t:
+        resumed = LearnerService(t, config, tmp_path, resume=True)
+    assert resumed._window_at == service._window_at is not None
+    assert resumed._draw == 0 and not resumed._window_scored and resumed._drawn is None and resumed.draws == []
+    assert resumed.state.dropped_visits == 0 and resumed.fitter.fit_s == 0.0
