@@ -9,12 +9,17 @@ from collections.abc import Callable
 
 import numpy as np
 
+from actors.actor import RobotActor
+from actors.config import ActorConfig
+from actors.wiring import connect as connect_actor
 from algorithm.discretization import Discretization
 from algorithm.experiments import Budget
 from algorithm.phase1 import Phase1Config
 from algorithm.policy import Policy
 from learner.report import LearnerReport
 from learner.service import LearnerService
+from learner.wiring import connect as connect_learner
+from protocol import Transport
 from sim import FORMULATIONS, Formulation, ScenarioConfig, TrialState, WorldState, sense
 from sim.recall import forget_all, view_of
 
@@ -107,3 +112,22 @@ def run_until(service: LearnerService, condition: Callable[[], bool]) -> Learner
     finally:
         done.set()
         watcher.join()
+
+
+def run_with_actor(
+    service: LearnerService, learner: Transport, actor: Transport, condition: Callable[[], bool]
+) -> LearnerReport:
+    """``service`` on ``learner`` with one actor of 16 arenas on ``actor`` (a transport of the same bus), until
+    ``condition()`` holds (:func:`run_until`); the actor is stopped and every subscription closed."""
+    handles = connect_learner(service, learner)
+    robot = RobotActor(actor, ActorConfig(actor_id="a0", arenas=16, batch_size=256, flush_timeout=0.5))
+    handles.enter_context(connect_actor(robot, actor))
+    stop = threading.Event()
+    thread = threading.Thread(target=robot.run, args=(stop,))
+    thread.start()
+    try:
+        return run_until(service, condition)
+    finally:
+        stop.set()
+        thread.join()
+        handles.close()  # the ExitStack connect returned: every handle, in reverse order

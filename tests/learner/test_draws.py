@@ -12,9 +12,6 @@ from typing import Any
 import numpy as np
 import pytest
 
-from actors.actor import RobotActor
-from actors.config import ActorConfig
-from actors.wiring import connect as connect_actor
 from algorithm import phase1 as phase1_module
 from algorithm.phase1 import Phase1Config
 from algorithm.policy_file import load_policy
@@ -24,10 +21,9 @@ from learner.config import LearnerConfig
 from learner.fitting import EXPLORATION, Fitter
 from learner.policy_state import PolicyState
 from learner.service import DRAWN_POLICY, LearnerService
-from learner.wiring import connect as connect_learner
-from protocol import InMemoryBus, InMemoryTransport, PolicyUpdate
+from protocol import InMemoryBus, InMemoryTransport
 from tests.algorithm.test_selection import constant, validation
-from tests.fakes import run_until
+from tests.fakes import run_with_actor
 from tests.learner.test_service import DIM, FAST, PAPER, increment, one_cell_per_action
 
 
@@ -284,20 +280,9 @@ def test_a_learner_with_actors_runs_its_draws_each_on_new_cells_of_the_first_fit
         draws=3,
     )
     bus = InMemoryBus()
-    cells: list[int] = []
-    with InMemoryTransport(bus) as lt, InMemoryTransport(bus) as at, InMemoryTransport(bus) as watcher:
-        watcher.subscribe(watcher.keys.policy(), PolicyUpdate, lambda u: cells.append(u.n_prototypes))
+    with InMemoryTransport(bus) as lt, InMemoryTransport(bus) as at:
         service = LearnerService(lt, config, tmp_path)
-        handles = connect_learner(service, lt)
-        actor = RobotActor(at, ActorConfig(actor_id="a0", arenas=16, batch_size=256, flush_timeout=0.5))
-        handles.enter_context(connect_actor(actor, at))
-        stop = threading.Event()
-        thread = threading.Thread(target=actor.run, args=(stop,))
-        thread.start()
-        report = run_until(service, lambda: len(service.draws) >= 3)
-        stop.set()
-        thread.join()
-        handles.close()
+        report = run_with_actor(service, lt, at, lambda: len(service.draws) >= 3)
     assert [d["draw"] for d in report.draws] == [0, 1, 2] and report.phase1_fits == 3
     assert len(set(fitted)) == 1  # every draw on the first fit's tuples, though the store grew meanwhile
     assert (tmp_path / EXPLORATION).exists()

@@ -24,7 +24,7 @@ from learner.wiring import connect as connect_learner
 from protocol import ExperienceBatch, InMemoryBus, InMemoryTransport, PolicyUpdate, QTableIncrement, Reject
 from sim import evaluate
 from sim.formulation import DEFAULT_FORMULATION, FORMULATIONS
-from tests.fakes import run_until
+from tests.fakes import run_until, run_with_actor
 
 FAST = LearnerConfig(
     min_tuples=8000,
@@ -242,16 +242,7 @@ def test_refits_warm_start_and_carry_q_values_over(tmp_path: Path) -> None:
     with InMemoryTransport(bus) as lt, InMemoryTransport(bus) as at, InMemoryTransport(bus) as watcher:
         watcher.subscribe(watcher.keys.policy(), PolicyUpdate, lambda u: prototypes_seen.append(u.n_prototypes))
         service = LearnerService(lt, config, tmp_path)
-        handles = connect_learner(service, lt)
-        actor = RobotActor(at, ActorConfig(actor_id="a0", arenas=16, batch_size=256, flush_timeout=0.5))
-        handles.enter_context(connect_actor(actor, at))
-        stop = threading.Event()
-        thread = threading.Thread(target=actor.run, args=(stop,))
-        thread.start()
-        report = run_until(service, lambda: service.fitter.fits >= 2 and len(set(prototypes_seen)) >= 2)
-        stop.set()
-        thread.join()
-        handles.close()  # the ExitStack connect returned: every handle, in reverse order
+        report = run_with_actor(service, lt, at, lambda: service.fitter.fits >= 2 and len(set(prototypes_seen)) >= 2)
     assert report.phase1_fits >= 2  # refitted as the data grew
     assert len(set(prototypes_seen)) >= 2  # broadcasts carried the new discretization
     policy = service.state.policy()
