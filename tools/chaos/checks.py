@@ -134,7 +134,11 @@ def check_visits(ev: Evidence, visits: dict[str, Any]) -> Check:
         ok, relation = in_tables >= acked + killed, f">= {acked} + {killed} acked to killed incarnations"
     else:
         ok, relation = in_tables == acked, f"== {acked} acknowledged"
-    return Check(name, ok and acked > 0, f"{in_tables} visits in the final tables or dropped as stale {relation}")
+    return Check(
+        name,
+        ok and acked > 0,
+        f"{in_tables} visits in the final tables or dropped (stale increments, tables a draw replaced) {relation}",
+    )
 
 
 def check_versions(ev: Evidence) -> Check:
