@@ -55,6 +55,9 @@ EARLY_POLICY = "early-policy.npz"
 """The same for the early candidate (``early_window``) of the draw under way."""
 DRAWN_POLICY = "drawn-policy.npz"
 """The same for the early candidate that scored best on the margin's validation trials over the draws so far."""
+DRAWS = "draws"
+"""The run folder's folder of every closed window's early candidate, ``draw-<k>.npz``, read with its margin, so that
+a user can score each draw's candidate as the learner chose it, not only the best."""
 
 
 class LearnerService:
@@ -285,6 +288,9 @@ class LearnerService:
             if scored is None:
                 return
             self.draws.append(scored.summary() | {"prototypes_per_action": _prototypes(scored.policy)})
+            save_policy(
+                self._read(scored.policy, scored.margin), self.scenario, self.run_dir / DRAWS / f"draw-{self._draw}.npz"
+            )
             if self._drawn is None or scored.coverage > self._drawn.coverage:  # the earlier draw on a tie
                 save_policy(scored.policy, self.scenario, self.run_dir / DRAWN_POLICY)
                 self._drawn = scored
@@ -317,10 +323,14 @@ class LearnerService:
         """The policy the run saves and scores: the one chosen at the end, else the best on the validation trials
         with ``keep_best``, else the last; read with the law margin (a law action set's)."""
         policy = self._selected if self._selected is not None else self._kept_or_last()
-        if policy is None or policy.formulation.actions.law is None:
+        return None if policy is None else self._read(policy, self.margin)
+
+    def _read(self, policy: Policy, margin: MarginChoice | None) -> Policy:
+        """``policy`` as it is scored: a law action set's read with the margin chosen, else with ``law_margin``."""
+        if policy.formulation.actions.law is None:
             return policy
-        margin = self.config.law_margin if self.margin is None else self.margin.margin
-        return policy if margin is None else dataclasses.replace(policy, law_margin=margin)
+        chosen = self.config.law_margin if margin is None else margin.margin
+        return policy if chosen is None else dataclasses.replace(policy, law_margin=chosen)
 
     def _select(self) -> None:
         """The policy the run saves: the kept one (or the last), or the early candidate where that scores more on
@@ -365,9 +375,7 @@ class LearnerService:
             margin = choose_margin(self.scenario, policy, trials, self.config.eval_steps)
             log.info("law margin %g: %s", margin.margin, ", ".join(f"{m:g} {c:.2f}%" for m, c in margin.scores.items()))
             return margin.scores[margin.margin], margin
-        if policy.formulation.actions.law is not None and self.config.law_margin is not None:
-            policy = dataclasses.replace(policy, law_margin=self.config.law_margin)
-        controller = PolicyController(policy)
+        controller = PolicyController(self._read(policy, None))
         result = evaluate(self.scenario, controller, trials, self.config.eval_steps, seed=VALIDATION_SEED)
         log.info("policy version %d: %.2f%% on %d validation trials", policy.version, result.coverage_mean, trials)
         return result.coverage_mean, None

@@ -20,7 +20,7 @@ from learner.checkpoint import kept_visits
 from learner.config import LearnerConfig
 from learner.fitting import EXPLORATION, Fitter
 from learner.policy_state import PolicyState
-from learner.service import DRAWN_POLICY, LearnerService
+from learner.service import DRAWN_POLICY, DRAWS, LearnerService
 from protocol import InMemoryBus, InMemoryTransport
 from tests.algorithm.test_selection import constant, validation
 from tests.fakes import run_with_actor
@@ -162,6 +162,12 @@ def test_each_closed_window_is_scored_the_best_draw_is_saved_and_resumed_and_a_l
     ]
     saved, _ = load_policy(tmp_path / "policy.npz")
     assert saved.version == 3 and int(np.argmax(saved.tables[0])) == good
+    # Every closed window's candidate is kept as scored (with the run's margin), the open one's is not.
+    assert sorted(p.name for p in (tmp_path / DRAWS).iterdir()) == ["draw-0.npz", "draw-1.npz"]
+    for index, (version, action) in enumerate([(2, bad), (3, good)]):
+        candidate, _ = load_policy(tmp_path / DRAWS / f"draw-{index}.npz")
+        assert candidate.version == version and int(np.argmax(candidate.tables[0])) == action
+        assert candidate.law_margin == 0.0
     # A resumed learner has the best draw as scored (not scored again), and the draw under way with its window.
     with InMemoryTransport(InMemoryBus()) as t:
         resumed = LearnerService(t, config, tmp_path, resume=True)
