@@ -80,6 +80,15 @@ class LearnerConfig:
     best, or with ``law_margin``), the kept policy at the end of the run, and the better is saved. Phase 2's first
     seconds can hold tables that more experience loses [beyond the paper, docs/learning-quality.md "Twentieth
     round"]. 0: no early candidate."""
+    early_trials: int = 150
+    """Validation trials on which each version of an early window is scored: 30 told ten versions apart by little
+    more than noise (a version's 30-trial scores spread over 2–3 points within one window) [choice,
+    docs/learning-quality.md "Twenty-third round"]."""
+    early_margin: float = 0.5
+    """With a law action set: the law margin with which an early window's versions are read when they are scored,
+    so that they are ranked as they will be read; the candidate's own margin is chosen once its window closes. 0.5
+    read the forty-five candidates of the twenty-third round's runs best on average on the validation trials
+    [choice, docs/learning-quality.md "Twenty-third round"]."""
     draws: int = 8
     """With ``keep_best`` and ``early_window``: independent draws of phase 1. When a draw's early window has closed
     and its candidate is scored, phase 1 runs afresh (a new seed, no warm start) on the first fit's tuples, the
@@ -126,6 +135,7 @@ class LearnerConfig:
             eval_trials=self.eval_trials,
             final_eval_trials=self.final_eval_trials,
             validation_trials=self.validation_trials,
+            early_trials=self.early_trials,
             margin_trials=self.margin_trials,
             eval_steps=self.eval_steps,
         )
@@ -145,6 +155,8 @@ class LearnerConfig:
             )
         if not (math.isfinite(self.early_window) and self.early_window >= 0):
             raise ValueError(f"early_window must be a finite number of seconds >= 0, got {self.early_window}")
+        if not (math.isfinite(self.early_margin) and self.early_margin >= 0):
+            raise ValueError(f"early_margin must be a finite number >= 0, got {self.early_margin}")
         if self.law_margin is not None and not (math.isfinite(self.law_margin) and self.law_margin >= 0):
             raise ValueError(f"law_margin must be none or a finite number >= 0, got {self.law_margin}")
         if self.refit_growth != 0 and not self.refit_growth > 1:

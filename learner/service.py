@@ -95,7 +95,7 @@ class LearnerService:
             self.keeper = BestPolicy(self.scenario, config.validation_trials, config.eval_steps)
         self.early = None
         if config.keep_best and config.early_window > 0:
-            self.early = BestPolicy(self.scenario, config.validation_trials, config.eval_steps)
+            self.early = BestPolicy(self.scenario, config.early_trials, config.eval_steps)
         self._window_at: float | None = None
         """The run clock at the first policy of the draw under way: where its early window starts."""
         self._early_version = 0
@@ -217,7 +217,7 @@ class LearnerService:
                     self._draw += 1
                     self._window_scored = False
                     self._early_version = 0
-                    self.early = BestPolicy(self.scenario, self.config.validation_trials, self.config.eval_steps)
+                    self.early = BestPolicy(self.scenario, self.config.early_trials, self.config.eval_steps)
                     log.info("draw %d adopted: %.1f prototypes per action", self._draw, disc.sizes().mean())
         self.checkpoint()
         self._broadcast()
@@ -271,7 +271,10 @@ class LearnerService:
             if policy is None or policy.version == self._early_version:
                 return
             self._early_version = policy.version
-            validation = self.early.score(policy)
+            law = policy.formulation.actions.law is not None
+            validation = self.early.score(
+                dataclasses.replace(policy, law_margin=self.config.early_margin) if law else policy
+            )
             with self._checkpoint_lock:
                 if self.early.keep(policy, validation, at):
                     save_policy(policy, self.scenario, self.run_dir / EARLY_POLICY)

@@ -181,6 +181,34 @@ def test_each_closed_window_is_scored_the_best_draw_is_saved_and_resumed_and_a_l
     assert forgot._drawn is None and forgot._draw == 2
 
 
+def test_an_early_window_ranks_its_versions_on_early_trials_read_with_early_margin(tmp_path: Path) -> None:
+    config = dataclasses.replace(
+        FAST, validation_trials=3, early_trials=4, early_margin=0.3, law_margin=0.0, early_window=30.0, duration=200.0
+    )
+    clock, current = [0.0], [constant(0, version=2)]
+    seen: list[tuple[int, float, int]] = []
+    with InMemoryTransport(InMemoryBus()) as t:
+        service = LearnerService(t, config, tmp_path)
+        service.elapsed = lambda: clock[0]  # type: ignore[method-assign]
+        service._adopt(one_cell_per_action(DIM))
+        service.state.policy = lambda: current[0]  # type: ignore[method-assign]
+        early = service.early
+        assert early is not None
+        score = early.score
+        early.score = lambda p: (seen.append((early.trials, p.law_margin, p.version)), score(p))[1]  # type: ignore[method-assign]
+        for at, version in ((10.0, 2), (13.0, 3)):
+            clock[0], current[0] = at, constant(version, version=version)
+            service._offer_early()
+    assert seen == [(4, 0.3, 2), (4, 0.3, 3)]
+    # The window keeps the version as published: its own margin is chosen once the window closes.
+    assert service.early.best is not None and service.early.best.policy.law_margin == 0.0
+
+
+def test_a_negative_early_margin_is_refused() -> None:
+    with pytest.raises(ValueError, match="early_margin must be a finite number >= 0"):
+        LearnerConfig(early_margin=-0.1)
+
+
 def test_no_draw_starts_whose_window_could_not_close_before_the_duration_and_a_late_fit_is_not_adopted(
     tmp_path: Path,
 ) -> None:
