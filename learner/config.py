@@ -85,8 +85,9 @@ class LearnerConfig:
     more than noise (a version's 30-trial scores spread over 2–3 points within one window) [choice,
     docs/learning-quality.md "Twenty-third round"]."""
     early_margin: float = 0.5
-    """With a law action set: the law margin with which an early window's versions are read when they are scored,
-    so that they are ranked as they will be read; the candidate's own margin is chosen once its window closes. 0.5
+    """With a law action set whose margin the run chooses (``law_margin`` none): the law margin with which an early
+    window's versions are read when they are scored, so that they are ranked about as they will be read; the
+    candidate's own margin is chosen once its window closes (a ``law_margin`` given reads them with that one). 0.5
     read the forty-five candidates of the twenty-third round's runs best on average on the validation trials
     [choice, docs/learning-quality.md "Twenty-third round"]."""
     draws: int = 8

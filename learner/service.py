@@ -271,10 +271,7 @@ class LearnerService:
             if policy is None or policy.version == self._early_version:
                 return
             self._early_version = policy.version
-            law = policy.formulation.actions.law is not None
-            validation = self.early.score(
-                dataclasses.replace(policy, law_margin=self.config.early_margin) if law else policy
-            )
+            validation = self.early.score(self._read(policy, None, self.config.early_margin))
             with self._checkpoint_lock:
                 if self.early.keep(policy, validation, at):
                     save_policy(policy, self.scenario, self.run_dir / EARLY_POLICY)
@@ -328,11 +325,13 @@ class LearnerService:
         policy = self._selected if self._selected is not None else self._kept_or_last()
         return None if policy is None else self._read(policy, self.margin)
 
-    def _read(self, policy: Policy, margin: MarginChoice | None) -> Policy:
-        """``policy`` as it is scored: a law action set's read with the margin chosen, else with ``law_margin``."""
+    def _read(self, policy: Policy, margin: MarginChoice | None, unchosen: float | None = None) -> Policy:
+        """``policy`` as it is scored: a law action set's read with the margin chosen, else with ``law_margin``, else
+        (none given) with ``unchosen``."""
         if policy.formulation.actions.law is None:
             return policy
         chosen = self.config.law_margin if margin is None else margin.margin
+        chosen = unchosen if chosen is None else chosen
         return policy if chosen is None else dataclasses.replace(policy, law_margin=chosen)
 
     def _select(self) -> None:

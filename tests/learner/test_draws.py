@@ -181,9 +181,20 @@ def test_each_closed_window_is_scored_the_best_draw_is_saved_and_resumed_and_a_l
     assert forgot._drawn is None and forgot._draw == 2
 
 
-def test_an_early_window_ranks_its_versions_on_early_trials_read_with_early_margin(tmp_path: Path) -> None:
+@pytest.mark.parametrize(("law_margin", "read_with"), [(None, 0.3), (1.0, 1.0)])
+def test_an_early_window_ranks_its_versions_on_early_trials_read_as_they_will_be(
+    tmp_path: Path, law_margin: float | None, read_with: float
+) -> None:
+    """With the margin chosen at the window's close, the versions are read with ``early_margin``; with one given,
+    with that one."""
     config = dataclasses.replace(
-        FAST, validation_trials=3, early_trials=4, early_margin=0.3, law_margin=0.0, early_window=30.0, duration=200.0
+        FAST,
+        validation_trials=3,
+        early_trials=4,
+        early_margin=0.3,
+        law_margin=law_margin,
+        early_window=30.0,
+        duration=200.0,
     )
     clock, current = [0.0], [constant(0, version=2)]
     seen: list[tuple[int, float, int]] = []
@@ -199,7 +210,7 @@ def test_an_early_window_ranks_its_versions_on_early_trials_read_with_early_marg
         for at, version in ((10.0, 2), (13.0, 3)):
             clock[0], current[0] = at, constant(version, version=version)
             service._offer_early()
-    assert seen == [(4, 0.3, 2), (4, 0.3, 3)]
+    assert seen == [(4, read_with, 2), (4, read_with, 3)]
     # The window keeps the version as published: its own margin is chosen once the window closes.
     assert service.early.best is not None and service.early.best.policy.law_margin == 0.0
 
