@@ -73,13 +73,15 @@ class LearnerConfig:
     either way. Off: the last policy."""
     validation_trials: int = 30
     """Validation trials of each periodic evaluation when ``keep_best`` (the same trials every time)."""
-    early_window: float = 30.0
+    early_window: float = 10.0
     """With ``keep_best``: every policy version published within this many seconds of the first is scored on the
     validation trials, and the best of them is a second candidate beside the kept policy. It is scored on
     ``margin_trials`` validation trials when the window closes (a law action set's read with the margin that scores
     best, or with ``law_margin``), the kept policy at the end of the run, and the better is saved. Phase 2's first
     seconds can hold tables that more experience loses [beyond the paper, docs/learning-quality.md "Twentieth
-    round"]. 0: no early candidate."""
+    round"]. 10 s: a draw's tables are made by its second version, about 3 s into phase 2, and the later versions
+    of a 30-s window differed by the noise of their scores only, so a shorter window leaves time for more draws
+    [choice, docs/learning-quality.md "Twenty-fourth round"]. 0: no early candidate."""
     early_trials: int = 150
     """Validation trials on which each version of an early window is scored: 30 told ten versions apart by little
     more than noise (a version's 30-trial scores spread over 2–3 points within one window) [choice,
@@ -90,15 +92,17 @@ class LearnerConfig:
     candidate's own margin is chosen once its window closes (a ``law_margin`` given reads them with that one). 0.5
     read the forty-five candidates of the twenty-third round's runs best on average on the validation trials
     [choice, docs/learning-quality.md "Twenty-third round"]."""
-    draws: int = 8
+    draws: int = 24
     """With ``keep_best`` and ``early_window``: independent draws of phase 1. When a draw's early window has closed
     and its candidate is scored, phase 1 runs afresh (a new seed, no warm start) on the first fit's tuples, the
     exploration before any policy (kept in the run folder's ``exploration.npz``), and the actors start again from
     its cells, with tables from its labels; each draw has its own early window, and the early candidate that scores
     best on ``margin_trials`` validation trials over the draws is the one beside the kept policy at the end. A draw
     starts only when its window can close before ``duration`` (judged by the last fit's seconds), so a short run
-    makes fewer. Runs differ by a point from one phase-1 draw to the next, and the validation trials tell the better
-    ones [beyond the paper, docs/learning-quality.md "Twenty-second round"]. 1: the first fit only."""
+    makes fewer (an 8-minute run on a 2-core machine makes 13, about 37 s each). Runs differ by a point from one
+    phase-1 draw to the next, and the validation trials tell the better ones [beyond the paper,
+    docs/learning-quality.md "Twenty-second round"]; 24 bounds a long run's draws, after which phase 2 goes on in
+    the last draw's cells [choice]. 1: the first fit only."""
     law_margin: float | None = None
     """With a law action set (the default formulation's): the saved and scored policy departs from the move law
     only where another move's value beats law's by more than this (0: the plain argmax); none: the margin of
