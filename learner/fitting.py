@@ -7,7 +7,7 @@ Usage (``poll`` and ``draw`` from the learner's loop; ``on_fitted`` runs on the 
     fitter = Fitter(config, on_fitted=adopt, exploration=run_dir / EXPLORATION)
     fitter.poll(intake, state.discretization)      # starts a fit when one is due and none is running
     fitter.draw(1)                                 # phase 1 afresh on the first fit's tuples: adopt(disc, fresh=True)
-    fitter.join()                                  # at the end: a fit under way finishes (a draw is left behind)
+    fitter.join()                                  # at the end: a fit under way finishes (a draw is stopped)
     fitter.fits, fitter.fit_s                      # fits done, seconds the last one took
     meta = fitter.to_meta(); fitter.restore(meta)  # for a checkpoint
 """
@@ -40,6 +40,10 @@ EXPLORATION = "exploration.npz"
 """The run folder's copy of the first fit's tuples, which every later draw fits on (``draws`` > 1)."""
 
 
+class _DrawStopped(Exception):
+    """Raised inside phase 1 on a draw's thread once the learner stops."""
+
+
 class Fitter:
     def __init__(
         self,
@@ -59,6 +63,8 @@ class Fitter:
         self._rng = np.random.default_rng(config.seed)
         self._thread: threading.Thread | None = None
         self._drawing = False
+        self._stop_draw = threading.Event()
+        """Set at the end: a draw under way stops at its next action's fit."""
         self._tuples: Transitions | None = None
         self._lost = False
         """The first fit's tuples could not be read back: no more draws (warned once)."""
@@ -106,6 +112,7 @@ class Fitter:
         else:  # a resumed learner draws the same draw with the same seed
             seed = int(np.random.default_rng([self.config.seed, draw]).integers(2**31))
         self._drawing = draw is not None
+        self._stop_draw.clear()
         self._thread = threading.Thread(target=self._fit, args=(take, warm_start, seed), name="phase1", daemon=True)
         self._thread.start()
 
@@ -116,15 +123,20 @@ class Fitter:
         began = time.monotonic()
         cfg = scenario(self.config.scenario)
         lost = self.config.resolved.featurizer.sees_none(cfg, data.next_state)
-        disc = phase1(
-            data,
-            N_ACTIONS,
-            self.config.phase1,
-            seed=seed,
-            warm_start=warm_start,
-            lost=lost,
-            lost_reward=cfg.lost_reward,
-        ).discretization
+        try:
+            disc = phase1(
+                data,
+                N_ACTIONS,
+                self.config.phase1,
+                seed=seed,
+                warm_start=warm_start,
+                progress=self._check_stop,
+                lost=lost,
+                lost_reward=cfg.lost_reward,
+            ).discretization
+        except _DrawStopped:
+            log.info("the draw under way stopped after %.1f s of phase 1", time.monotonic() - began)
+            return
         self.fits += 1
         self.fit_s = time.monotonic() - began
         log.info(
@@ -134,6 +146,10 @@ class Fitter:
             disc.size,
         )
         self.on_fitted(disc, self._drawing)
+
+    def _check_stop(self, iteration: int, action: int) -> None:
+        if self._drawing and self._stop_draw.is_set():
+            raise _DrawStopped
 
     def _load(self) -> Transitions | None:
         if self.exploration is None or not self.exploration.exists():
@@ -147,12 +163,13 @@ class Fitter:
             return None
 
     def join(self) -> None:
-        """Wait for a fit under way, but not for a draw: its tables would start afresh with no time left to learn."""
+        """Wait for a fit under way; a draw's is stopped first (its tables would start afresh with no time left to
+        learn), so that it gives the cores back to the end's scoring within one action's fit."""
         if self._thread is None:
             return
         if self._drawing and self._thread.is_alive():
-            log.info("a draw under way is left behind")
-            return
+            log.info("a draw under way is stopped")
+            self._stop_draw.set()
         self._thread.join()
 
     def to_meta(self) -> dict[str, Any]:

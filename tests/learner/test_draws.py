@@ -301,6 +301,39 @@ def test_every_draw_fits_the_first_fits_tuples_with_its_own_seed_also_after_a_re
 
 
 @pytest.mark.slow
+def test_the_end_stops_a_draw_under_way_at_its_next_actions_fit_but_lets_a_first_fit_finish(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    real = phase1_module.phase1
+    inside, calls = threading.Event(), [0]
+
+    def endless(data: Any, *args: Any, progress: Any, **kwargs: Any) -> Any:
+        """A draw's phase 1 that only ends when a progress call raises (it gives up after 10^5 calls)."""
+        inside.set()
+        for _ in range(100_000):
+            calls[0] += 1
+            progress(1, calls[0] % 8)
+            threading.Event().wait(0.001)
+        return real(data, *args, progress=progress, **kwargs)
+
+    config = dataclasses.replace(FAST, min_tuples=2000, draws=3)
+    adopted: list[bool] = []
+    fitter = Fitter(config, lambda disc, draw: adopted.append(draw), exploration=tmp_path / EXPLORATION)
+    fitter.poll(_Intake(2500), None)  # type: ignore[arg-type]
+    fitter.join()  # the first fit is not a draw: it finishes and is adopted
+    assert adopted == [False] and fitter.fits == 1
+    monkeypatch.setattr("learner.fitting.phase1", endless)
+    assert fitter.draw(1)
+    assert inside.wait(60)
+    with caplog.at_level(logging.INFO, logger="learner.fitting"):
+        fitter.join()
+    assert not fitter.busy and adopted == [False] and fitter.fits == 1
+    assert 0 < calls[0] < 100_000
+    messages = [r.getMessage() for r in caplog.records]
+    assert "a draw under way is stopped" in messages
+    assert any(m.startswith("the draw under way stopped after") for m in messages)
+
+
 def test_a_learner_with_actors_runs_its_draws_each_on_new_cells_of_the_first_fits_tuples(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
