@@ -21,6 +21,7 @@ margins differ by tenths of a point), never on the reported ones::
 from __future__ import annotations
 
 import dataclasses
+import threading
 from dataclasses import dataclass
 from typing import Any
 
@@ -36,6 +37,10 @@ LAW_MARGINS = (0.0, 0.1, 0.2, 0.3, 0.5, 1.0, 2.0)
 """The margins :func:`choose_margin` tries: 0 is the plain argmax; at 2 the tables of every policy measured departed
 from ``law`` in under 1 % of the decisions, so the policy is nearly the law itself (docs/learning-quality.md,
 "Eighteenth round") [choice]."""
+
+
+class ScoringStopped(Exception):
+    """A margin choice given up because its ``stop`` was set."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -55,17 +60,18 @@ def choose_margin(
     steps: int,
     margins: tuple[float, ...] = LAW_MARGINS,
     seed: int = VALIDATION_SEED,
+    stop: threading.Event | None = None,
 ) -> MarginChoice:
     """The ``law_margin`` among ``margins`` with which ``policy`` (a law action set's) scores best on the validation
-    trials, every margin on the same trials."""
+    trials, every margin on the same trials. ScoringStopped once ``stop`` is set, checked before each margin."""
     if policy.formulation.actions.law is None:
         raise ValueError(f"a law margin needs a law action set, not {policy.formulation.actions.name!r}")
-    scores = {
-        m: evaluate(
-            cfg, PolicyController(dataclasses.replace(policy, law_margin=m)), trials, steps, seed=seed
-        ).coverage_mean
-        for m in margins
-    }
+    scores = {}
+    for m in margins:
+        if stop is not None and stop.is_set():
+            raise ScoringStopped
+        controller = PolicyController(dataclasses.replace(policy, law_margin=m))
+        scores[m] = evaluate(cfg, controller, trials, steps, seed=seed).coverage_mean
     best = max(scores.values())
     return MarginChoice(min(m for m, c in scores.items() if c == best), scores, trials, seed)
 

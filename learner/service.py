@@ -33,7 +33,7 @@ from algorithm.discretization import Discretization
 from algorithm.phase1 import estimator
 from algorithm.policy import Policy, PolicyController
 from algorithm.policy_file import PolicyFileError, load_policy, save_policy
-from algorithm.selection import VALIDATION_SEED, BestPolicy, MarginChoice, choose_margin
+from algorithm.selection import VALIDATION_SEED, BestPolicy, MarginChoice, ScoringStopped, choose_margin
 from learner.checkpoint import Checkpointer, CheckpointError, VersionMark
 from learner.config import LearnerConfig
 from learner.evaluator import Evaluator
@@ -130,6 +130,8 @@ class LearnerService:
         self._broadcast_lock = threading.Lock()
         self._elapsed_before = 0.0
         self._started = time.monotonic()
+        self._stop = threading.Event()
+        """The run's stop (:meth:`run`'s): a window's scoring gives up and no draw starts once it is set."""
         self._stopped_at: float | None = None
         """The run clock when training stopped: the wind-down (a fit finishing, the final evaluation) is no training,
         and a stopped run resumed must train for what was left when it stopped."""
@@ -176,6 +178,7 @@ class LearnerService:
 
     def run(self, stop: threading.Event) -> LearnerReport:
         c = self.config
+        self._stop = stop
         self._started = time.monotonic()
         self.watch.started(c.resolved, self.evaluator.references)
         next_broadcast = next_status = self._started
@@ -279,10 +282,21 @@ class LearnerService:
 
     def _close_window(self) -> None:
         """Score the closed window's early candidate on the margin's validation trials; the best over the draws goes
-        to disk before the checkpoint that names it."""
+        to disk before the checkpoint that names it. A stop gives the scoring up where an earlier draw's candidate is
+        there to choose by (the first draw's would be scored in the wind-down anyway), so the wind-down fits a
+        SIGTERM's grace."""
         assert self.early is not None
         best = self.early.best
-        scored = None if best is None else _Scored("early", best.policy, best.at, *self._score(best.policy), self._draw)
+        try:
+            stop = None if self._drawn is None else self._stop
+            scored = (
+                None
+                if best is None
+                else _Scored("early", best.policy, best.at, *self._score(best.policy, stop), self._draw)
+            )
+        except ScoringStopped:
+            log.info("draw %d: training stopped while its candidate was scored", self._draw)
+            return
         with self._checkpoint_lock:
             self._window_scored = True
             if scored is None:
@@ -307,7 +321,7 @@ class LearnerService:
         """Start the next draw when one is left and its window can close before the run's duration, judged by the
         last fit's seconds."""
         c = self.config
-        if self._draw + 1 >= c.draws or self.fitter.busy:
+        if self._draw + 1 >= c.draws or self.fitter.busy or self._stop.is_set():
             return
         if c.duration is not None and at + self.fitter.fit_s + c.early_window >= c.duration:
             return
@@ -362,19 +376,20 @@ class LearnerService:
         if best is not None and not self._window_scored:
             if self._drawn is None:
                 return _Scored("early", best.policy, best.at, *self._score(best.policy), self._draw)
-            log.info("draw %d's window had not closed when training stopped: its candidate is not scored", self._draw)
+            log.info("draw %d's candidate was not scored when training stopped: it is no candidate", self._draw)
         return self._drawn
 
     def _chooses_margin(self, policy: Policy) -> bool:
         return self.config.law_margin is None and policy.formulation.actions.law is not None
 
-    def _score(self, policy: Policy) -> tuple[float, MarginChoice | None]:
+    def _score(self, policy: Policy, stop: threading.Event | None = None) -> tuple[float, MarginChoice | None]:
         """``policy``'s coverage on ``margin_trials`` validation trials: read with the law margin that scores best
-        (and that choice) when the run chooses one, else as :meth:`_chosen` reads it."""
+        (and that choice) when the run chooses one, else as :meth:`_chosen` reads it. ScoringStopped once ``stop``
+        is set, before a margin."""
         trials = self.config.margin_trials
         if self._chooses_margin(policy):
             log.info("choosing the law margin of policy version %d on %d validation trials", policy.version, trials)
-            margin = choose_margin(self.scenario, policy, trials, self.config.eval_steps)
+            margin = choose_margin(self.scenario, policy, trials, self.config.eval_steps, stop=stop)
             log.info("law margin %g: %s", margin.margin, ", ".join(f"{m:g} {c:.2f}%" for m, c in margin.scores.items()))
             return margin.scores[margin.margin], margin
         controller = PolicyController(self._read(policy, None))

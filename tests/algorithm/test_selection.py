@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import dataclasses
+import threading
+from typing import Any
 
 import numpy as np
 import pytest
 
+from algorithm import selection
 from algorithm.discretization import Discretization
 from algorithm.policy import Policy, PolicyController
-from algorithm.selection import LAW_MARGINS, VALIDATION_SEED, BestPolicy, choose_margin
+from algorithm.selection import LAW_MARGINS, VALIDATION_SEED, BestPolicy, ScoringStopped, choose_margin
 from sim import N_ACTIONS, evaluate, scenario
 from sim.formulation import DEFAULT_FORMULATION, FORMULATIONS
 
@@ -121,6 +124,31 @@ def test_the_margin_chosen_is_the_smallest_that_scores_best_on_the_validation_tr
     assert list(choice.scores) == list(LAW_MARGINS)
     assert choice.scores[0.3] == choice.scores[0.5] == validation(constant(0, version=1), 3)
     assert choice.scores[0.0] == choice.scores[0.2] < choice.scores[0.3] - 10
+
+
+def test_a_margin_choice_gives_up_before_its_next_margin_once_its_stop_is_set(monkeypatch: pytest.MonkeyPatch) -> None:
+    scored: list[float | None] = []
+    real = selection.evaluate
+
+    def counted(cfg: Any, controller: Any, *args: Any, **kwargs: Any) -> Any:
+        scored.append(controller.policy.law_margin)
+        return real(cfg, controller, *args, **kwargs)
+
+    monkeypatch.setattr(selection, "evaluate", counted)
+    stop = threading.Event()
+    checks = [0]
+
+    def set_after_two() -> bool:  # set while the third margin would be scored
+        checks[0] += 1
+        return checks[0] > 2
+
+    stop.is_set = set_after_two  # type: ignore[method-assign]
+    with pytest.raises(ScoringStopped):
+        choose_margin(CFG, law_or_back(0.25), trials=3, steps=100, stop=stop)
+    assert scored == list(LAW_MARGINS[:2])
+    scored.clear()
+    assert choose_margin(CFG, law_or_back(0.25), trials=3, steps=100, stop=threading.Event()).margin == 0.3
+    assert scored == list(LAW_MARGINS)
 
 
 def test_the_decisions_off_law_are_counted_for_a_law_set_only() -> None:

@@ -113,9 +113,9 @@ def test_each_closed_window_is_scored_the_best_draw_is_saved_and_resumed_and_a_l
         fitter.fit_s = 5.0
         score = service._score
 
-        def counted(policy: Any) -> Any:
+        def counted(policy: Any, *stop: Any) -> Any:
             scored.append(policy.version)
-            return score(policy)
+            return score(policy, *stop)
 
         service._score = counted  # type: ignore[method-assign]
         service._adopt(one_cell_per_action(DIM))  # draw 0's window opens at 0 s
@@ -263,6 +263,48 @@ class _Intake:
 
     def snapshot_for_fit(self) -> tuple[Transitions, int]:
         return self.data, self.tuples_received
+
+
+def test_a_stop_gives_up_a_windows_scoring_where_an_earlier_draw_is_scored_and_starts_no_draw(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # The margin is chosen (law_margin none): a window's scoring is seven margins' validation trials, which a SIGTERM's
+    # grace cannot wait for on top of the wind-down's own.
+    config = dataclasses.replace(
+        FAST, validation_trials=3, margin_trials=3, law_margin=None, early_window=30.0, draws=4, duration=200.0
+    )
+    clock, requested = [0.0], []
+    stop = threading.Event()
+    with InMemoryTransport(InMemoryBus()) as t:
+        service = LearnerService(t, config, tmp_path)
+        service._stop = stop
+        service.elapsed = lambda: clock[0]  # type: ignore[method-assign]
+        service.fitter.draw = lambda index: requested.append(index) or True  # type: ignore[method-assign]
+        service.fitter.fit_s = 5.0
+        service._adopt(one_cell_per_action(DIM))
+        service.state.policy = lambda: constant(0, version=2)  # type: ignore[method-assign]
+        clock[0] = 10.0
+        service._offer_early()
+        stop.set()
+        clock[0] = 31.0
+        service._offer_early()  # the first draw's window is scored (the wind-down would score it), no draw starts
+        assert requested == [] and [d["draw"] for d in service.draws] == [0] and service._window_scored
+        stop.clear()
+        service._offer_early()
+        assert requested == [1]
+        clock[0] = 36.0
+        service._adopt(one_cell_per_action(DIM), draw=True)  # draw 1's window opens at 36 s
+        service.state.policy = lambda: constant(1, version=4)  # type: ignore[method-assign]
+        clock[0] = 40.0
+        service._offer_early()
+        stop.set()
+        clock[0] = 67.0
+        with caplog.at_level(logging.INFO, logger="learner.service"):
+            service._offer_early()
+        assert "draw 1: training stopped while its candidate was scored" in [r.getMessage() for r in caplog.records]
+        assert requested == [1] and [d["draw"] for d in service.draws] == [0] and not service._window_scored
+        assert sorted(p.name for p in (tmp_path / DRAWS).iterdir()) == ["draw-0.npz"]
+        assert service._early_candidate() is service._drawn is not None and service._drawn.draw == 0
 
 
 def test_every_draw_fits_the_first_fits_tuples_with_its_own_seed_also_after_a_resume(

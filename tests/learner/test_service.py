@@ -460,9 +460,9 @@ def test_the_early_candidate_is_scored_once_its_window_closes_so_the_wind_down_s
         scored: list[int] = []
         score = service._score
 
-        def counted(policy: Any) -> Any:
+        def counted(policy: Any, *stop: Any) -> Any:
             scored.append(policy.version)
-            return score(policy)
+            return score(policy, *stop)
 
         service._score = counted  # type: ignore[method-assign]
         service._offer_early()  # the window has closed: version 3 is not offered, the early candidate is scored
