@@ -104,7 +104,8 @@ class ScenarioConfig:
     teammate-watched targets, d the nearest one's distance (0 otherwise) [choice]."""
     recall_steps: int = 120
     """How long a robot of a remembering state (``frame11d-recall``, :mod:`sim.recall`) keeps a target it lost as
-    its remembered target, in steps [choice: the tuned A-CMOMMT's prediction horizon, 120 steps]."""
+    its remembered target, in steps [choice: the tuned A-CMOMMT's prediction horizon when the state was made, 120 steps;
+    the finer grid of the twenty-seventh session chose 240 for the law, and the state keeps its own]."""
     local_target: LocalTarget = "furthest"
     """Target the 2-D local state points at [paper: furthest; once 'nearest']."""
 

@@ -31,10 +31,13 @@ N_ACTIONS = len(COMPASS_NAMES)
 PUBLIC_FORCE_LAW = ForceLawConfig()
 """A-CMOMMT's parameters as the public code gives them, scaled to this arena, untuned here (teammate-observed
 weight 0.25, do1 20, do2 40, do4 180, dr1 62.5, dr2 100, prediction 60 steps) [public]: ``a-cmommt-public``."""
-ACMOMMT_LAW = ForceLawConfig(do1=10.0, do2=150.0, do4=1000.0, shared_target_weight=0.0, predict_steps=120)
+ACMOMMT_LAW = ForceLawConfig(
+    do1=10.0, do2=150.0, do4=1000.0, dr1=0.0, dr2=50.0, shared_target_weight=0.0, predict_steps=240
+)
 """A-CMOMMT's parameters chosen by ``scripts/tune_references.py`` on training seeds 100–103 (50 trials each), never
-on the reported test trials [choice: tuned here, docs/learning-quality.md]: ``a-cmommt``. The oracle keeps the
-public law: with this do4 it would read the true position of nearly every target in the arena."""
+on the reported test trials [choice: tuned here, docs/learning-quality.md; the robot repulsion on the script's finer
+grid since the twenty-seventh session]: ``a-cmommt``. The oracle keeps the public law: with this do4 it would read
+the true position of nearly every target in the arena."""
 STATE_FORCE_LAW = ForceLawConfig(do1=10.0, do2=150.0, do4=ACMOMMT_LAW.do4, shared_target_weight=0.0)
 """The force law on the learned state's information (``force-6d-shared``), tuned by the same script on the same
 training seeds over the parameters that act on sensed targets [choice]. The band beyond sensing range acts only on
@@ -252,8 +255,8 @@ class RecallForceController:
     """A law on a remembering state's information: ``law`` (a :class:`StateForceController`) fed the view of
     :func:`sim.recall.recall`, in which a robot's remembered target (one it lost, predicted from its own sightings,
     that no teammate sees now) pulls from beyond the sensing range [choice: the state-limited reference of the
-    ``frame11d-recall`` state, as ``force-6d-shared`` is of ``frame9d``; its memory's reach and horizon are the tuned
-    A-CMOMMT's, do4 1000 and 120 steps, not tuned again]."""
+    ``frame11d-recall`` state, as ``force-6d-shared`` is of ``frame9d``; its memory's reach and horizon are the
+    state's own, do4 1000 (the tuned A-CMOMMT's) and ``recall_steps``, not tuned again]."""
 
     name: str = "force-recall"
     law: StateForceController = StateForceController(shared=True, name="force-6d-shared", law=STATE_FORCE_LAW)
