@@ -287,8 +287,8 @@ class LearnerService:
         SIGTERM's grace."""
         assert self.early is not None
         best = self.early.best
+        stop = None if self._drawn is None else self._stop
         try:
-            stop = None if self._drawn is None else self._stop
             scored = (
                 None
                 if best is None

@@ -9,8 +9,9 @@ the chosen parameters as JSON::
 
     python scripts/tune_references.py --out runs/tune-references.json
 
-The chosen values are :data:`sim.controllers.ACMOMMT_LAW` (``a-cmommt``) and
-:data:`sim.controllers.STATE_FORCE_LAW` (``force-6d-shared``); docs/learning-quality.md gives the figures.
+The chosen values are :data:`sim.controllers.ACMOMMT_LAW` (``a-cmommt``) and, on the first, coarser robot-repulsion
+grid, :data:`sim.controllers.STATE_FORCE_LAW` (``force-6d-shared``, which is also the learned moves' law and is kept
+as the formulation was made with it); docs/learning-quality.md gives the figures.
 """
 
 from __future__ import annotations
