@@ -42,10 +42,9 @@ STATE_FORCE_LAW = ForceLawConfig(do1=10.0, do2=150.0, do4=ACMOMMT_LAW.do4, share
 """The force law on the learned state's information (``force-6d-shared``), tuned by the same script on the same
 training seeds over the parameters that act on sensed targets, on its first grids [choice: the finer robot-repulsion
 grid picks dr1 0, dr2 50 (+0.25 on the training trials); kept, since this law is also the learned moves' (``law``
-action sets) and the exploration guide's, and a policy file names its action set, not the law's parameters, docs/learning-quality.md
-"Twenty-fifth round"]. The band beyond sensing range acts only on
-a remembered target (a guide reading a remembering state's view, :mod:`sim.guide`), and takes the tuned
-``a-cmommt``'s reach."""
+action sets) and the exploration guide's, and a policy file names its action set, not the law's parameters,
+docs/learning-quality.md "Twenty-fifth round"]. The band beyond sensing range acts only on a remembered target (a
+guide reading a remembering state's view, :mod:`sim.guide`), and takes the tuned ``a-cmommt``'s reach."""
 
 
 def compass_velocity(cfg: ScenarioConfig, actions: np.ndarray) -> np.ndarray:
