@@ -220,18 +220,26 @@ def test_a_negative_early_margin_is_refused() -> None:
         LearnerConfig(early_margin=-0.1)
 
 
+def _clocked(service: LearnerService) -> tuple[list[float], list[int]]:
+    """``service`` on a test clock (the list's one value), its draws only recorded (the list of their indices), a fit
+    taken to last 5 s, and draw 0's window opened at 0 s on a constant policy."""
+    clock: list[float] = [0.0]
+    requested: list[int] = []
+    service.elapsed = lambda: clock[0]  # type: ignore[method-assign]
+    service.fitter.draw = lambda index: requested.append(index) or True  # type: ignore[method-assign]
+    service.fitter.fit_s = 5.0
+    service._adopt(one_cell_per_action(DIM))
+    service.state.policy = lambda: constant(0, version=2)  # type: ignore[method-assign]
+    return clock, requested
+
+
 def test_no_draw_starts_whose_window_could_not_close_before_the_duration_and_a_late_fit_is_not_adopted(
     tmp_path: Path,
 ) -> None:
     config = dataclasses.replace(FAST, validation_trials=3, law_margin=0.0, early_window=30.0, draws=4, duration=60.0)
-    clock, requested = [0.0], []
     with InMemoryTransport(InMemoryBus()) as t:
         service = LearnerService(t, config, tmp_path)
-        service.elapsed = lambda: clock[0]  # type: ignore[method-assign]
-        service.fitter.draw = lambda index: requested.append(index) or True  # type: ignore[method-assign]
-        service.fitter.fit_s = 5.0
-        service._adopt(one_cell_per_action(DIM))
-        service.state.policy = lambda: constant(0, version=2)  # type: ignore[method-assign]
+        clock, requested = _clocked(service)
         clock[0] = 10.0
         service._offer_early()
         clock[0] = 31.0
@@ -273,16 +281,11 @@ def test_a_stop_gives_up_a_windows_scoring_where_an_earlier_draw_is_scored_and_s
     config = dataclasses.replace(
         FAST, validation_trials=3, margin_trials=3, law_margin=None, early_window=30.0, draws=4, duration=200.0
     )
-    clock, requested = [0.0], []
     stop = threading.Event()
     with InMemoryTransport(InMemoryBus()) as t:
         service = LearnerService(t, config, tmp_path)
         service._stop = stop
-        service.elapsed = lambda: clock[0]  # type: ignore[method-assign]
-        service.fitter.draw = lambda index: requested.append(index) or True  # type: ignore[method-assign]
-        service.fitter.fit_s = 5.0
-        service._adopt(one_cell_per_action(DIM))
-        service.state.policy = lambda: constant(0, version=2)  # type: ignore[method-assign]
+        clock, requested = _clocked(service)
         clock[0] = 10.0
         service._offer_early()
         stop.set()
