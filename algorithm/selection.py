@@ -14,19 +14,27 @@ the same validation trials, so two scores differ by the policies, not by the tri
 A law action set's policy is then read with the margin that scores best on validation trials (more of them: the
 margins differ by tenths of a point), never on the reported ones::
 
-    choice = choose_margin(cfg, policy, trials=300, steps=1000)   # MarginChoice(margin, scores)
+    choice = choose_margin(cfg, policy, trials=300, steps=1000)   # MarginChoice(margin, scores, spreads, ...)
     policy = dataclasses.replace(policy, law_margin=choice.margin)
+
+A choice can be held to a hand-made law's spread over the targets: a margin (or a candidate) whose team has more
+robots per covered target on the validation trials than the law's team there is chosen only where none has fewer::
+
+    cap = reference_spread(cfg, "a-cmommt", trials=300, steps=1000)   # the law's robots per covered target
+    choice = choose_margin(cfg, policy, trials=300, steps=1000, cap=cap)
+    rank(coverage, spread, cap)          # the order of two candidates: (within the cap, coverage)
 """
 
 from __future__ import annotations
 
 import dataclasses
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from algorithm.policy import Policy, PolicyController
 from sim import ScenarioConfig, evaluate
+from sim.controllers import HAND_MADE
 
 VALIDATION_SEED = 1000
 """The validation trials' seed: none of the reported test trials (seed 0 for ``up`` and ``train``, 0…3 for the
@@ -51,6 +59,37 @@ class MarginChoice:
     """Metric A (%) on the validation trials of the policy read with each margin tried."""
     trials: int
     seed: int
+    spreads: dict[float, float] = field(default_factory=dict)
+    """Robots per covered target on the same trials with each margin tried (empty: not recorded, as in a checkpoint
+    written before they were)."""
+    cap: float | None = None
+    """The spread the choice was held to (:func:`rank`); None: coverage alone."""
+
+    @property
+    def spread(self) -> float | None:
+        """Robots per covered target with the margin chosen, where recorded."""
+        return self.spreads.get(self.margin)
+
+
+def within(spread: float | None, cap: float | None) -> bool:
+    """Whether a team of ``spread`` robots per covered target is held to ``cap`` (None: no cap; an unknown or NaN
+    spread is not within one)."""
+    return cap is None or (spread is not None and spread <= cap)
+
+
+def rank(coverage: float, spread: float | None, cap: float | None) -> tuple[bool, float]:
+    """The order of candidates under a spread cap: every one within the cap before any other, then by coverage."""
+    return within(spread, cap), coverage
+
+
+def reference_spread(cfg: ScenarioConfig, name: str, trials: int, steps: int, seed: int = VALIDATION_SEED) -> float:
+    """Robots per covered target of the hand-made controller ``name`` on the validation trials: the cap of a choice
+    held to its spread."""
+    result = evaluate(cfg, HAND_MADE[name], trials, steps, seed=seed)
+    spread = result.robots_per_covered_target
+    if not spread > 0:
+        raise ValueError(f"{name} covered no target on {trials} validation trials: its spread caps nothing")
+    return spread
 
 
 def choose_margin(
@@ -61,19 +100,24 @@ def choose_margin(
     margins: tuple[float, ...] = LAW_MARGINS,
     seed: int = VALIDATION_SEED,
     stop: threading.Event | None = None,
+    cap: float | None = None,
 ) -> MarginChoice:
     """The ``law_margin`` among ``margins`` with which ``policy`` (a law action set's) scores best on the validation
-    trials, every margin on the same trials. ScoringStopped once ``stop`` is set, checked before each margin."""
+    trials, every margin on the same trials; with a ``cap``, the best of those whose robots per covered target are at
+    most it, where one is (:func:`rank`). The smallest margin on a tie. ScoringStopped once ``stop`` is set, checked
+    before each margin."""
     if policy.formulation.actions.law is None:
         raise ValueError(f"a law margin needs a law action set, not {policy.formulation.actions.name!r}")
-    scores = {}
+    scores, spreads = {}, {}
     for m in margins:
         if stop is not None and stop.is_set():
             raise ScoringStopped
         controller = PolicyController(dataclasses.replace(policy, law_margin=m))
-        scores[m] = evaluate(cfg, controller, trials, steps, seed=seed).coverage_mean
-    best = max(scores.values())
-    return MarginChoice(min(m for m, c in scores.items() if c == best), scores, trials, seed)
+        result = evaluate(cfg, controller, trials, steps, seed=seed)
+        scores[m] = result.coverage_mean
+        spreads[m] = result.robots_per_covered_target
+    best = max(margins, key=lambda m: (*rank(scores[m], spreads[m], cap), -m))
+    return MarginChoice(best, scores, trials, seed, spreads, cap)
 
 
 @dataclass(frozen=True, slots=True)

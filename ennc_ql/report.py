@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from algorithm.policy_file import load_policy, scenario_from_header
+from algorithm.selection import rank
 from ennc_ql.command import emit
 from ennc_ql.figures import policy_figure
 from learner.report import LearnerReport
@@ -180,12 +181,15 @@ def result_rows(report: Mapping[str, Any]) -> list[tuple[str, str]]:
     candidates = report.get("candidates")
     if candidates:
         rows.insert(-1, ("kept or early", _candidates(candidates)))
+    cap = report.get("spread_cap")
     draws = report.get("draws") or []
     if len(draws) > 1:
-        rows.insert(-1, ("draws", _draws(draws)))
+        rows.insert(-1, ("draws", _draws(draws, cap)))
+    if cap:
+        rows.insert(-1, ("spread cap", _cap(cap)))
     margin = report.get("law_margin")
     if margin:
-        rows.insert(-1, ("law margin", _margin(margin)))
+        rows.insert(-1, ("law margin", _margin(margin, capped=bool(cap))))
     off_law = (report.get("final_comparison") or {}).get("learned", {}).get("off_law_pct")
     if off_law is not None:
         rows.insert(-1, ("decisions off law", f"{off_law:.1f} % of the learned robots' decisions on the final trials"))
@@ -211,33 +215,54 @@ def _candidates(candidates: list[Mapping[str, Any]]) -> str:
     return (
         "; ".join(
             f"{c['source']}{'' if c.get('draw') is None else ' of draw ' + str(c['draw'])}: version {c['version']} "
-            f"of {c['at_s']:.0f} s, {c['validation_coverage']:.2f} %" + (" (saved)" if c["chosen"] else "")
+            f"of {c['at_s']:.0f} s, {_scored(c)}" + (" (saved)" if c["chosen"] else "")
             for c in candidates
         )
         + ", both scored on the same validation trials"
     )
 
 
-def _draws(draws: list[Mapping[str, Any]]) -> str:
-    """Each draw of phase 1 by its early candidate's validation score, and the best one."""
-    best = max(draws, key=lambda d: d["validation_coverage"])  # the earlier on a tie, as the learner keeps it
-    scores = ", ".join(f"{d['draw']}: {d['validation_coverage']:.2f} %" for d in draws)
+def _scored(candidate: Mapping[str, Any]) -> str:
+    """A candidate's validation coverage, with its robots per covered target where the run recorded them."""
+    spread = candidate.get("robots_per_covered_target")
+    return f"{candidate['validation_coverage']:.2f} %" + ("" if spread is None else f" at {spread:.3f}")
+
+
+def _draws(draws: list[Mapping[str, Any]], cap: Mapping[str, Any] | None) -> str:
+    """Each draw of phase 1 by its early candidate's validation score, and the best one (within the spread cap
+    first, as the learner chooses)."""
+    limit = None if not cap else cap["robots_per_covered_target"]
+    best = max(draws, key=lambda d: rank(d["validation_coverage"], d.get("robots_per_covered_target"), limit))
+    scores = ", ".join(f"{d['draw']}: {_scored(d)}" for d in draws)
+    spread = any("robots_per_covered_target" in d for d in draws)
     return (
         f"{len(draws)} draws of phase 1 on the first fit's tuples, each one's early candidate on the validation "
-        f"trials: {scores} (the best: draw {best['draw']})"
+        f"trials{' (% observed at robots per covered target)' if spread else ''}: {scores} (the best: draw "
+        f"{best['draw']})"
     )
 
 
-def _margin(margin: Mapping[str, Any]) -> str:
-    """The margin the saved policy departs from the move law by, and the validation scores it was chosen on."""
+def _cap(cap: Mapping[str, Any]) -> str:
+    """The spread that held the choices."""
+    return (
+        f"{cap['robots_per_covered_target']:.3f} robots per covered target, {cap['reference']}'s on the "
+        f"{cap['validation_trials']} validation trials: a margin, draw or policy above it was chosen only where none "
+        "was at or below it"
+    )
+
+
+def _margin(margin: Mapping[str, Any], capped: bool) -> str:
+    """The margin the saved policy departs from the move law by, and the validation scores (and spreads, where
+    recorded) it was chosen on."""
     scores = margin.get("validation_coverage")
     if not scores:
         # Given with --learner-law-margin, or a learner stopped before it chose one.
         return f"{margin['margin']:g} (not chosen on validation trials)"
-    tried = ", ".join(f"{m} {c:.2f} %" for m, c in scores.items())
+    spreads = margin.get("validation_spread") or {}
+    tried = ", ".join(f"{m} {c:.2f} %" + (f" at {spreads[m]:.3f}" if m in spreads else "") for m, c in scores.items())
     return (
         f"{margin['margin']:g}, the best on {margin['validation_trials']} validation trials (seed "
-        f"{margin['validation_seed']}): {tried}"
+        f"{margin['validation_seed']}){', held to the spread cap' if capped else ''}: {tried}"
     )
 
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from algorithm.checks import require_at_least, require_id, require_known, require_positive
 from algorithm.phase1 import CMOMMT_PHASE1, Phase1Config
 from sim import SCENARIOS
+from sim.controllers import HAND_MADE
 from sim.formulation import DEFAULT_FORMULATION, Formulation, resolve_formulation
 
 LEARNER_PHASE1 = dataclasses.replace(CMOMMT_PHASE1, max_iterations=2, n_cycles=60, seed_prototypes=512, cells="union")
@@ -110,6 +111,12 @@ class LearnerConfig:
     end of the run [beyond the paper, docs/learning-quality.md "Eighteenth round"]. Other action sets: the argmax."""
     margin_trials: int = 300
     """Validation trials on which each margin is scored when law_margin is none."""
+    spread_cap: str | None = "a-cmommt"
+    """The hand-made controller whose spread over the targets holds the run's choices: a law margin, a draw's
+    candidate or the saved policy whose team has more robots per covered target on the ``margin_trials`` validation
+    trials than this controller's team there is chosen only where none has fewer, so the learned team covers more
+    without crowding the targets more than the law (docs/learning-quality.md, "Twenty-sixth round"). none: coverage
+    alone, which covers about half a point more on the reported trials with more robots per covered target."""
     eval_steps: int = 1000
     """Steps of each test trial [paper]."""
     checkpoint_interval: float = 0.5
@@ -129,6 +136,8 @@ class LearnerConfig:
     def __post_init__(self) -> None:
         require_id("learner_id", self.learner_id)
         require_known("scenario", self.scenario, SCENARIOS)
+        if self.spread_cap is not None:
+            require_known("spread_cap", self.spread_cap, HAND_MADE)
         resolved = resolve_formulation(
             self.formulation, featurizer=self.featurizer, reward=self.reward, act_every=self.act_every
         )

@@ -151,17 +151,23 @@ class LearnerReport:
     law_margin: dict[str, Any] | None = None
     """With a law action set: the margin the saved policy is read with (``margin``; a robot departs from the move law
     only where another move's value beats it by more) and, when the run chose it, every margin's score on the
-    validation trials (``validation_coverage``: {margin: %}, ``validation_trials``, ``validation_seed``); None for
-    other action sets or before a policy was learned."""
+    validation trials (``validation_coverage``: {margin: %}, ``validation_trials``, ``validation_seed``) with its
+    robots per covered target there (``validation_spread``: {margin: robots}); None for other action sets or before a
+    policy was learned."""
     candidates: list[dict[str, Any]] = field(default_factory=list)
     """With an early candidate (``early_window``) other than the kept policy: both, as scored on the margin's
     validation trials (``source`` kept or early, the early one's ``draw``, ``version``, ``at_s``,
-    ``validation_coverage``, a law margin choice's ``margin``, and which one was saved, ``chosen``); empty
-    otherwise. The early one is the best of the draws (``draws``)."""
+    ``validation_coverage``, ``robots_per_covered_target`` there, a law margin choice's ``margin``, and which one was
+    saved, ``chosen``); empty otherwise. The early one is the best of the draws (``draws``)."""
     draws: list[dict[str, Any]] = field(default_factory=list)
     """Each draw's early candidate as scored when its window closed (``draw``, ``version``, ``at_s``,
-    ``validation_coverage``, a law margin choice's ``margin``, ``prototypes_per_action``); empty before the first
-    window closed."""
+    ``validation_coverage``, ``robots_per_covered_target`` there, a law margin choice's ``margin``,
+    ``prototypes_per_action``); empty before the first window closed."""
+    spread_cap: dict[str, Any] | None = None
+    """With ``spread_cap``: the hand-made controller whose spread held the choices (``reference``) and its robots per
+    covered target on the margin's validation trials (``robots_per_covered_target``, ``validation_trials``): a
+    margin, draw or saved policy above it was chosen only where none was at or below it. None: coverage alone, or no
+    choice was made."""
     resumes: list[dict[str, Any]] = field(default_factory=list)
     """Every time the run was resumed from its checkpoint: the run clock it resumed at (``at_s``), the policy version
     of its first broadcast, that broadcast's wall time and the seconds from the process's start to it."""
@@ -186,6 +192,7 @@ class LearnerReport:
         policy: Policy | None = None,
         candidates: list[dict[str, Any]] | None = None,
         draws: list[dict[str, Any]] | None = None,
+        spread_cap: tuple[str, float] | None = None,
     ) -> LearnerReport:
         """The report of a run that ended with ``status`` (built from the same ``intake`` figures) and the final
         figure ``final`` (None: no policy was learned, and no reference is measured)."""
@@ -226,6 +233,13 @@ class LearnerReport:
             law_margin=_law_margin(policy, margin),
             candidates=list(candidates or []),
             draws=list(draws or []),
+            spread_cap=None
+            if spread_cap is None
+            else {
+                "reference": spread_cap[0],
+                "robots_per_covered_target": round(spread_cap[1], 4),
+                "validation_trials": config.margin_trials,
+            },
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -258,6 +272,7 @@ def _law_margin(policy: Policy | None, margin: MarginChoice | None) -> dict[str,
     return {
         "margin": margin.margin,
         "validation_coverage": {f"{m:g}": round(c, 3) for m, c in margin.scores.items()},
+        **({"validation_spread": {f"{m:g}": round(r, 4) for m, r in margin.spreads.items()}} if margin.spreads else {}),
         "validation_trials": margin.trials,
         "validation_seed": margin.seed,
     }

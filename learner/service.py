@@ -33,7 +33,15 @@ from algorithm.discretization import Discretization
 from algorithm.phase1 import estimator
 from algorithm.policy import Policy, PolicyController
 from algorithm.policy_file import PolicyFileError, load_policy, save_policy
-from algorithm.selection import VALIDATION_SEED, BestPolicy, MarginChoice, ScoringStopped, choose_margin
+from algorithm.selection import (
+    VALIDATION_SEED,
+    BestPolicy,
+    MarginChoice,
+    ScoringStopped,
+    choose_margin,
+    rank,
+    reference_spread,
+)
 from learner.checkpoint import Checkpointer, CheckpointError, VersionMark
 from learner.config import LearnerConfig
 from learner.evaluator import Evaluator
@@ -118,6 +126,8 @@ class LearnerService:
         """The policy chosen at the end among the kept one and the early candidate."""
         self.candidates: list[dict[str, Any]] = []
         """When the early candidate and the kept policy were both scored: each one's figures."""
+        self.spread_cap: float | None = None
+        """``spread_cap``'s robots per covered target on the margin's validation trials, once scored (:meth:`_cap`)."""
         self.checkpointer = Checkpointer(run_dir)
         # The viewer's train_time is the run clock of the learning curve.
         self.watch = LearnerWatch(monitor or Monitor(), self.scenario, clock=self.elapsed)
@@ -305,15 +315,17 @@ class LearnerService:
             save_policy(
                 self._read(scored.policy, scored.margin), self.scenario, self.run_dir / DRAWS / f"draw-{self._draw}.npz"
             )
-            if self._drawn is None or scored.coverage > self._drawn.coverage:  # the earlier draw on a tie
+            if self._drawn is None or scored.rank(self._cap()) > self._drawn.rank(self._cap()):  # earlier on a tie
                 save_policy(scored.policy, self.scenario, self.run_dir / DRAWN_POLICY)
                 self._drawn = scored
         log.info(
-            "draw %d: early candidate version %d scores %.2f%% on %d validation trials (best draw %d)",
+            "draw %d: early candidate version %d scores %.2f%% on %d validation trials, %.3f robots per covered "
+            "target (best draw %d)",
             self._draw,
             scored.policy.version,
             scored.coverage,
             self.config.margin_trials,
+            scored.spread,
             self._drawn.draw,
         )
 
@@ -362,7 +374,7 @@ class LearnerService:
         if early is None and not self._chooses_margin(kept):
             return
         scored = [_Scored("kept", kept, at, *self._score(kept)), *([] if early is None else [early])]
-        best = max(scored, key=lambda c: c.coverage)  # the first of the best: the kept policy on a tie
+        best = max(scored, key=lambda c: c.rank(self._cap()))  # the first of the best: the kept policy on a tie
         self._selected, self.margin = best.policy, best.margin
         if len(scored) > 1:
             self.candidates = [c.figures(chosen=c is best) for c in scored]
@@ -382,20 +394,33 @@ class LearnerService:
     def _chooses_margin(self, policy: Policy) -> bool:
         return self.config.law_margin is None and policy.formulation.actions.law is not None
 
-    def _score(self, policy: Policy, stop: threading.Event | None = None) -> tuple[float, MarginChoice | None]:
-        """``policy``'s coverage on ``margin_trials`` validation trials: read with the law margin that scores best
-        (and that choice) when the run chooses one, else as :meth:`_chosen` reads it. ScoringStopped once ``stop``
-        is set, before a margin."""
+    def _score(self, policy: Policy, stop: threading.Event | None = None) -> tuple[float, MarginChoice | None, float]:
+        """``policy``'s coverage and robots per covered target on ``margin_trials`` validation trials: read with the
+        law margin the run chooses (and that choice, held to the spread cap), else as :meth:`_chosen` reads it.
+        ScoringStopped once ``stop`` is set, before a margin."""
         trials = self.config.margin_trials
         if self._chooses_margin(policy):
             log.info("choosing the law margin of policy version %d on %d validation trials", policy.version, trials)
-            margin = choose_margin(self.scenario, policy, trials, self.config.eval_steps, stop=stop)
-            log.info("law margin %g: %s", margin.margin, ", ".join(f"{m:g} {c:.2f}%" for m, c in margin.scores.items()))
-            return margin.scores[margin.margin], margin
+            margin = choose_margin(self.scenario, policy, trials, self.config.eval_steps, stop=stop, cap=self._cap())
+            tried = ", ".join(f"{m:g} {c:.2f}% ({margin.spreads[m]:.3f})" for m, c in margin.scores.items())
+            log.info("law margin %g: %s", margin.margin, tried)
+            return margin.scores[margin.margin], margin, margin.spreads[margin.margin]
         controller = PolicyController(self._read(policy, None))
         result = evaluate(self.scenario, controller, trials, self.config.eval_steps, seed=VALIDATION_SEED)
+        spread = result.robots_per_covered_target
         log.info("policy version %d: %.2f%% on %d validation trials", policy.version, result.coverage_mean, trials)
-        return result.coverage_mean, None
+        return result.coverage_mean, None, spread
+
+    def _cap(self) -> float | None:
+        """The robots per covered target that hold the run's choices: ``spread_cap``'s team on the margin's
+        validation trials, scored at the first choice (on the loop's thread, as every choice is)."""
+        name = self.config.spread_cap
+        if name is not None and self.spread_cap is None:
+            trials = self.config.margin_trials
+            self.spread_cap = reference_spread(self.scenario, name, trials, self.config.eval_steps)
+            cap = self.spread_cap
+            log.info("choices held to %s's %.4f robots per covered target on %d validation trials", name, cap, trials)
+        return self.spread_cap
 
     # -- status, checkpoints, report --------------------------------------------------------------------------------
 
@@ -538,6 +563,9 @@ class LearnerService:
             policy=policy,
             candidates=self.candidates,
             draws=self.draws,
+            spread_cap=None
+            if self.config.spread_cap is None or self.spread_cap is None
+            else (self.config.spread_cap, self.spread_cap),
         )
 
 
@@ -553,8 +581,13 @@ class _Scored:
     coverage: float
     """Its coverage on the margin's validation trials, read with ``margin`` when one was chosen."""
     margin: MarginChoice | None
+    spread: float | None
+    """Its robots per covered target on the same trials (None: scored before they were recorded)."""
     draw: int | None = None
     """An early candidate's draw."""
+
+    def rank(self, cap: float | None) -> tuple[bool, float]:
+        return rank(self.coverage, self.spread, cap)
 
     def figures(self, chosen: bool) -> dict[str, Any]:
         return {"source": self.source, **self.summary(), "chosen": chosen}
@@ -565,6 +598,7 @@ class _Scored:
             "version": self.policy.version,
             "at_s": round(self.at, 2),
             "validation_coverage": round(self.coverage, 3),
+            **({} if self.spread is None else {"robots_per_covered_target": round(self.spread, 4)}),
             **({} if self.margin is None else {"margin": self.margin.margin}),
         }
 
@@ -574,9 +608,23 @@ class _Scored:
         choice = (
             None
             if m is None
-            else {"margin": m.margin, "scores": list(m.scores.items()), "trials": m.trials, "seed": m.seed}
+            else {
+                "margin": m.margin,
+                "scores": list(m.scores.items()),
+                "spreads": list(m.spreads.items()),
+                "cap": m.cap,
+                "trials": m.trials,
+                "seed": m.seed,
+            }
         )
-        return {"source": self.source, "at": self.at, "coverage": self.coverage, "margin": choice, "draw": self.draw}
+        return {
+            "source": self.source,
+            "at": self.at,
+            "coverage": self.coverage,
+            "spread": self.spread,
+            "margin": choice,
+            "draw": self.draw,
+        }
 
     @classmethod
     def from_meta(cls, meta: dict[str, Any], policy: Policy) -> _Scored:
@@ -584,14 +632,18 @@ class _Scored:
         choice = None
         if m is not None:
             scores = {float(k): float(v) for k, v in m["scores"]}
-            choice = MarginChoice(float(m["margin"]), scores, int(m["trials"]), int(m["seed"]))
-        draw = meta["draw"]
+            # A checkpoint written before the spreads were recorded holds neither them nor a cap.
+            spreads = {float(k): float(v) for k, v in m.get("spreads", [])}
+            cap = None if m.get("cap") is None else float(m["cap"])
+            choice = MarginChoice(float(m["margin"]), scores, int(m["trials"]), int(m["seed"]), spreads, cap)
+        draw, spread = meta["draw"], meta.get("spread")
         return cls(
             str(meta["source"]),
             policy,
             float(meta["at"]),
             float(meta["coverage"]),
             choice,
+            None if spread is None else float(spread),
             None if draw is None else int(draw),
         )
 

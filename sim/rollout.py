@@ -81,6 +81,11 @@ class EvalResult:
     def coverage_std(self) -> float:
         return float(self.coverage_per_trial.std())
 
+    @property
+    def robots_per_covered_target(self) -> float:
+        """How thickly the team covered the targets it covered (NaN where the spread was not recorded)."""
+        return float("nan") if self.cooperation is None else self.cooperation.summary()["robots_per_covered_target"]
+
     def minus(self, other: EvalResult) -> tuple[float, float]:
         """The paired difference of metric A, this policy minus ``other`` scored on the same trials: its mean over
         the trials and that mean's standard error (NaN with one trial)."""

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import threading
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -12,8 +14,18 @@ import pytest
 from algorithm import selection
 from algorithm.discretization import Discretization
 from algorithm.policy import Policy, PolicyController
-from algorithm.selection import LAW_MARGINS, VALIDATION_SEED, BestPolicy, ScoringStopped, choose_margin
+from algorithm.selection import (
+    LAW_MARGINS,
+    VALIDATION_SEED,
+    BestPolicy,
+    ScoringStopped,
+    choose_margin,
+    rank,
+    reference_spread,
+    within,
+)
 from sim import N_ACTIONS, evaluate, scenario
+from sim.controllers import HAND_MADE
 from sim.formulation import DEFAULT_FORMULATION, FORMULATIONS
 
 CFG = scenario("cmommt-v1")
@@ -149,6 +161,45 @@ def test_a_margin_choice_gives_up_before_its_next_margin_once_its_stop_is_set(mo
     scored.clear()
     assert choose_margin(CFG, law_or_back(0.25), trials=3, steps=100, stop=threading.Event()).margin == 0.3
     assert scored == list(LAW_MARGINS)
+
+
+# Each margin's (coverage %, robots per covered target) on the validation trials: the best coverage (0.1) is the
+# thickest team; 0.2 and 0.3 tie within a cap of 1.06.
+SCORED = {0.0: (78.0, 1.20), 0.1: (79.0, 1.10), 0.2: (78.5, 1.06), 0.3: (78.5, 1.05), 0.5: (77.0, 1.04)}
+SCORED |= {1.0: (76.0, 1.03), 2.0: (75.0, 1.02)}
+
+
+@pytest.mark.parametrize(("cap", "margin"), [(None, 0.1), (1.06, 0.2), (1.05, 0.3), (1.025, 2.0), (1.0, 0.1)])
+def test_a_capped_margin_choice_takes_the_best_margin_whose_spread_is_within_the_cap_where_one_is(
+    monkeypatch: pytest.MonkeyPatch, cap: float | None, margin: float
+) -> None:
+    def scored(cfg: Any, controller: Any, *args: Any, **kwargs: Any) -> Any:
+        coverage, spread = SCORED[controller.policy.law_margin]
+        return SimpleNamespace(coverage_mean=coverage, robots_per_covered_target=spread)
+
+    monkeypatch.setattr(selection, "evaluate", scored)
+    choice = choose_margin(CFG, law_or_back(0.25), trials=3, steps=100, cap=cap)
+    # Under a cap no margin is within (1.0), the choice is coverage's alone.
+    assert choice.margin == margin and choice.cap == cap
+    assert choice.scores == {m: c for m, (c, _) in SCORED.items()}
+    assert choice.spreads == {m: r for m, (_, r) in SCORED.items()} and choice.spread == SCORED[margin][1]
+
+
+def test_candidates_rank_within_the_cap_first_then_by_coverage_and_an_unknown_spread_is_not_within() -> None:
+    assert rank(79.0, 1.10, None) > rank(78.0, 1.05, None)  # no cap: coverage alone
+    assert rank(78.0, 1.05, 1.06) > rank(79.0, 1.10, 1.06) and rank(78.0, 1.06, 1.06) > rank(77.0, 1.06, 1.06)
+    assert rank(79.0, 1.10, 1.06) > rank(78.0, 1.07, 1.06)  # neither within: coverage
+    assert rank(78.0, 1.05, 1.06) > rank(79.0, None, 1.06) and rank(78.0, 1.05, 1.06) > rank(79.0, math.nan, 1.06)
+    assert within(None, None) and not within(None, 1.06) and within(1.06, 1.06)
+
+
+def test_a_reference_s_spread_is_its_robots_per_covered_target_on_the_validation_trials() -> None:
+    law = evaluate(CFG, HAND_MADE["a-cmommt"], 3, 100, seed=VALIDATION_SEED).cooperation
+    assert law is not None and law.covered.sum() > 0
+    spread = reference_spread(CFG, "a-cmommt", trials=3, steps=100)
+    assert spread == law.sightings.sum() / law.covered.sum() and spread >= 1.0  # each covered target: 1 robot or more
+    # The public law piles onto targets its teammates watch: its spread is the thicker.
+    assert reference_spread(CFG, "a-cmommt-public", trials=3, steps=100) > spread
 
 
 def test_the_decisions_off_law_are_counted_for_a_law_set_only() -> None:

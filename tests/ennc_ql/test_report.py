@@ -381,6 +381,25 @@ def test_the_draws_are_named_by_their_early_candidates_scores_with_the_best(tmp_
     )
 
 
+def test_under_a_spread_cap_the_best_draw_is_the_best_within_it_and_the_cap_is_named(tmp_path: Path) -> None:
+    draws = [
+        {"draw": d, "version": v, "at_s": 40.0 * d, "validation_coverage": c, "robots_per_covered_target": r}
+        for d, v, c, r in [(0, 10, 78.76, 1.081), (1, 24, 78.22, 1.05), (2, 40, 78.91, 1.07), (3, 56, 78.5, 1.062)]
+    ]
+    cap = {"reference": "a-cmommt", "robots_per_covered_target": 1.062, "validation_trials": 300}
+    text = write_run_report({**run_report(tmp_path), "kept": KEPT, "draws": draws, "spread_cap": cap}, tmp_path)[0]
+    assert (
+        "trials (% observed at robots per covered target): 0: 78.76 % at 1.081, 1: 78.22 % at 1.050, 2: 78.91 % at "
+        "1.070, 3: 78.50 % at 1.062 (the best: draw 3) |" in text.read_text()
+    )
+    assert (
+        "| spread cap | 1.062 robots per covered target, a-cmommt's on the 300 validation trials: a margin, draw or "
+        "policy above it was chosen only where none was at or below it |" in text.read_text()
+    )
+    uncapped = write_run_report({**run_report(tmp_path), "kept": KEPT, "draws": draws}, tmp_path)[0].read_text()
+    assert "(the best: draw 2) |" in uncapped and "spread cap" not in uncapped
+
+
 def test_the_law_margin_is_given_with_every_margin_s_validation_score(tmp_path: Path) -> None:
     chosen = {
         "margin": 1.0,
@@ -392,6 +411,13 @@ def test_the_law_margin_is_given_with_every_margin_s_validation_score(tmp_path: 
     assert (
         "| law margin | 1, the best on 300 validation trials (seed 1000): 0 76.62 %, 0.5 77.85 %, 1 78.13 %, "
         "2 77.76 % |" in text
+    )
+    spreads = {**chosen, "margin": 2.0, "validation_spread": {"0": 1.13, "0.5": 1.074, "1": 1.064, "2": 1.053}}
+    cap = {"reference": "a-cmommt", "robots_per_covered_target": 1.055, "validation_trials": 300}
+    capped = write_run_report({**run_report(tmp_path), "law_margin": spreads, "spread_cap": cap}, tmp_path)[0]
+    assert (
+        "| law margin | 2, the best on 300 validation trials (seed 1000), held to the spread cap: 0 76.62 % at "
+        "1.130, 0.5 77.85 % at 1.074, 1 78.13 % at 1.064, 2 77.76 % at 1.053 |" in capped.read_text()
     )
     given = write_run_report({**run_report(tmp_path), "law_margin": {"margin": 0.0}}, tmp_path)[0].read_text()
     assert "| law margin | 0 (not chosen on validation trials) |" in given

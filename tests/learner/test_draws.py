@@ -436,3 +436,60 @@ def test_a_checkpoint_written_before_the_draws_resumes_as_its_first_draw(tmp_pat
     assert resumed._window_at == service._window_at is not None
     assert resumed._draw == 0 and not resumed._window_scored and resumed._drawn is None and resumed.draws == []
     assert resumed.state.dropped_visits == 0 and resumed.fitter.fit_s == 0.0
+
+
+@pytest.mark.parametrize(("cap", "saved"), [("a-cmommt", 3), (None, 4)])
+def test_under_a_spread_cap_the_draw_and_the_saved_policy_are_the_best_within_it_also_after_a_resume(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, cap: str | None, saved: int
+) -> None:
+    # Each version's (coverage %, robots per covered target) on the margin's validation trials, the cap 1.06: draw 0
+    # covers more than draw 1 but crowds; draw 2 covers most and crowds; the kept policy (5) crowds too.
+    figures = {2: (80.0, 1.09), 3: (79.0, 1.05), 4: (81.0, 1.07), 5: (79.5, 1.08)}
+    caps: list[str] = []
+    monkeypatch.setattr("learner.service.reference_spread", lambda cfg, name, *a, **k: caps.append(name) or 1.06)
+    config = dataclasses.replace(
+        FAST, validation_trials=3, early_trials=3, law_margin=0.0, early_window=30.0, draws=3, duration=200.0
+    )
+    config = dataclasses.replace(config, spread_cap=cap)
+    with InMemoryTransport(InMemoryBus()) as t:
+        service = LearnerService(t, config, tmp_path)
+
+        def scored(policy: Any, *stop: Any) -> tuple[float, None, float]:
+            coverage, spread = figures[policy.version]
+            return coverage, None, spread
+
+        service._score = scored  # type: ignore[method-assign]
+        clock, requested = _clocked(service)
+        for draw, version in enumerate((2, 3, 4)):
+            if draw:
+                clock[0] = 40.0 * draw
+                service._adopt(one_cell_per_action(DIM), draw=True)
+            service.state.policy = lambda v=version: constant(v, version=v)  # type: ignore[method-assign]
+            clock[0] = 40.0 * draw + 10.0
+            service._offer_early()
+            clock[0] = 40.0 * draw + 31.0
+            service._offer_early()
+        assert requested == [1, 2] and service._drawn is not None
+        assert service._drawn.draw == (1 if cap else 2)
+        service.state.policy = lambda: constant(5, version=5)  # type: ignore[method-assign]
+        service._evaluate()
+        clock[0] = 200.0
+        report = service.run(threading.Event())
+    assert caps == ([cap] if cap else [])  # the reference scored once, at the first choice
+    assert [(d["draw"], d["validation_coverage"], d["robots_per_covered_target"]) for d in report.draws] == [
+        (0, 80.0, 1.09),
+        (1, 79.0, 1.05),
+        (2, 81.0, 1.07),
+    ]
+    assert [(c["source"], c["version"], c["chosen"]) for c in report.candidates] == [
+        ("kept", 5, False),
+        ("early", saved, True),
+    ]
+    assert load_policy(tmp_path / "policy.npz")[0].version == saved
+    assert report.spread_cap == (
+        None if cap is None else {"reference": cap, "robots_per_covered_target": 1.06, "validation_trials": 3}
+    )
+    # A resumed learner knows the best draw's spread, so a later draw is ranked against it as the first one was.
+    with InMemoryTransport(InMemoryBus()) as t:
+        resumed = LearnerService(t, config, tmp_path, resume=True)
+    assert resumed._drawn is not None and resumed._drawn.spread == figures[saved][1]

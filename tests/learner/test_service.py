@@ -527,11 +527,12 @@ def test_the_saved_policy_is_read_with_the_law_margin_chosen_on_validation_trial
         report = service.run(threading.Event())
     saved, _ = load_policy(tmp_path / "policy.npz")
     if given is None:
-        expected = choose_margin(service.scenario, policy, 3, FAST.eval_steps)
+        expected = choose_margin(service.scenario, policy, 3, FAST.eval_steps, cap=service.spread_cap)
         assert expected.margin == 0.3 and saved.law_margin == 0.3
         assert report.law_margin == {
             "margin": 0.3,
             "validation_coverage": {f"{m:g}": round(expected.scores[m], 3) for m in LAW_MARGINS},
+            "validation_spread": {f"{m:g}": round(expected.spreads[m], 4) for m in LAW_MARGINS},
             "validation_trials": 3,
             "validation_seed": 1000,
         }
