@@ -400,8 +400,9 @@ class LearnerService:
         ScoringStopped once ``stop`` is set, before a margin."""
         trials = self.config.margin_trials
         if self._chooses_margin(policy):
+            cap = self._cap()
             log.info("choosing the law margin of policy version %d on %d validation trials", policy.version, trials)
-            margin = choose_margin(self.scenario, policy, trials, self.config.eval_steps, stop=stop, cap=self._cap())
+            margin = choose_margin(self.scenario, policy, trials, self.config.eval_steps, stop=stop, cap=cap)
             tried = ", ".join(f"{m:g} {c:.2f}% ({margin.spreads[m]:.3f})" for m, c in margin.scores.items())
             log.info("law margin %g: %s", margin.margin, tried)
             return margin.scores[margin.margin], margin, margin.spreads[margin.margin]
