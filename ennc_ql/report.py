@@ -96,7 +96,8 @@ def interruption(report: Mapping[str, Any]) -> str | None:
 
 
 def headline(report: Mapping[str, Any]) -> list[str]:
-    """The result in two lines: the final figure, and its references on the same trials."""
+    """The result in a few lines: the final figure, its references on the same trials, the paired difference from
+    A-CMOMMT and how thickly each team covers its targets."""
     final = report.get("final_coverage_mean")
     if final is None and report.get("interrupted") and report.get("policy_version"):
         curve = report.get("coverage_curve") or []
@@ -113,9 +114,15 @@ def headline(report: Mapping[str, Any]) -> list[str]:
     references = _references(report.get("final_reference_coverage") or {})
     if references:
         lines.append("on the same trials: " + ", ".join(f"{_label(n)} {v:.2f} %" for n, v in references))
-    rival = (report.get("final_comparison") or {}).get("a-cmommt")
+    comparison = report.get("final_comparison") or {}
+    rival, learned = comparison.get("a-cmommt"), comparison.get("learned") or {}
     if rival:
         lines.append(f"learned - {_label('a-cmommt')}: {_paired(rival)} (paired, {trials} trials)")
+    if rival and "robots_per_covered_target" in learned and "robots_per_covered_target" in rival:
+        lines.append(
+            f"robots per covered target: learned {learned['robots_per_covered_target']:.3f}, {_label('a-cmommt')} "
+            f"{rival['robots_per_covered_target']:.3f} (how thickly each team crowds the targets it covers)"
+        )
     return lines
 
 

@@ -170,6 +170,9 @@ def test_terminal_summary_opens_with_the_result_and_ends_with_what_comes_next(tm
         "oracle (true positions) 74.50 %"
     )
     assert lines[2] == "learned - A-CMOMMT: -11.02 ± 0.50 points (paired, 50 trials)"
+    assert lines[3] == (
+        "robots per covered target: learned 1.375, A-CMOMMT 1.062 (how thickly each team crowds the targets it covers)"
+    )
     assert "coverage curve         95s: 48.5%, 216s: 57.1%, 338s: 60.4%, 480s: 61.2%" in lines
     assert "duplicates / gaps      3 / 1" in lines
     assert any(line.startswith(f"report: {tmp_path / 'report.md'}") for line in lines)
