@@ -143,7 +143,7 @@ def _spread_line(scores: dict[str, Any]) -> str:
     return (
         f"per robot-step: {scores['only_shared_pct']:.1f} % only teammate-watched targets in view, "
         f"{scores['none_in_view_pct']:.1f} % no target in view; "
-        f"{scores['robots_per_covered_target']:.2f} robots per covered target"
+        f"{scores['robots_per_covered_target']:.3f} robots per covered target"
     )
 
 

@@ -337,7 +337,7 @@ def _spread(comparison: Mapping[str, Mapping[str, float]], trials: int) -> list[
             "" if name == "learned" else _paired(row),
             f"{row['only_shared_pct']:.1f}",
             f"{row['none_in_view_pct']:.1f}",
-            f"{row['robots_per_covered_target']:.2f}",
+            f"{row['robots_per_covered_target']:.3f}",
         )
         for name, row in [
             ("learned", comparison["learned"]),

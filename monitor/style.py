@@ -68,7 +68,7 @@ def cooperation_table(rows: Mapping[str, Mapping[str, float]], trials: int) -> s
             coverage += f" (learned {row['learned_minus']:+.2f})"
         lines.append(
             f"| {label} | {coverage} | {row['only_shared_pct']:.1f} | {row['none_in_view_pct']:.1f} "
-            f"| {row['robots_per_covered_target']:.2f} |"
+            f"| {row['robots_per_covered_target']:.3f} |"
         )
     return "\n".join(lines)
 

@@ -126,8 +126,8 @@ def test_markdown_report_opens_with_the_result_beside_its_references(tmp_path: P
     ]
     # Why one covers more: each team's spread over the targets, the learned policy's paired difference from each.
     spread = lines[lines.index(next(line for line in lines if line.startswith("| policy | % observed"))) :][2:10]
-    assert spread[0] == "| **learned policy** | 61.23 |  | 40.2 | 12.5 | 1.38 |"
-    assert spread[1] == "| A-CMOMMT | 72.25 | -11.02 ± 0.50 points | 5.5 | 30.0 | 1.06 |"
+    assert spread[0] == "| **learned policy** | 61.23 |  | 40.2 | 12.5 | 1.375 |"
+    assert spread[1] == "| A-CMOMMT | 72.25 | -11.02 ± 0.50 points | 5.5 | 30.0 | 1.062 |"
     assert spread[-1].startswith("| A-CMOMMT oracle (true positions) | 74.50 | -13.27 ± 0.62 points |")
     assert "![the learning curve beside the hand-made controllers' levels](learning_curve.png)" in lines
 

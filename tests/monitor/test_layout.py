@@ -170,8 +170,8 @@ def test_the_spread_over_the_targets_reaches_the_viewer_as_one_table_per_evaluat
     lines = first[0].splitlines()
     assert lines[0].startswith("Per robot-step on 200 test trials")
     assert lines[4:] == [
-        "| learned policy | 72.50 | 12.5 | 30.2 | 1.12 |",
-        "| A-CMOMMT | 78.00 (learned -5.50) | 12.5 | 30.2 | 1.12 |",
-        "| A-CMOMMT oracle (true positions) | 74.00 (learned -1.50) | 12.5 | 30.2 | 1.12 |",
+        "| learned policy | 72.50 | 12.5 | 30.2 | 1.125 |",
+        "| A-CMOMMT | 78.00 (learned -5.50) | 12.5 | 30.2 | 1.125 |",
+        "| A-CMOMMT oracle (true positions) | 74.00 (learned -1.50) | 12.5 | 30.2 | 1.125 |",
     ]
     assert second[0].startswith("Per robot-step on 10 test trials") and len(second[0].splitlines()) == 5
