@@ -62,13 +62,6 @@ class MarginChoice:
     spreads: dict[float, float] = field(default_factory=dict)
     """Robots per covered target on the same trials with each margin tried (empty: not recorded, as in a checkpoint
     written before they were)."""
-    cap: float | None = None
-    """The spread the choice was held to (:func:`rank`); None: coverage alone."""
-
-    @property
-    def spread(self) -> float | None:
-        """Robots per covered target with the margin chosen, where recorded."""
-        return self.spreads.get(self.margin)
 
 
 def within(spread: float | None, cap: float | None) -> bool:
@@ -117,7 +110,7 @@ def choose_margin(
         scores[m] = result.coverage_mean
         spreads[m] = result.robots_per_covered_target
     best = max(margins, key=lambda m: (*rank(scores[m], spreads[m], cap), -m))
-    return MarginChoice(best, scores, trials, seed, spreads, cap)
+    return MarginChoice(best, scores, trials, seed, spreads)
 
 
 @dataclass(frozen=True, slots=True)

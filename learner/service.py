@@ -613,7 +613,6 @@ class _Scored:
                 "margin": m.margin,
                 "scores": list(m.scores.items()),
                 "spreads": list(m.spreads.items()),
-                "cap": m.cap,
                 "trials": m.trials,
                 "seed": m.seed,
             }
@@ -633,10 +632,9 @@ class _Scored:
         choice = None
         if m is not None:
             scores = {float(k): float(v) for k, v in m["scores"]}
-            # A checkpoint written before the spreads were recorded holds neither them nor a cap.
+            # A checkpoint written before the spreads were recorded holds none.
             spreads = {float(k): float(v) for k, v in m.get("spreads", [])}
-            cap = None if m.get("cap") is None else float(m["cap"])
-            choice = MarginChoice(float(m["margin"]), scores, int(m["trials"]), int(m["seed"]), spreads, cap)
+            choice = MarginChoice(float(m["margin"]), scores, int(m["trials"]), int(m["seed"]), spreads)
         draw, spread = meta["draw"], meta.get("spread")
         return cls(
             str(meta["source"]),

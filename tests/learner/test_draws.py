@@ -498,7 +498,7 @@ def test_under_a_spread_cap_the_draw_and_the_saved_policy_are_the_best_within_it
 def test_a_best_draw_checkpointed_before_the_spreads_were_recorded_resumes_with_its_spread_unknown() -> None:
     from learner.service import _Scored
 
-    # As a checkpoint of the twenty-seventh session holds it: no spread, no margins' spreads, no cap.
+    # As a checkpoint of the twenty-seventh session holds it: no spread, no margins' spreads.
     meta = {
         "source": "early",
         "at": 52.1,
@@ -508,7 +508,7 @@ def test_a_best_draw_checkpointed_before_the_spreads_were_recorded_resumes_with_
     }
     scored = _Scored.from_meta(meta, constant(1, version=14))
     assert scored.spread is None and scored.margin is not None
-    assert scored.margin.spreads == {} and scored.margin.cap is None and scored.margin.spread is None
+    assert scored.margin.spreads == {}
     assert scored.margin.scores == {0.5: 78.6, 1.0: 78.25} and scored.draw == 1
     # Unknown is not within a cap: a later draw known to be within it is preferred, with less coverage.
     assert scored.rank(1.06) < (True, 77.0) and scored.rank(None) == (True, 78.25)
