@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import ctypes
 import faulthandler
+import itertools
 import logging
 import os
 import random
@@ -47,18 +48,21 @@ def stop_on_signals() -> Stop:
     ``urgent`` by a second one. SIGUSR1 is for SLURM: ``srun`` forwards it to its task, while it turns a SIGTERM into
     killing the job step. SIGQUIT dumps every thread's stack to stderr."""
     stop = Stop()
-    received = 0
+    received = itertools.count(1)
 
     def handler(signum: int, _frame: object) -> None:
-        nonlocal received
-        received += 1
+        # Signals that arrive together land inside one another's handler, between any two bytecodes: each call
+        # takes its number in one step (next() on a count is one C call) and every call sets the stop, so no
+        # interleaving leaves the process running (an actor whose launcher was killed once took only "again"s and
+        # ran on with a full outbox).
+        n = next(received)
+        set_from_handler(stop)
         name = signal.Signals(signum).name
-        if received > 1:
+        if n > 1:
             log.warning("received %s again while stopping", name)
             set_from_handler(stop.urgent)
             return
         log.info("received %s, stopping", name)
-        set_from_handler(stop)
 
     signal.signal(signal.SIGTERM, handler)
     signal.signal(signal.SIGINT, handler)
@@ -112,6 +116,7 @@ class Interrupts:
     def __init__(self, say: Callable[[str], None] | None = None) -> None:
         self.stop = threading.Event()
         self.received: list[signal.Signals] = []
+        self._count = itertools.count(1)
         self._say = say or (lambda line: log.warning("%s", line))
         self._steps: list[Callable[[], str]] = []
 
@@ -129,11 +134,12 @@ class Interrupts:
         self._steps = list(steps)
 
     def handle(self, signum: int, _frame: FrameType | None = None) -> None:
+        # As stop_on_signals' handler: its number in one step, and every call sets the stop.
+        n = next(self._count)
+        set_from_handler(self.stop)
         sig = signal.Signals(signum)
         self.received.append(sig)
-        n = len(self.received)
         if n == 1:
-            set_from_handler(self.stop)
             self._say(
                 f"{sig.name}: winding down cleanly (the learner checkpoints and scores its policy); again to "
                 "stop sooner"

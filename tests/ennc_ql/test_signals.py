@@ -63,3 +63,33 @@ def test_a_launchers_first_interrupt_inside_its_stop_events_wait_stops_the_run(o
     assert interrupts.stop.wait(10)
     assert interrupts.first == signal.SIGTERM and interrupts.exit_code == 143
     assert len(said) == 1 and said[0].startswith("SIGTERM: winding down cleanly")
+
+
+def test_signals_that_land_inside_one_anothers_handler_still_stop_the_process(
+    own_handlers: None, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Several SIGTERMs at once (a killed launcher's children get them together): the second lands inside the first's
+    # handler, between any two of its bytecodes; here inside its look-up of the signal's name. An actor once counted
+    # both as "again", set only the hurry and ran on with a full outbox.
+    import tools.system
+
+    real = signal.Signals
+    nested = [signal.SIGTERM]
+
+    def lands_inside(signum: int) -> signal.Signals:
+        if nested:
+            handler(nested.pop(), None)
+        return real(signum)
+
+    stop = stop_on_signals()
+    handler = signal.getsignal(signal.SIGTERM)
+    assert callable(handler)
+    monkeypatch.setattr(tools.system.signal, "Signals", lands_inside)
+    handler(signal.SIGTERM, None)
+    assert not nested and stop.wait(10) and stop.urgent.wait(10)
+    interrupts = Interrupts(say=lambda line: None)
+    nested.append(signal.SIGTERM)
+    with interrupts.installed():
+        handler = interrupts.handle
+        interrupts.handle(signal.SIGTERM, None)
+    assert not nested and interrupts.stop.wait(10) and interrupts.first == signal.SIGTERM
