@@ -110,7 +110,8 @@ def _main(argv: Sequence[str] | None) -> int:
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
     prog: str = args.prog
-    check_recording(getattr(args, "rerun", None), prog.removeprefix(PROG + " "))
+    resuming = bool(getattr(args, "resume", None))
+    check_recording(getattr(args, "rerun", None), prog.removeprefix(PROG + " "), resuming=resuming)
     keep_freed_memory()  # every process of ours churns ~1 MB message buffers
     try:
         code: int = args.func(args)

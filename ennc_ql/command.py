@@ -113,6 +113,31 @@ def check_folder(path: Path, command: str, flag: str, *, empty: bool = False) ->
         fail(command, f"{flag} {path}: cannot write in {base} ({exc.strerror or exc})")
 
 
+TRAINED = ("checkpoint.npz", "report.json", "policy.npz")
+"""What a learner leaves in its run folder: a folder holding one of them holds a run that trained, finished or
+interrupted."""
+RUN_FILES = (*TRAINED, "job.sh", "results.json")
+"""What a training or sweep command leaves in its folder (``slurm train``'s job script, a sweep's results besides a
+learner's files): a folder holding one of them holds a run that a command must not write over unless it resumes
+that run."""
+
+
+def run_files(path: Path, names: Collection[str] = RUN_FILES) -> list[str]:
+    """The files of ``names`` in folder ``path`` (none where it is missing)."""
+    return [name for name in names if (path / name).exists()]
+
+
+def refuse_run(path: Path, command: str, named: str, resume: str | None, *, names: Collection[str] = RUN_FILES) -> None:
+    """Fail if folder ``path`` holds a run (:data:`RUN_FILES`): its checkpoint, report and policy are the user's data,
+    and only a resume may add to them. ``named`` names the folder in the message (the flag that gave it), ``resume``
+    says how this command continues that run (None: it cannot, the user chooses another folder); ``names``: the files
+    that make a run for this command."""
+    held = run_files(path, names)
+    if held:
+        advice = "give another folder" if resume is None else f"continue it with {resume}, or give a fresh --run-id"
+        fail(command, f"{named} holds a run already ({', '.join(held)}), which this would overwrite: {advice}")
+
+
 def make_folder(path: Path, command: str, flag: str) -> Path:
     """``path`` created (with its parents) once every check has passed."""
     try:
@@ -128,10 +153,10 @@ def writable_dir(path: Path, command: str, flag: str) -> Path:
     return make_folder(path, command, flag)
 
 
-def check_recording(sink: Sink | None, command: str) -> None:
-    """A ``--rerun save PATH`` whose file cannot be written, or a ``--rerun spawn`` without a viewer or a display,
-    fails now, not once the processes started; so does a ``--rerun learner`` given to another command than
-    ``actor``."""
+def check_recording(sink: Sink | None, command: str, *, resuming: bool = False) -> None:
+    """A ``--rerun save PATH`` whose file cannot be written, or that lies in another run's folder (unless the command
+    resumes that run), or a ``--rerun spawn`` without a viewer or a display, fails now, not once the processes
+    started; so does a ``--rerun learner`` given to another command than ``actor``."""
     if sink is not None and sink.kind == "learner" and command != "actor":
         fail(
             command,
@@ -147,6 +172,8 @@ def check_recording(sink: Sink | None, command: str) -> None:
     if target.is_dir():
         fail(command, f"--rerun save {target}: a folder, not a file (give e.g. {target / 'run.rrd'})")
     check_folder(target.parent, command, "--rerun save")
+    if not resuming:
+        refuse_run(target.parent, command, f"--rerun save {target}: its folder", None)
 
 
 def check_device(device: str, command: str, flag: str) -> None:

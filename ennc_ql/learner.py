@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from ennc_ql.command import (
+    TRAINED,
     add_process_args,
     check_device,
     check_folder,
@@ -26,6 +27,7 @@ from ennc_ql.command import (
     fail,
     make_folder,
     open_transport,
+    refuse_run,
     registry_choices,
 )
 from ennc_ql.parser import CommandHelp, add_command
@@ -83,6 +85,9 @@ def cmd_learner(args: argparse.Namespace) -> int:
         check_checkpoint(args.run_dir)
     resume = args.resume == "yes" or (args.resume == "auto" and Checkpointer(args.run_dir).path.exists())
     check_folder(args.run_dir, "learner", "--run-dir")
+    if not resume:
+        # Only what a learner writes: a SLURM job's learner starts in a folder holding its job script.
+        refuse_run(args.run_dir, "learner", f"--run-dir {args.run_dir}", "--resume", names=TRAINED)
     check_device(config.phase1.device, "learner", "--phase1-device")
     conf = checked_zenoh(args, "learner", config.learner_id)
     stop = stop_on_signals()

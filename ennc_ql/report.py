@@ -23,6 +23,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from algorithm.files import write_atomic
 from algorithm.policy_file import load_policy, scenario_from_header
 from algorithm.selection import rank
 from ennc_ql.command import emit
@@ -545,7 +546,7 @@ def write_run_report(report: Mapping[str, Any], run_dir: Path) -> tuple[Path, Pa
     """Write ``report.md`` and ``learning_curve.png`` into ``run_dir``; their paths."""
     png = learning_curve_png(report, run_dir / LEARNING_CURVE_PNG)
     markdown = run_dir / REPORT_MD
-    markdown.write_text(markdown_report(report, png.name))
+    write_atomic(markdown, markdown_report(report, png.name).encode())
     return markdown, png
 
 
@@ -556,7 +557,7 @@ def emit_run_report(report: LearnerReport, summary: RunSummary, as_json: bool) -
     out = report.with_extra(**summary.figures(report), **_policy_figure(report, run_dir)).to_dict()
     markdown, png = write_run_report(out, run_dir)
     out.update(report_md=str(markdown), learning_curve=str(png))
-    (run_dir / "report.json").write_text(json.dumps(out, indent=2))
+    write_atomic(run_dir / "report.json", json.dumps(out, indent=2).encode())
     emit(out, as_json, terminal_summary(out))
 
 

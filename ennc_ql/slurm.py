@@ -14,14 +14,14 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import time
 from pathlib import Path
 from typing import Any
 
-from ennc_ql.command import configure, emit, fail, writable_dir
+from ennc_ql.command import configure, emit, fail, refuse_run, writable_dir
 from ennc_ql.parser import CommandHelp, add_command, add_commands
 from ennc_ql.report import emit_run_report
-from learner.checkpoint import CHECKPOINT
 from protocol import check_id
 from tools.cluster import SET_BY_UP, UP_PRESETS, LaunchError, RunSummary, UpConfig
 from tools.config import ConfigError, add_config_flags, folder, load_config
@@ -131,25 +131,37 @@ def cmd_train(args: argparse.Namespace) -> int:
         check_id(run_id, "--run-id")
     except ValueError as exc:
         fail("slurm train", str(exc))
-    run_dir = writable_dir(args.runs / run_id, "slurm train", "--runs")
-    if (run_dir / CHECKPOINT).exists():
-        fail(
-            "slurm train",
-            f"{run_dir} holds a run already ({CHECKPOINT}): choose another --run-id, or continue it with "
-            f"sbatch {run_dir / JOB_SCRIPT}",
-        )
+    folder = args.runs / run_id
+    # A job script alone is a run too: written, perhaps submitted, not started yet.
+    refuse_run(folder, "slurm train", f"--run-id {run_id}: {folder}", f"sbatch {folder / JOB_SCRIPT}")
+    before = set(folder.iterdir()) if folder.is_dir() else None
+    run_dir = writable_dir(folder, "slurm train", "--runs")
     script = write_training_job(config, job, run_dir)
     result: dict[str, Any] = {"run_dir": str(script.parent), "job_script": str(script), "job_id": None}
     if args.submit:
         try:
             result["job_id"] = submit(script)
         except SlurmError as exc:
-            fail("slurm train", str(exc))
+            # Nothing was submitted: what this command wrote goes, so the same --run-id can be tried again.
+            _remove_new(run_dir, before)
+            fail("slurm train", f"{exc}; nothing was submitted")
     nodes = job.node_count(config.actors)
     line = f"{script}: {config.actors} actors on {nodes} node(s), {config.duration:g} s of training; "
     line += f"submitted as job {result['job_id']}" if result["job_id"] else f"submit it with: sbatch {script}"
     emit(result, args.json, line)
     return 0
+
+
+def _remove_new(folder: Path, before: set[Path] | None) -> None:
+    """Remove ``folder`` where it did not exist (``before`` None), else what it holds that was not in ``before``."""
+    if before is None:
+        shutil.rmtree(folder, ignore_errors=True)
+        return
+    for path in set(folder.iterdir()) - before:
+        if path.is_dir():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
 
 
 def cmd_run(args: argparse.Namespace) -> int:

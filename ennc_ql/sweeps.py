@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from algorithm.experiments import METHODS, Budget
-from ennc_ql.command import check_folder, emit, fail
+from ennc_ql.command import check_folder, emit, fail, run_files
 from ennc_ql.parser import CommandHelp, add_command
 from sim.formulation import choices_help
 from tools.config import ConfigError, add_config_flags, folder, load_config, positive
@@ -35,7 +35,15 @@ def sweep_backend(slurm: ArrayConfig, jobs: int, out_dir: Path) -> Backend:
 
 def check_unused(out_dir: Path, command: str, force: bool) -> None:
     """A one-line error if ``out_dir`` holds results already and ``force`` was not given: a second run with the same
-    ``--out`` would replace the first's without a word."""
+    ``--out`` would replace the first's without a word. A training run's folder is refused even with ``force``:
+    ``force`` replaces a sweep's results, never a run's checkpoint, report or policy."""
+    training = [name for name in run_files(out_dir) if name != RESULTS]
+    if training:
+        fail(
+            command,
+            f"--out {out_dir} holds a training run ({', '.join(training)}), which this would overwrite: "
+            "give another --out",
+        )
     if not force and (out_dir / RESULTS).exists():
         fail(
             command,

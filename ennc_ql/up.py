@@ -28,7 +28,15 @@ from typing import Any
 import numpy as np
 
 from actors.config import ActorConfig
-from ennc_ql.command import check_device, check_folder, configure, fail, make_folder, registry_choices
+from ennc_ql.command import (
+    check_device,
+    check_folder,
+    configure,
+    fail,
+    make_folder,
+    refuse_run,
+    registry_choices,
+)
 from ennc_ql.parser import CommandHelp, add_command
 from ennc_ql.report import emit_run_report
 from learner.checkpoint import Checkpointer, CheckpointError
@@ -129,6 +137,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     except ValueError as exc:
         fail("up", str(exc))
     runs = args.runs or Path("runs")
+    refuse_run(runs / run_id, "up", f"--run-id {run_id}: {runs / run_id}", f"ennc-ql up --resume {runs / run_id}")
     check_folder(runs / run_id, "up", "--runs", empty=True)
     check_device(config.learner.phase1.device, "up", "--learner-phase1-device")
     run_dir = make_folder(runs / run_id, "up", "--runs")

@@ -30,6 +30,7 @@ from typing import Any
 import psutil
 
 from algorithm.discretization import Discretization
+from algorithm.files import write_atomic
 from algorithm.phase1 import estimator
 from algorithm.policy import Policy, PolicyController
 from algorithm.policy_file import PolicyFileError, load_policy, save_policy
@@ -534,7 +535,7 @@ class LearnerService:
             self.watch.final(policy, final, self.config.final_eval_trials, self.evaluator.comparison())
             log.info("final policy version %d: %.2f%% of targets observed", policy.version, final)
         report = self._report(final, self.checkpoint(), self.elapsed())
-        (self.run_dir / "report.json").write_text(json.dumps(report.to_dict(), indent=2))
+        write_atomic(self.run_dir / "report.json", json.dumps(report.to_dict(), indent=2).encode())
         return report
 
     def saved_report(self) -> LearnerReport:

@@ -217,7 +217,7 @@ def fixtures(folder: Path) -> None:
     (folder / "empty").mkdir()
     (folder / "used").mkdir()
     (folder / "used" / "x").mkdir()
-    (folder / "used" / "x" / "report.json").write_text("{}\n")
+    (folder / "used" / "x" / "notes.txt").write_text("a file of the user's\n")
     (folder / "used" / "checkpoint.npz").write_text("not an archive\n")
     (folder / "bad.json5").write_text("{bad\n")
     (folder / "unknown.json5").write_text('{mode: "peer", foo: 1}\n')

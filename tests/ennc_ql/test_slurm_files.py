@@ -84,8 +84,8 @@ def test_slurm_train_never_writes_over_a_run(capsys: pytest.CaptureFixture[str],
         capsys.readouterr()
         .err.strip()
         .endswith(
-            f"holds a run already (checkpoint.npz): choose another --run-id, or continue it with sbatch "
-            f"{tmp_path / 'r' / 'job.sh'}"
+            "holds a run already (checkpoint.npz, job.sh), which this would overwrite: continue it with sbatch "
+            f"{tmp_path / 'r' / 'job.sh'}, or give a fresh --run-id"
         )
     )
     assert load_config(UpConfig, file=tmp_path / "r" / "up.toml").actors == 2  # untouched

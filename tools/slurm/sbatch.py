@@ -24,7 +24,9 @@ def slurm_command(argv: Sequence[str], timeout: float = 60.0) -> str:
     except (OSError, subprocess.TimeoutExpired) as exc:
         raise SlurmError(f"{shlex.join(argv)}: {exc}") from None
     if done.returncode != 0:
-        raise SlurmError(f"{shlex.join(argv)} failed: {done.stderr.strip() or done.returncode}")
+        # One line: an error of ours is one line, and sbatch's own run over several.
+        said = "; ".join(line.strip() for line in done.stderr.splitlines() if line.strip())
+        raise SlurmError(f"{shlex.join(argv)} failed: {said or f'exit status {done.returncode}'}")
     return done.stdout
 
 

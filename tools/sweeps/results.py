@@ -11,6 +11,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from algorithm.files import write_atomic
 from algorithm.policy import Policy
 from algorithm.policy_file import save_policy
 from sim import ScenarioConfig
@@ -36,6 +37,6 @@ def write_results(
     for name, (policy, cfg) in policies.items():
         if policy is not None:
             save_policy(policy, cfg, out_dir / "policies" / f"{name}.npz")
-    (out_dir / RESULTS).write_text(json.dumps(report, indent=2))
+    write_atomic(out_dir / RESULTS, json.dumps(report, indent=2).encode())
     (out_dir / "results.md").write_text(markdown)
     chart.savefig(out_dir / chart_name, dpi=CHART_DPI)
