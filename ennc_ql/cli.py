@@ -80,7 +80,23 @@ def build_parser(router_only: bool = False) -> argparse.ArgumentParser:
     return parser
 
 
+def _fill_closed_streams() -> None:
+    """Standard streams closed at start (``ennc-ql eval >&-``): /dev/null in their place. Python leaves ``sys.stdout``
+    None there, and the next file opened would take descriptor 1 and receive what the command prints."""
+    for fd, name, mode in ((0, "stdin", "r"), (1, "stdout", "w"), (2, "stderr", "w")):
+        try:
+            os.fstat(fd)
+        except OSError:
+            opened = os.open(os.devnull, os.O_RDONLY if mode == "r" else os.O_WRONLY)
+            if opened != fd:  # the lowest free descriptor: a lower one was closed too and is filled first
+                os.dup2(opened, fd)
+                os.close(opened)
+        if getattr(sys, name) is None:
+            setattr(sys, name, open(fd, mode, closefd=False))  # noqa: SIM115 - the process's own stream
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    _fill_closed_streams()
     die_with_parent()  # a child of ``up``: gone with it, whatever kills it
     for stream in (sys.stdout, sys.stderr):
         # Where the terminal's encoding lacks a character of ours (PYTHONIOENCODING=ascii, a C locale): a '?' in its

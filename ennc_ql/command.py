@@ -18,7 +18,7 @@ from typing import Any, NoReturn
 import zenoh
 
 from monitor import Sink, add_rerun_args
-from monitor.sinks import spawn_problem
+from monitor.sinks import serve_problem, spawn_problem
 from protocol import ZenohTransport, add_connection_args, config_from_args, keys_from_args
 from tools.config import ConfigError, add_config_flags, load_config
 from tools.config_fields import UnknownKey, nested_fields
@@ -162,6 +162,10 @@ def check_recording(sink: Sink | None, command: str, *, resuming: bool = False) 
             command,
             "--rerun learner: only an actor relays its rows to the learner; choose off, save, spawn, connect or serve",
         )
+    if sink is not None and sink.kind == "serve":
+        problem = serve_problem()
+        if problem:
+            fail(command, f"--rerun serve: {problem}")
     if sink is not None and sink.kind == "spawn":
         problem = spawn_problem()
         if problem:

@@ -54,6 +54,21 @@ def spawn_problem(port: int = VIEWER_PORT) -> str | None:
     return None
 
 
+def serve_problem(port: int = VIEWER_PORT) -> str | None:
+    """Why ``--rerun serve`` cannot listen on ``port`` here, or None: Rerun's server logs a taken port and goes on
+    serving nothing, so it is checked before anything starts."""
+    with socket.socket() as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind(("0.0.0.0", port))
+        except OSError as exc:
+            return (
+                f"port {port} is taken ({exc.strerror or exc}): a viewer or another --rerun serve listens there; "
+                f"stream to it with --rerun connect rerun+http://127.0.0.1:{port}/proxy, or stop it"
+            )
+    return None
+
+
 def _check(kind: str, target: str | None) -> None:
     if kind not in SINK_KINDS:
         raise ValueError(f"unknown Rerun sink {kind!r}; choose one of {', '.join(SINK_KINDS)}")

@@ -451,3 +451,40 @@ def test_a_reader_that_goes_away_ends_the_command_quietly(reader: str, tmp_path:
     assert proc.wait(TIMEOUT_S) in (0, 128 + signal.SIGPIPE)
     for leak in ("Traceback", "BrokenPipe", "Exception ignored", "error"):
         assert leak not in err, err
+
+
+@pytest.mark.parametrize("closed", [">&-", "2>&-", ">&- 2>&-", "<&-"])
+def test_closed_standard_streams_are_no_traceback(closed: str, tmp_path: Path) -> None:
+    """A command started with a standard stream closed runs as with /dev/null there: ``eval`` scores its trials and
+    exits 0, and what it prints lands nowhere (not in a file that took the stream's descriptor)."""
+    command = f"{ENNC_QL} eval --trials 2 --steps 20 --json {closed}; echo status=$? >&3"
+    done = subprocess.run(
+        ["bash", "-c", f"exec 3>&1; {{ {command}; }} 2>{tmp_path / 'err'}"],
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT_S,
+        cwd=tmp_path,
+    )
+    assert "status=0" in done.stdout, (done.stdout, (tmp_path / "err").read_text())
+    err = (tmp_path / "err").read_text()
+    assert "Traceback" not in err and "NoneType" not in err
+    if ">&-" not in closed.replace("2>&-", ""):  # stdout open: the result is printed there
+        assert '"coverage_mean"' in done.stdout
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["err"]
+
+
+def test_rerun_serve_on_a_taken_port_is_one_line_before_anything_starts(tmp_path: Path) -> None:
+    """Rerun's server only logs a taken port and serves nothing: ``--rerun serve`` checks the port first."""
+    with socket.socket() as busy:
+        busy.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            busy.bind(("0.0.0.0", 9876))
+        except OSError:
+            pytest.skip("port 9876 is in use on this machine already (a Rerun viewer?)")
+        busy.listen()
+        result = run(["eval", "--trials", "1", "--steps", "10", "--rerun", "serve"], tmp_path)
+    assert result.returncode == 2
+    [line] = result.stderr.splitlines()
+    assert line.startswith("ennc-ql eval: error: --rerun serve: port 9876 is taken")
+    assert "--rerun connect rerun+http://127.0.0.1:9876/proxy" in line
+    assert result.stdout == "" and list(tmp_path.iterdir()) == []
