@@ -25,7 +25,7 @@ from algorithm.discretization import Discretization
 from algorithm.fqi import FQIConfig, NetworkController, QNetwork, collect, fit_q
 from algorithm.phase1 import CMOMMT_PHASE1, Phase1Config, phase1
 from algorithm.policy import ActionMode, LostBehaviour, Policy, PolicyController
-from algorithm.selection import BestPolicy, choose_margin
+from algorithm.selection import SaveRule
 from algorithm.transitions import Transitions
 from algorithm.trials import ExperienceSlice, SliceConfig
 from algorithm.vqql import lbg
@@ -90,8 +90,6 @@ UNUSED_BUDGET: dict[str, tuple[str, ...]] = {
         "refits",
         "refit_tuples",
         "refit_seed_prototypes",
-        "validate_every",
-        "validation_trials",
         "law_margin_trials",
     ),
     "vqql": ("phase1", "refits", "refit_tuples", "refit_seed_prototypes", "fqi"),
@@ -129,15 +127,10 @@ class Budget:
     fqi: FQIConfig = field(default_factory=FQIConfig)
     """The neural fitted-Q reference (method ``fqi-mlp``): it explores as phase 0 and learns on as many batches of
     learning trials as phase 2, in ``fqi.rounds`` rounds."""
-    validate_every: int = 0
-    """Every this many phase-2 batches (and after the last), score the policy on validation trials
-    (:mod:`algorithm.selection`, never the test trials) and test the best one instead of the last; 0: test the last
-    [beyond the paper]."""
-    validation_trials: int = 30
-    law_margin_trials: int = 0
-    """A law action set's policy, after the one kept: read with the margin of
-    :data:`algorithm.selection.LAW_MARGINS` that scores best on this many validation trials, as the learner reads its
-    own (:func:`algorithm.selection.choose_margin`); 0: the argmax [beyond the paper]."""
+    law_margin_trials: int = 300
+    """A law action set's policy is saved by the learner's rule (:class:`algorithm.selection.SaveRule`): the last
+    tables, read with the margin of :data:`algorithm.selection.LAW_MARGINS` that scores best on this many validation
+    trials; 0: the argmax (margin 0 given) [beyond the paper]."""
     test_trials: int = 10
     test_steps: int = 1000
     test_seed: int = 0
@@ -155,6 +148,7 @@ class Budget:
             phase2_trials=20,
             phase1=Phase1Config(max_iterations=1, max_patterns=20_000, n_cycles=150),
             codebook_patterns=20_000,
+            law_margin_trials=30,
         )
 
 
@@ -300,7 +294,6 @@ def train(
         else {round(k * budget.phase2_trials / (budget.refits + 1)) for k in range(1, budget.refits + 1)}
     )
     recent: list[Transitions] = []
-    keeper = BestPolicy(base, budget.validation_trials, budget.test_steps)
 
     def acting() -> Policy:
         """The policy as tested: every test robot on its row, deciding as the formulation says."""
@@ -320,18 +313,10 @@ def train(
         if trial + 1 in refit_at:
             agent, disc = _refit(agent, Transitions.concat(recent), budget, seed + trial, learn_cfg)
             say(f"refit: {disc.sizes().mean():.1f} prototypes per action")
-        if budget.validate_every and (trial + 1) % budget.validate_every == 0 and trial + 1 < budget.phase2_trials:
-            keeper.offer(acting(), at=trial + 1)
-    policy = acting()
-    if budget.validate_every:
-        keeper.offer(policy, at=budget.phase2_trials)
-        assert keeper.best is not None
-        policy = keeper.best.policy
-        say(f"kept the policy of batch {keeper.best.at:.0f}: {keeper.best.coverage:.2f}% on validation trials")
-    if budget.law_margin_trials:
-        choice = choose_margin(base, policy, budget.law_margin_trials, budget.test_steps)
-        policy = dataclasses.replace(policy, law_margin=choice.margin)
-        say(f"law margin {choice.margin:g}: the best on {choice.trials} validation trials")
+    trials = budget.law_margin_trials
+    rule = SaveRule(base, law_margin=None if trials else 0.0, trials=max(trials, 1), steps=budget.test_steps)
+    policy, saved = rule.decide(acting(), at=budget.phase2_trials)
+    say(f"saved {saved.reason}" + ("" if saved.margin is None else f" (law margin {saved.margin:g})"))
     result = evaluate(base, PolicyController(policy), budget.test_trials, budget.test_steps, seed=budget.test_seed)
     say(f"test coverage {result.coverage_mean:.2f}%")
     states = float(spec.codebook) if spec.algorithm == "vqql" else float(disc.sizes().mean())

@@ -132,17 +132,41 @@ class Policy:
         return [disc.prototypes[lo:hi] / scale for lo, hi in bounds], [q[lo:hi] for lo, hi in bounds]
 
 
+TALLY = 4
+"""The counts of :attr:`PolicyController.tally`."""
+
+
+@dataclass(frozen=True, slots=True)
+class OffLaw:
+    """How often a law action set's policy departed from the move law, over its robots' decisions."""
+
+    pct: float
+    """Decisions that took another move than ``law`` (%)."""
+    shared_pct: float
+    """Decisions taken where a teammate also watched one of the robot's targets (% of all decisions)."""
+    shared_off_pct: float
+    """Of those, the ones that took another move than ``law`` (%): the departures that can be cooperation (handing a
+    target over, leaving a shared one to search)."""
+
+    @classmethod
+    def of(cls, tally: np.ndarray) -> OffLaw:
+        decisions, off, shared, shared_off = (int(v) for v in tally)
+        return cls(
+            100.0 * off / max(decisions, 1), 100.0 * shared / max(decisions, 1), 100.0 * shared_off / max(shared, 1)
+        )
+
+
 def evaluate_off_law(
     cfg: ScenarioConfig, policy: Policy, trials: int, steps: int, seed: int
-) -> tuple[EvalResult, float | None]:
-    """``sim.evaluate`` of ``policy`` on those trials, and with a law action set the percentage of the robots'
-    decisions that took another move than ``law`` (None for other sets): how far the learned policy departs from
-    the hand-made law it holds as one of its moves."""
+) -> tuple[EvalResult, OffLaw | None]:
+    """``sim.evaluate`` of ``policy`` on those trials, and with a law action set how often its robots' decisions took
+    another move than ``law`` (None for other sets): how far the learned policy departs from the hand-made law it
+    holds as one of its moves, and where."""
     if policy.formulation.actions.law is None:
         return evaluate(cfg, PolicyController(policy), trials, steps, seed=seed), None
-    controller = PolicyController(policy, tally=np.zeros(2, np.int64))
+    controller = PolicyController(policy, tally=np.zeros(TALLY, np.int64))
     result = evaluate(cfg, controller, trials, steps, seed=seed)
-    return result, controller.off_law_pct()
+    return result, controller.off_law()
 
 
 @dataclass(frozen=True, slots=True)
@@ -162,14 +186,17 @@ class PolicyController:
     policy: Policy
     name: str = "policy"
     tally: np.ndarray | None = None
-    """(2,) int64 added to in place: the robots' decisions, and those that took another move than action 0 (``law``
-    for a law action set); None: not counted."""
+    """(TALLY,) int64 added to in place: the robots' decisions, those that took another move than action 0 (``law``
+    for a law action set), those taken where a teammate also watched one of the robot's targets, and those of them
+    off action 0; None: not counted."""
 
     def off_law_pct(self) -> float | None:
         """The percentage of the counted decisions that took another move than action 0; None when not counted."""
-        if self.tally is None:
-            return None
-        return 100.0 * float(self.tally[1]) / max(int(self.tally[0]), 1)
+        return None if self.tally is None else OffLaw.of(self.tally).pct
+
+    def off_law(self) -> OffLaw | None:
+        """The counted decisions' departures from action 0, overall and where targets were shared."""
+        return None if self.tally is None else OffLaw.of(self.tally)
 
     def init(self, cfg: ScenarioConfig, world: WorldState, rng: np.random.Generator) -> _Memory:
         shape = (world.n_arenas, cfg.n_robots)
@@ -209,8 +236,9 @@ class PolicyController:
         if cells is not None and decide.any():
             chosen = p.greedy(states, robots, cells).reshape(n_arenas, m)
             if self.tally is not None:
-                self.tally[0] += int(decide.sum())
-                self.tally[1] += int((decide & (chosen != 0)).sum())
+                off = decide & (chosen != 0)
+                shared = decide & (obs.n_seen > obs.n_only)
+                self.tally[:] += (int(decide.sum()), int(off.sum()), int(shared.sum()), int((shared & off).sum()))
             action = np.where(decide, chosen, action)
             start_cell = cells[np.arange(n_arenas * m), action.reshape(-1)].reshape(n_arenas, m)
             cell = np.where(decide, start_cell, cell_now)

@@ -1,50 +1,48 @@
-"""Keep the best policy of a learning run by its score on validation trials, never on the reported test trials.
+"""Which policy a training run saves: one rule, one owner, one typed record.
 
-Phase 2 does not improve monotonically: a run can settle early on a worse policy and stay there (the scaling runs
-of docs/learning-quality.md spread 66.6–74.9 % at 16 minutes). The learner and ``train`` therefore score each
-policy they would evaluate on validation trials too, and save and report the best one. Every policy is scored on
-the same validation trials, so two scores differ by the policies, not by the trials::
+Every training path (the learner behind ``ennc-ql up``, ``train`` behind ``ablate`` and ``reproduce``) saves the
+tables its whole experience made, the last ones, never an earlier version chosen on a score: a choice among versions
+moves a figure without better learning, and throws away the experience that came after. The one choice left is how a
+law action set's tables are read: the law margin (a robot departs from the move law only where another move's value
+beats it by more), given, or chosen on validation trials of their own seed, never on the reported test trials::
 
-    keeper = BestPolicy(scenario("cmommt-v1"), trials=10, steps=1000)
-    keeper.offer(policy, at=61.0)        # its validation coverage (%); kept if above every earlier one
-    keeper.keep(policy, keeper.score(policy), at=61.0)   # the same in two halves: the slow score records nothing
-    keeper.best                          # Kept(policy, coverage, at) or None before the first offer
-    keeper.to_meta(); keeper.restore(meta, policy)   # across a learner's resume (the policy from its file)
+    rule = SaveRule(scenario("cmommt-v1"), law_margin=None, trials=300, steps=1000)
+    policy, saved = rule.decide(last_policy, at=480.0)     # the policy read as it is saved, and the record of why
+    saved.margin, saved.choice.scores                     # the margin and every margin's validation coverage
+    saved.to_dict(); SavedPolicy.from_dict(d)             # report.json's ``saved`` and back
 
-A law action set's policy is then read with the margin that scores best on validation trials (more of them: the
-margins differ by tenths of a point), never on the reported ones::
-
-    choice = choose_margin(cfg, policy, trials=300, steps=1000)   # MarginChoice(margin, scores, spreads, ...)
-    policy = dataclasses.replace(policy, law_margin=choice.margin)
-
-A choice can be held to a hand-made law's spread over the targets: a margin (or a candidate) whose team has more
-robots per covered target on the validation trials than the law's team there is chosen only where none has fewer::
-
-    cap = reference_spread(cfg, "a-cmommt", trials=300, steps=1000)   # the law's robots per covered target
-    choice = choose_margin(cfg, policy, trials=300, steps=1000, cap=cap)
-    rank(coverage, spread, cap)          # the order of two candidates: (within the cap, coverage)
+A choice can be given up: ``rule.decide(policy, at, stop=event)`` raises :class:`ScoringStopped` once ``event`` is
+set, between two margins; a run stopped so saves ``rule.fallback(policy, at)``, the same tables unchosen.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import threading
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 from algorithm.policy import Policy, PolicyController
 from sim import ScenarioConfig, evaluate
-from sim.controllers import HAND_MADE
 
 VALIDATION_SEED = 1000
-"""The validation trials' seed: none of the reported test trials (seed 0 for ``up`` and ``train``, 0…3 for the
-README's tables), nor the references' tuning seeds and the screens' test trials (100…103)."""
-
+"""The validation trials' seed: none of the reported test trials (:data:`TEST_SEED`), nor the references' tuning
+seeds (100…103) [choice]."""
+TEST_SEED = 5000
+"""The reported test trials' seed: the final figures of ``up``, ``eval`` and the README read these trials and no
+design choice has (seeds 0, 2000 and 3000 steered earlier choices and are development trials now) [choice]."""
+DEVELOPMENT_SEED = 0
+"""The learning curve's trials: read many times during a run, so development trials, never the reported ones."""
 
 LAW_MARGINS = (0.0, 0.1, 0.2, 0.3, 0.5, 1.0, 2.0)
-"""The margins :func:`choose_margin` tries: 0 is the plain argmax; at 2 the tables of every policy measured departed
-from ``law`` in under 1 % of the decisions, so the policy is nearly the law itself (docs/learning-quality.md,
-"Eighteenth round") [choice]."""
+"""The margins :class:`SaveRule` tries: 0 is the plain argmax; at 2 the tables of every policy measured departed from
+``law`` in under 1 % of the decisions, so the policy is nearly the law itself [choice]."""
+
+
+FALLBACK_MARGIN = 1.0
+"""The margin of a run stopped before its choice: the one that most often scored best on validation trials over the
+learner's recent runs, and where tables departed from ``law`` on about a third of the decisions [choice]."""
 
 
 class ScoringStopped(Exception):
@@ -60,29 +58,7 @@ class MarginChoice:
     trials: int
     seed: int
     spreads: dict[float, float] = field(default_factory=dict)
-    """Robots per covered target on the same trials with each margin tried (empty: not recorded, as in a checkpoint
-    written before they were)."""
-
-
-def within(spread: float | None, cap: float | None) -> bool:
-    """Whether a team of ``spread`` robots per covered target is held to ``cap`` (None: no cap; an unknown or NaN
-    spread is not within one)."""
-    return cap is None or (spread is not None and spread <= cap)
-
-
-def rank(coverage: float, spread: float | None, cap: float | None) -> tuple[bool, float]:
-    """The order of candidates under a spread cap: every one within the cap before any other, then by coverage."""
-    return within(spread, cap), coverage
-
-
-def reference_spread(cfg: ScenarioConfig, name: str, trials: int, steps: int, seed: int = VALIDATION_SEED) -> float:
-    """Robots per covered target of the hand-made controller ``name`` on the validation trials: the cap of a choice
-    held to its spread."""
-    result = evaluate(cfg, HAND_MADE[name], trials, steps, seed=seed)
-    spread = result.robots_per_covered_target
-    if not spread > 0:
-        raise ValueError(f"{name} covered no target on {trials} validation trials: its spread caps nothing")
-    return spread
+    """Robots per covered target on the same trials with each margin tried: reported, never a gate."""
 
 
 def choose_margin(
@@ -93,11 +69,9 @@ def choose_margin(
     margins: tuple[float, ...] = LAW_MARGINS,
     seed: int = VALIDATION_SEED,
     stop: threading.Event | None = None,
-    cap: float | None = None,
 ) -> MarginChoice:
     """The ``law_margin`` among ``margins`` with which ``policy`` (a law action set's) scores best on the validation
-    trials, every margin on the same trials; with a ``cap``, the best of those whose robots per covered target are at
-    most it, where one is (:func:`rank`). The smallest margin on a tie. ScoringStopped once ``stop`` is set, checked
+    trials, every margin on the same trials; the smallest on a tie. ScoringStopped once ``stop`` is set, checked
     before each margin."""
     if policy.formulation.actions.law is None:
         raise ValueError(f"a law margin needs a law action set, not {policy.formulation.actions.name!r}")
@@ -109,55 +83,94 @@ def choose_margin(
         result = evaluate(cfg, controller, trials, steps, seed=seed)
         scores[m] = result.coverage_mean
         spreads[m] = result.robots_per_covered_target
-    best = max(margins, key=lambda m: (*rank(scores[m], spreads[m], cap), -m))
+    best = max(margins, key=lambda m: (scores[m], -m))
     return MarginChoice(best, scores, trials, seed, spreads)
 
 
 @dataclass(frozen=True, slots=True)
-class Kept:
-    policy: Policy
-    coverage: float
-    """Metric A (%) on the validation trials."""
-    at: float
-    """When it was offered: seconds of training (the learner) or phase-2 batches (``train``)."""
+class SavedPolicy:
+    """The record of what a run saved: reports print it, nothing decides again from it."""
+
+    version: int
+    """The policy version saved (the last the run made)."""
+    at_s: float
+    """The run clock (seconds of training) when it was made."""
+    margin: float | None
+    """A law action set's margin it is read with (None: another action set, read by the argmax)."""
+    choice: MarginChoice | None = None
+    """How the margin was chosen on validation trials (None: given, or not a law action set)."""
+    reason: str = ""
+    """Why it is read so, in a few words (the rule's own)."""
+
+    def to_dict(self) -> dict[str, Any]:
+        c = self.choice
+        return {
+            "version": self.version,
+            "at_s": round(self.at_s, 2),
+            "margin": self.margin,
+            "reason": self.reason,
+            "choice": None
+            if c is None
+            else {
+                "validation_coverage": {f"{m:g}": round(v, 3) for m, v in c.scores.items()},
+                "validation_spread": {f"{m:g}": round(v, 4) for m, v in c.spreads.items()},
+                "validation_trials": c.trials,
+                "validation_seed": c.seed,
+            },
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> SavedPolicy:
+        c = data.get("choice")
+        choice = (
+            None
+            if c is None
+            else MarginChoice(
+                float(data["margin"]),
+                {float(m): float(v) for m, v in c["validation_coverage"].items()},
+                int(c["validation_trials"]),
+                int(c["validation_seed"]),
+                {float(m): float(v) for m, v in c.get("validation_spread", {}).items()},
+            )
+        )
+        margin = data.get("margin")
+        return cls(
+            int(data["version"]),
+            float(data["at_s"]),
+            None if margin is None else float(margin),
+            choice,
+            str(data.get("reason", "")),
+        )
 
 
-class BestPolicy:
-    def __init__(self, cfg: ScenarioConfig, trials: int, steps: int, seed: int = VALIDATION_SEED) -> None:
-        self.cfg = cfg
-        self.trials = trials
-        self.steps = steps
-        self.seed = seed
-        self.best: Kept | None = None
-        self.scores: list[tuple[float, float]] = []
-        """(at, validation coverage %) of every policy offered."""
+@dataclass(frozen=True, slots=True)
+class SaveRule:
+    """The rule every training path saves by: the last policy, a law action set's read with ``law_margin`` (given)
+    or with the margin of :data:`LAW_MARGINS` that scores best on ``trials`` validation trials (``law_margin`` None)."""
 
-    def offer(self, policy: Policy, at: float) -> float:
-        """Score ``policy`` on the validation trials and keep it if it beats every earlier one (ties keep the
-        earlier); returns its score."""
-        coverage = self.score(policy)
-        self.keep(policy, coverage, at)
-        return coverage
+    cfg: ScenarioConfig
+    law_margin: float | None
+    trials: int
+    steps: int
 
-    def score(self, policy: Policy) -> float:
-        """Metric A (%) of ``policy`` on the validation trials; records nothing (the slow half of :meth:`offer`)."""
-        return evaluate(self.cfg, PolicyController(policy), self.trials, self.steps, seed=self.seed).coverage_mean
+    def decide(self, policy: Policy, at: float, stop: threading.Event | None = None) -> tuple[Policy, SavedPolicy]:
+        """``policy`` (the last) read as it is saved, and the record of it. ScoringStopped once ``stop`` is set
+        during a margin choice."""
+        if policy.formulation.actions.law is None:
+            return policy, SavedPolicy(policy.version, at, None, None, "the last tables, by their argmax")
+        if self.law_margin is not None:
+            read = dataclasses.replace(policy, law_margin=self.law_margin)
+            return read, SavedPolicy(policy.version, at, self.law_margin, None, "the last tables, the margin given")
+        choice = choose_margin(self.cfg, policy, self.trials, self.steps, stop=stop)
+        read = dataclasses.replace(policy, law_margin=choice.margin)
+        reason = f"the last tables, the margin that scored best on {self.trials} validation trials"
+        return read, SavedPolicy(policy.version, at, choice.margin, choice, reason)
 
-    def keep(self, policy: Policy, coverage: float, at: float) -> bool:
-        """Record ``policy``'s validation ``coverage``; True if it is the new best (the quick half of :meth:`offer`)."""
-        self.scores.append((round(at, 2), round(coverage, 3)))
-        if self.best is None or coverage > self.best.coverage:
-            self.best = Kept(policy, coverage, at)
-            return True
-        return False
-
-    def to_meta(self) -> dict[str, Any]:
-        kept = None if self.best is None else {"coverage": self.best.coverage, "at": self.best.at}
-        return {"validation_scores": list(self.scores), "kept": kept}
-
-    def restore(self, meta: dict[str, Any], policy: Policy | None) -> None:
-        """Continue from a checkpoint's figures and the kept policy (None: none was kept, or its file is lost, so
-        the next offer is kept)."""
-        self.scores = [(float(t), float(c)) for t, c in meta.get("validation_scores", [])]
-        kept = meta.get("kept")
-        self.best = None if kept is None or policy is None else Kept(policy, float(kept["coverage"]), float(kept["at"]))
+    def fallback(self, policy: Policy, at: float) -> tuple[Policy, SavedPolicy]:
+        """``policy`` read without a choice, for a run stopped before its choice ended: with ``law_margin`` where
+        given, else with :data:`FALLBACK_MARGIN`."""
+        if policy.formulation.actions.law is None or self.law_margin is not None:
+            return self.decide(policy, at)
+        read = dataclasses.replace(policy, law_margin=FALLBACK_MARGIN)
+        reason = f"the last tables, margin {FALLBACK_MARGIN:g}: the run stopped before a margin was chosen"
+        return read, SavedPolicy(policy.version, at, FALLBACK_MARGIN, None, reason)

@@ -205,7 +205,6 @@ def registry_choices() -> dict[str, Collection[str]]:
     exactly these."""
     from sim import SCENARIOS  # imported here: the router's process never loads the simulator
     from sim.actions import ACTION_SETS
-    from sim.controllers import HAND_MADE
     from sim.features import FEATURIZER_REGISTRY
     from sim.formulation import FORMULATIONS, REWARD_NAMES, TRIAL_RULES
 
@@ -216,7 +215,6 @@ def registry_choices() -> dict[str, Collection[str]]:
         "actions": ACTION_SETS,
         "trial_rules": TRIAL_RULES,
         "scenario": SCENARIOS,
-        "spread_cap": HAND_MADE,
     }
 
 

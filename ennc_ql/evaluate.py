@@ -14,14 +14,15 @@ from typing import Any
 
 import numpy as np
 
-from algorithm.policy import PolicyController
+from algorithm.policy import TALLY, PolicyController
 from algorithm.policy_file import PolicyFileError, load_policy, scenario_from_header
+from algorithm.selection import TEST_SEED
 from ennc_ql.command import emit, fail
 from ennc_ql.parser import CommandHelp, add_command
 from monitor import add_rerun_args, open_monitor, sink_from_args
 from monitor.trial import trial_hook
 from sim import CONTROLLERS, HAND_MADE, ORACLES, SCENARIOS, Controller, ScenarioConfig, evaluate, scenario
-from sim.rollout import EvalResult
+from sim.rollout import WITHIN_NOISE, EvalResult, within_noise
 from tools.config import non_negative, positive
 
 HELP = CommandHelp(
@@ -56,7 +57,12 @@ def add_eval_parser(sub: Any) -> None:
     p.add_argument("--scenario", default="cmommt-v1", choices=sorted(SCENARIOS), help="the simulated world")
     p.add_argument("--trials", type=positive(int), default=10, help="independent test trials")
     p.add_argument("--steps", type=positive(int), default=1000, help="steps per trial")
-    p.add_argument("--seed", type=non_negative(int), default=0, help="seed of the test trials (0 or more)")
+    p.add_argument(
+        "--seed",
+        type=non_negative(int),
+        default=TEST_SEED,
+        help=f"seed of the test trials (0 or more; default {TEST_SEED}, the trials up's final figure reads)",
+    )
     p.add_argument(
         "--against",
         metavar="POLICY",
@@ -91,7 +97,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
             monitor.send_blueprint(eval_trial=True)
             hook = trial_hook(monitor, cfg, arena=args.record_trial)
         result = evaluate(cfg, controller, trials=args.trials, steps=args.steps, seed=args.seed, on_step=hook)
-    off_law = controller.off_law_pct() if isinstance(controller, PolicyController) else None
+    off_law = controller.off_law() if isinstance(controller, PolicyController) else None
     out = {
         "policy": args.policy,
         **info,
@@ -102,7 +108,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
         **_scores(result),
     }
     if off_law is not None:
-        out["off_law_pct"] = round(off_law, 4)
+        out["off_law_pct"] = round(off_law.pct, 4)
+        out["shared_decisions_pct"] = round(off_law.shared_pct, 4)
+        out["shared_off_law_pct"] = round(off_law.shared_off_pct, 4)
     rows = "\n".join(f"  trial {i:>3}  {c:6.2f} %" for i, c in enumerate(out["coverage_per_trial"]))
     table = (
         f"policy {_title(args.policy, info)} on {cfg.name}: {args.trials} trials x {args.steps} steps, seed {args.seed}"
@@ -110,7 +118,11 @@ def cmd_eval(args: argparse.Namespace) -> int:
         f"  {_spread_line(out)}"
     )
     if "off_law_pct" in out:
-        table += f"\n  {out['off_law_pct']:.1f} % of the robots' decisions took another move than law"
+        table += (
+            f"\n  {out['off_law_pct']:.1f} % of the robots' decisions took another move than law; where a teammate "
+            f"shared the robot's targets ({out['shared_decisions_pct']:.1f} % of the decisions), "
+            f"{out['shared_off_law_pct']:.1f} % of them did"
+        )
     if other is not None:
         # The second policy runs on the scenario of the first: a paired comparison needs the same trials.
         against = evaluate(cfg, other[0], trials=args.trials, steps=args.steps, seed=args.seed)
@@ -122,6 +134,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
             f"{out['against']['coverage_mean']:.2f} %  (std {out['against']['coverage_std']:.2f})\n"
             f"  {_spread_line(out['against'])}\n"
             f"paired difference (policy - against): {mean:+.2f} ± {se:.2f} points (s.e., {args.trials} trials)"
+            f"{WITHIN_NOISE if within_noise(mean, se) else ''}"
         )
     out["seconds"] = round(time.perf_counter() - start, 3)
     emit(out, args.json, table)
@@ -191,5 +204,5 @@ def _controller(
         return PolicyController(learned), cfg, info
     info["law_margin"] = learned.law_margin
     # Counted for the --policy only: how far the learned policy departs from the law it holds as a move.
-    tally = np.zeros(2, np.int64) if flag == "--policy" else None
+    tally = np.zeros(TALLY, np.int64) if flag == "--policy" else None
     return PolicyController(learned, tally=tally), cfg, info

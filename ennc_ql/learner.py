@@ -44,9 +44,10 @@ HELP = CommandHelp(
     "the central ENNC-QL learner process, for runs over several machines",
     "The central learner: it stores the actors' experience, runs ENNC-QL phase 1 once --min-tuples are in, merges "
     "the actors' Q-table changes, broadcasts a policy with a strictly increasing version every few seconds, "
-    "evaluates it on seeded test trials (the learning curve), checkpoints (acknowledging only what a checkpoint "
-    "holds) and, at the end, scores the policy that did best on validation trials of another seed (--no-keep-best: "
-    "the last) and writes report.json and policy.npz into --run-dir. It runs "
+    "evaluates it on seeded development trials (the learning curve), checkpoints (acknowledging only what a "
+    "checkpoint holds) and, at the end, saves its last policy (a law action set's read with the law margin that "
+    "scores best on validation trials of their own seed), scores it on the reported test trials beside every "
+    "hand-made reference and writes report.json and policy.npz into --run-dir. It runs "
     "until --duration or SIGTERM/Ctrl-C, which end it cleanly. --resume continues from the checkpoint in --run-dir "
     "after a crash. ennc-ql up starts one of these for you; start it by hand for several machines.",
     (

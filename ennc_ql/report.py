@@ -25,13 +25,13 @@ from typing import TYPE_CHECKING, Any
 
 from algorithm.files import write_atomic
 from algorithm.policy_file import load_policy, scenario_from_header
-from algorithm.selection import rank
 from ennc_ql.command import emit
 from ennc_ql.figures import policy_figure
 from learner.report import LearnerReport
 from monitor.style import REFERENCES as STYLES
 from sim.controllers import COMPASS_NAMES
 from sim.formulation import FORMULATIONS
+from sim.rollout import WITHIN_NOISE, within_noise
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -111,24 +111,39 @@ def headline(report: Mapping[str, Any]) -> list[str]:
     formulation = _formulation(report)
     trials = report.get("final_eval_trials", 200)
     what = f", formulation {formulation}" if formulation else ""
-    lines = [f"result: the learned policy observes {final:.2f} % of the targets ({trials} seeded test trials{what})"]
-    references = _references(report.get("final_reference_coverage") or {})
+    comparison = report.get("final_comparison") or {}
+    learned = comparison.get("learned") or {}
+    base = str(report.get("base_law") or "a-cmommt")
+    lines = []
+    if base in comparison:
+        lines.append(f"learned - {_label(base)} (its base law): {_paired(comparison[base])} (paired, {trials} trials)")
+    if "off_law_pct" in learned:
+        shared, shared_off = learned.get("shared_decisions_pct", 0.0), learned.get("shared_off_law_pct", 0.0)
+        lines.append(
+            f"decisions off the law: {learned['off_law_pct']:.1f} %; where a teammate shared the robot's targets "
+            f"({shared:.1f} % of the decisions): {shared_off:.1f} %"
+        )
+    lines.append(f"the learned policy observes {final:.2f} % of the targets ({trials} seeded test trials{what})")
+    references = sorted(
+        ((n, float(row["coverage"])) for n, row in comparison.items() if n != "learned"), key=lambda r: -r[1]
+    ) or _references(report.get("final_reference_coverage") or {})
     if references:
         lines.append("on the same trials: " + ", ".join(f"{_label(n)} {v:.2f} %" for n, v in references))
-    comparison = report.get("final_comparison") or {}
-    rival, learned = comparison.get("a-cmommt"), comparison.get("learned") or {}
-    if rival:
+    rival = comparison.get("a-cmommt")
+    if rival and base != "a-cmommt":
         lines.append(f"learned - {_label('a-cmommt')}: {_paired(rival)} (paired, {trials} trials)")
     if rival and "robots_per_covered_target" in learned and "robots_per_covered_target" in rival:
         lines.append(
             f"robots per covered target: learned {learned['robots_per_covered_target']:.3f}, {_label('a-cmommt')} "
             f"{rival['robots_per_covered_target']:.3f} (how thickly each team crowds the targets it covers)"
         )
+    lines[0] = "result: " + lines[0]
     return lines
 
 
 def _paired(row: Mapping[str, float]) -> str:
-    return f"{row['learned_minus']:+.2f} ± {row['learned_minus_se']:.2f} points"
+    mean, se = row["learned_minus"], row["learned_minus_se"]
+    return f"{mean:+.2f} ± {se:.2f} points" + (WITHIN_NOISE if within_noise(mean, se) else "")
 
 
 def next_commands(report: Mapping[str, Any]) -> list[tuple[str, str]]:
@@ -183,21 +198,9 @@ def result_rows(report: Mapping[str, Any]) -> list[tuple[str, str]]:
         ("coverage curve", ", ".join(f"{t:.0f}s: {c:.1f}%" for t, c in curve)),
         ("policy file", str(report["policy_file"])),
     ]
-    kept = report.get("kept")
-    if kept:
-        rows.insert(-1, ("kept policy", _kept(kept)))
-    candidates = report.get("candidates")
-    if candidates:
-        rows.insert(-1, ("kept or early", _candidates(candidates)))
-    cap = report.get("spread_cap")
-    draws = report.get("draws") or []
-    if len(draws) > 1:
-        rows.insert(-1, ("draws", _draws(draws, cap)))
-    if cap:
-        rows.insert(-1, ("spread cap", _cap(cap)))
-    margin = report.get("law_margin")
-    if margin:
-        rows.insert(-1, ("law margin", _margin(margin, capped=bool(cap))))
+    saved = report.get("saved")
+    if saved:
+        rows.insert(-1, ("saved policy", _saved(saved)))
     off_law = (report.get("final_comparison") or {}).get("learned", {}).get("off_law_pct")
     if off_law is not None:
         rows.insert(-1, ("decisions off law", f"{off_law:.1f} % of the learned robots' decisions on the final trials"))
@@ -207,71 +210,21 @@ def result_rows(report: Mapping[str, Any]) -> list[tuple[str, str]]:
     return rows
 
 
-def _kept(kept: Mapping[str, Any]) -> str:
-    """Which policy the run saved and scored, and why: its score on the validation trials beside the last one's."""
-    curve = kept.get("validation_curve") or []
-    last = f"; the last policy's {curve[-1][1]:.2f} %" if curve else ""
-    return (
-        f"version {kept['version']} of {kept['at_s']:.0f} s, the best on {kept['validation_trials']} validation "
-        f"trials (seed {kept['validation_seed']}, not the test trials): {kept['validation_coverage']:.2f} %{last}"
-    )
-
-
-def _candidates(candidates: list[Mapping[str, Any]]) -> str:
-    """The kept policy and the early candidate as scored on the same validation trials, and which one the run
-    saved."""
-    return (
-        "; ".join(
-            f"{c['source']}{'' if c.get('draw') is None else ' of draw ' + str(c['draw'])}: version {c['version']} "
-            f"of {c['at_s']:.0f} s, {_scored(c)}" + (" (saved)" if c["chosen"] else "")
-            for c in candidates
+def _saved(saved: Mapping[str, Any]) -> str:
+    """Which policy the run saved and why, as the run recorded it, and a margin choice's validation scores."""
+    margin = saved.get("margin")
+    text = f"version {saved['version']} of {saved['at_s']:.0f} s, {saved.get('reason', '')}"
+    if margin is not None:
+        text += f"; law margin {margin:g}"
+    choice = saved.get("choice")
+    if choice:
+        spreads = choice.get("validation_spread") or {}
+        tried = ", ".join(
+            f"{m} {c:.2f} %" + (f" at {spreads[m]:.3f}" if m in spreads else "")
+            for m, c in choice["validation_coverage"].items()
         )
-        + ", both scored on the same validation trials"
-    )
-
-
-def _scored(candidate: Mapping[str, Any]) -> str:
-    """A candidate's validation coverage, with its robots per covered target where the run recorded them."""
-    spread = candidate.get("robots_per_covered_target")
-    return f"{candidate['validation_coverage']:.2f} %" + ("" if spread is None else f" at {spread:.3f}")
-
-
-def _draws(draws: list[Mapping[str, Any]], cap: Mapping[str, Any] | None) -> str:
-    """Each draw of phase 1 by its early candidate's validation score, and the best one (within the spread cap
-    first, as the learner chooses)."""
-    limit = None if not cap else cap["robots_per_covered_target"]
-    best = max(draws, key=lambda d: rank(d["validation_coverage"], d.get("robots_per_covered_target"), limit))
-    scores = ", ".join(f"{d['draw']}: {_scored(d)}" for d in draws)
-    spread = any("robots_per_covered_target" in d for d in draws)
-    return (
-        f"{len(draws)} draws of phase 1 on the first fit's tuples, each one's early candidate on the validation "
-        f"trials{' (% observed at robots per covered target)' if spread else ''}: {scores} (the best: draw "
-        f"{best['draw']})"
-    )
-
-
-def _cap(cap: Mapping[str, Any]) -> str:
-    """The spread that held the choices."""
-    return (
-        f"{cap['robots_per_covered_target']:.3f} robots per covered target, {cap['reference']}'s on the "
-        f"{cap['validation_trials']} validation trials: a margin, draw or policy above it was chosen only where none "
-        "was at or below it"
-    )
-
-
-def _margin(margin: Mapping[str, Any], capped: bool) -> str:
-    """The margin the saved policy departs from the move law by, and the validation scores (and spreads, where
-    recorded) it was chosen on."""
-    scores = margin.get("validation_coverage")
-    if not scores:
-        # Given with --learner-law-margin, or a learner stopped before it chose one.
-        return f"{margin['margin']:g} (not chosen on validation trials)"
-    spreads = margin.get("validation_spread") or {}
-    tried = ", ".join(f"{m} {c:.2f} %" + (f" at {spreads[m]:.3f}" if m in spreads else "") for m, c in scores.items())
-    return (
-        f"{margin['margin']:g}, the best on {margin['validation_trials']} validation trials (seed "
-        f"{margin['validation_seed']}){', held to the spread cap' if capped else ''}: {tried}"
-    )
+        text += f" (validation seed {choice['validation_seed']}, % observed at robots per covered target: {tried})"
+    return text
 
 
 def results_table(report: Mapping[str, Any]) -> str:
@@ -306,15 +259,32 @@ def _result(report: Mapping[str, Any], curve_png: str) -> list[str]:
         return [*lines, headline(report)[0].removeprefix("result: ").capitalize() + ".", ""]
     trials = report.get("final_eval_trials", 200)
     formulation = _formulation(report)
-    chosen = next((c for c in report.get("candidates") or [] if c.get("chosen")), None)
-    version = (chosen or report.get("kept") or {}).get("version", report["policy_version"])
+    version = (report.get("saved") or {}).get("version", report["policy_version"])
     learned = f"version {version}" + (f", formulation {formulation}" if formulation else "")
     rows = [("**learned policy**", learned, f"**{final:.2f}**")]
     rows += [
         (_label(name), REFERENCE_NOTES.get(name, "hand-made"), f"{value:.2f}")
         for name, value in _references(report.get("final_reference_coverage") or {})
     ]
+    comparison = report.get("final_comparison") or {}
+    base = str(report.get("base_law") or "a-cmommt")
+    added = []
+    if base in comparison:
+        added = [
+            f"What learning added over its base law, {_label(base)}: **{_paired(comparison[base])}** (paired "
+            f"difference ± s.e., {trials} trials).",
+            "",
+        ]
+    ours = comparison.get("learned") or {}
+    if "off_law_pct" in ours:
+        added += [
+            f"Its robots left the law on {ours['off_law_pct']:.1f} % of their decisions; where a teammate shared "
+            f"the robot's targets ({ours.get('shared_decisions_pct', 0.0):.1f} % of the decisions), on "
+            f"{ours.get('shared_off_law_pct', 0.0):.1f} % of them.",
+            "",
+        ]
     lines += [
+        *added,
         f"The learned policy observes **{final:.2f} %** of the targets on {trials} seeded test trials of 1000 steps; "
         "the hand-made controllers on the same trials:",
         "",

@@ -11,7 +11,7 @@ Usage::
     mark = VersionMark(run_dir)
     mark.record(7)                           # before version 7 goes out
     mark.load()                              # 7 (0 when no version was ever broadcast)
-    kept_visits(run_dir / "checkpoint.npz")  # visits the tables hold (the exactly-once check of the increments)
+    kept_visits(run_dir / "checkpoint.npz")  # visits applied and dropped (the exactly-once check of the increments)
 """
 
 from __future__ import annotations
@@ -53,13 +53,15 @@ class Checkpointer:
         return arrays, meta
 
 
-def kept_visits(path: Path) -> int:
-    """Visits a checkpoint accounts for: in its tables, in the increments acknowledged but not merged yet (none after
-    a run's final checkpoint), and those acknowledged and dropped (stale increments, and the tables a new draw
-    replaced). The saved policy file need not hold them all: it may be an earlier one (``keep_best``)."""
-    names = ("visits", "pending_visits", "dropped_visits")
+def kept_visits(path: Path) -> tuple[int, int]:
+    """Visits a checkpoint accounts for: those applied (in its tables, carried over by a refit, or in the increments
+    acknowledged but not merged yet, none after a run's final checkpoint), and those acknowledged and dropped (stale
+    increments). Every acknowledged increment applied, none stale: ``(acknowledged, 0)``."""
+    applied = ("visits", "pending_visits", "carried_visits")
     with np.load(path, allow_pickle=False) as data:
-        return sum(int(data[name].astype(np.int64).sum()) for name in names if name in data.files)
+        total = sum(int(data[name].astype(np.int64).sum()) for name in applied if name in data.files)
+        dropped = int(data["dropped_visits"]) if "dropped_visits" in data.files else 0
+    return total, dropped
 
 
 class VersionMark:

@@ -13,7 +13,6 @@ from dataclasses import dataclass, field
 from algorithm.checks import require_at_least, require_id, require_known, require_positive
 from algorithm.phase1 import CMOMMT_PHASE1, Phase1Config
 from sim import SCENARIOS
-from sim.controllers import HAND_MADE
 from sim.formulation import DEFAULT_FORMULATION, Formulation, resolve_formulation
 
 LEARNER_PHASE1 = dataclasses.replace(CMOMMT_PHASE1, max_iterations=2, n_cycles=60, seed_prototypes=512, cells="union")
@@ -62,63 +61,20 @@ class LearnerConfig:
     eval_interval: float = 20.0
     """Seconds between evaluations of the current policy."""
     eval_trials: int = 10
-    """Test trials of the periodic evaluations (the learning curve), as the paper scores one process [paper]."""
+    """Trials of the periodic evaluations (the learning curve), as the paper scores one process [paper]: development
+    trials (algorithm.selection.DEVELOPMENT_SEED), read many times a run, never the reported ones."""
     final_eval_trials: int = 200
-    """Test trials of the final policy's figure and of its paired comparison with every reference: 200, since one
+    """Test trials (algorithm.selection.TEST_SEED) of the final policy's figure and of its paired comparison with
+    every reference: 200, since one
     run of ten trials varies by a few points from one set of trials to another, and a paired difference of a point
     needs about 200 trials for a standard error near 0.5 [choice; the paper's figures rest on 5 x 10]."""
-    keep_best: bool = True
-    """Save, score and report the policy that scored best on the validation trials (``validation_trials`` of seed
-    1000, never the reported test trials) at the periodic evaluations and at the end, rather than the last one:
-    phase 2 can settle on a worse policy and stay there [beyond the paper]. The actors learn on the current tables
-    either way. Off: the last policy."""
-    validation_trials: int = 30
-    """Validation trials of each periodic evaluation when ``keep_best`` (the same trials every time)."""
-    early_window: float = 10.0
-    """With ``keep_best``: every policy version published within this many seconds of the first is scored on the
-    validation trials, and the best of them is a second candidate beside the kept policy. It is scored on
-    ``margin_trials`` validation trials when the window closes (a law action set's read with the margin that scores
-    best, or with ``law_margin``), the kept policy at the end of the run, and the better is saved. Phase 2's first
-    seconds can hold tables that more experience loses [beyond the paper, docs/learning-quality.md "Twentieth
-    round"]. 10 s: a draw's tables are made by its second version, about 3 s into phase 2, and the later versions
-    of a 30-s window differed by the noise of their scores only, so a shorter window leaves time for more draws
-    [choice, docs/learning-quality.md "Twenty-fourth round"]. 0: no early candidate."""
-    early_trials: int = 150
-    """Validation trials on which each version of an early window is scored: 30 told ten versions apart by little
-    more than noise (a version's 30-trial scores spread over 2–3 points within one window) [choice,
-    docs/learning-quality.md "Twenty-third round"]."""
-    early_margin: float = 0.5
-    """With a law action set whose margin the run chooses (``law_margin`` none): the law margin with which an early
-    window's versions are read when they are scored, so that they are ranked about as they will be read; the
-    candidate's own margin is chosen once its window closes (a ``law_margin`` given reads them with that one). 0.5
-    read the forty-five candidates of the twenty-third round's runs best on average on the validation trials
-    [choice, docs/learning-quality.md "Twenty-third round"]."""
-    draws: int = 24
-    """With ``keep_best`` and ``early_window``: independent draws of phase 1. When a draw's early window has closed
-    and its candidate is scored, phase 1 runs afresh (a new seed, no warm start) on the first fit's tuples, the
-    exploration before any policy (kept in the run folder's ``exploration.npz``), and the actors start again from
-    its cells, with tables from its labels; each draw has its own early window, and the early candidate that scores
-    best on ``margin_trials`` validation trials over the draws is the one beside the kept policy at the end. A draw
-    starts only when its window can close before ``duration`` (judged by the last fit's seconds), so a short run
-    makes fewer (an 8-minute run on a 2-core machine makes 13, about 37 s each). Runs differ by a point from one
-    phase-1 draw to the next, and the validation trials tell the better ones [beyond the paper,
-    docs/learning-quality.md "Twenty-second round"]; 24 bounds a long run's draws, after which phase 2 goes on in
-    the last draw's cells [choice]. 1: the first fit only."""
     law_margin: float | None = None
     """With a law action set (the default formulation's): the saved and scored policy departs from the move law
     only where another move's value beats law's by more than this (0: the plain argmax); none: the margin of
     algorithm.selection.LAW_MARGINS that scores best on margin_trials validation trials of seed 1000, chosen at the
-    end of the run [beyond the paper, docs/learning-quality.md "Eighteenth round"]. Other action sets: the argmax."""
+    end of the run (algorithm.selection.SaveRule) [beyond the paper]. Other action sets: the argmax."""
     margin_trials: int = 300
     """Validation trials on which each margin is scored when law_margin is none."""
-    spread_cap: str | None = "a-cmommt"
-    """The hand-made controller whose spread over the targets holds the run's choices: a law margin, a draw's
-    candidate or the saved policy whose team has more robots per covered target on the ``margin_trials`` validation
-    trials than this controller's team there is chosen only where none has fewer, so the learned team covers more
-    without crowding the targets more than the law [beyond the paper, docs/learning-quality.md "Twenty-sixth round"].
-    none: coverage alone, which in five runs of each covered 0.4 points more on the reported trials (+1.40 against
-    +0.99 over a-cmommt) at 1.071–1.093 robots per covered target, where the cap's runs stood at 1.057–1.059 and
-    a-cmommt at 1.062."""
     eval_steps: int = 1000
     """Steps of each test trial [paper]."""
     checkpoint_interval: float = 0.5
@@ -138,8 +94,6 @@ class LearnerConfig:
     def __post_init__(self) -> None:
         require_id("learner_id", self.learner_id)
         require_known("scenario", self.scenario, SCENARIOS)
-        if self.spread_cap is not None:
-            require_known("spread_cap", self.spread_cap, HAND_MADE)
         resolved = resolve_formulation(
             self.formulation, featurizer=self.featurizer, reward=self.reward, act_every=self.act_every
         )
@@ -150,8 +104,6 @@ class LearnerConfig:
             min_tuples=self.min_tuples,
             eval_trials=self.eval_trials,
             final_eval_trials=self.final_eval_trials,
-            validation_trials=self.validation_trials,
-            early_trials=self.early_trials,
             margin_trials=self.margin_trials,
             eval_steps=self.eval_steps,
         )
@@ -163,25 +115,10 @@ class LearnerConfig:
             duration=self.duration,
         )
         require_at_least(0, threads=self.threads, seed=self.seed)
-        require_at_least(1, draws=self.draws)
-        if self.drawing and self.refit_growth != 0:
-            raise ValueError(
-                f"draws = {self.draws} and refit_growth = {self.refit_growth}: a refit would carry one draw's tables "
-                "into another's cells; give draws = 1 (--draws 1) to refit"
-            )
-        if not (math.isfinite(self.early_window) and self.early_window >= 0):
-            raise ValueError(f"early_window must be a finite number of seconds >= 0, got {self.early_window}")
-        if not (math.isfinite(self.early_margin) and self.early_margin >= 0):
-            raise ValueError(f"early_margin must be a finite number >= 0, got {self.early_margin}")
         if self.law_margin is not None and not (math.isfinite(self.law_margin) and self.law_margin >= 0):
             raise ValueError(f"law_margin must be none or a finite number >= 0, got {self.law_margin}")
         if self.refit_growth != 0 and not self.refit_growth > 1:
             raise ValueError(f"refit_growth must be 0 (never) or above 1, got {self.refit_growth}")
-
-    @property
-    def drawing(self) -> bool:
-        """Whether the run makes more than one draw of phase 1 (``draws`` needs an early candidate to choose by)."""
-        return self.draws > 1 and self.keep_best and self.early_window > 0
 
     @property
     def method(self) -> str:

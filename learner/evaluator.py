@@ -1,10 +1,12 @@
-"""The learner's evaluator: the current policy on fixed seeded test trials (metric A), and the learning curve.
+"""The learner's evaluator: the current policy on fixed seeded trials (metric A), the learning curve on development
+trials and the final figure on the reported test trials.
 
 Usage::
 
     evaluator = Evaluator(scenario("cmommt-v1"), trials=10, steps=1000, final_trials=50)
-    evaluator.periodic(policy, at=61.0)      # a point of the learning curve (10 trials)
-    evaluator.final(policy)                  # the final figure, on its own (50 trials)
+    evaluator.periodic(policy, at=61.0)      # a point of the learning curve (10 trials of DEVELOPMENT_SEED)
+    evaluator.periodic(policy, 61.0, stop)   # the same, given up (EvaluationStopped) once the event is set
+    evaluator.final(policy)                  # the final figure, on its own (50 trials of TEST_SEED)
     evaluator.curve                          # [(seconds, coverage %), ...]
     evaluator.latest                         # the newest point's coverage (None before the first evaluation)
     evaluator.references()                   # the hand-made controllers on the curve's trials
@@ -15,13 +17,16 @@ Usage::
 
 from __future__ import annotations
 
+import threading
 from typing import Any
 
-from algorithm.policy import Policy, PolicyController, evaluate_off_law
+from algorithm.policy import OffLaw, Policy, PolicyController, evaluate_off_law
+from algorithm.selection import DEVELOPMENT_SEED, TEST_SEED
 from sim import CONTROLLERS, EvalResult, ScenarioConfig, evaluate
 
-TEST_SEED = 0
-"""Every evaluation runs the same trials, as the hand-made controllers' figures do."""
+
+class EvaluationStopped(Exception):
+    """A periodic evaluation given up because the run stopped."""
 
 
 class Evaluator:
@@ -35,11 +40,18 @@ class Evaluator:
         """How the team of the newest evaluated policy spread over the targets (``sim.rollout.Cooperation``)."""
         self._references: dict[int, dict[str, EvalResult]] = {}
         self._final: EvalResult | None = None
-        self._off_law: float | None = None
+        self._off_law: OffLaw | None = None
 
-    def periodic(self, policy: Policy, at: float) -> float:
-        """Coverage (%) of ``policy``, kept on the curve at ``at`` seconds of training."""
-        result = self._evaluate(policy, self.trials)
+    def periodic(self, policy: Policy, at: float, stop: threading.Event | None = None) -> float:
+        """Coverage (%) of ``policy``, kept on the curve at ``at`` seconds of training; EvaluationStopped (nothing
+        kept) once ``stop`` is set, checked every step."""
+
+        def check(*_: object) -> None:
+            if stop is not None and stop.is_set():
+                raise EvaluationStopped
+
+        controller = PolicyController(policy)
+        result = evaluate(self.cfg, controller, self.trials, self.steps, seed=DEVELOPMENT_SEED, on_step=check)
         self.curve.append((round(at, 2), round(result.coverage_mean, 3)))
         self.spread = _spread(result)
         return result.coverage_mean
@@ -49,13 +61,13 @@ class Evaluator:
         return self.curve[-1][1] if self.curve else None
 
     def references(self, trials: int | None = None) -> dict[str, float]:
-        """Metric A (%) of the hand-made controllers on these same test trials (``trials``: the first that many;
-        default the curve's): the levels a figure is read against. Measured once per trial count (0.4 s for the
-        default 10 trials of 1000 steps, on 2 busy cores)."""
+        """Metric A (%) of the hand-made controllers on the curve's trials (``trials`` None) or on ``trials`` of the
+        final figure's: the levels a figure is read against. Measured once each (0.4 s for the default 10 trials of
+        1000 steps, on 2 busy cores)."""
         return {name: round(r.coverage_mean, 3) for name, r in self._reference_results(trials).items()}
 
     def reference_spread(self, trials: int | None = None) -> dict[str, dict[str, float]]:
-        """How each hand-made controller's team spreads over the targets on these test trials."""
+        """How each hand-made controller's team spreads over the targets on the same trials as :meth:`references`."""
         return {name: _spread(r) for name, r in self._reference_results(trials).items()}
 
     def final(self, policy: Policy) -> float:
@@ -72,7 +84,9 @@ class Evaluator:
             return {}
         rows = {"learned": {"coverage": round(self._final.coverage_mean, 3), **_spread(self._final)}}
         if self._off_law is not None:
-            rows["learned"]["off_law_pct"] = round(self._off_law, 3)
+            rows["learned"]["off_law_pct"] = round(self._off_law.pct, 3)
+            rows["learned"]["shared_decisions_pct"] = round(self._off_law.shared_pct, 3)
+            rows["learned"]["shared_off_law_pct"] = round(self._off_law.shared_off_pct, 3)
         for name, result in self._reference_results(self.final_trials).items():
             mean, se = self._final.minus(result)
             rows[name] = {
@@ -84,22 +98,22 @@ class Evaluator:
         return rows
 
     def _reference_results(self, trials: int | None) -> dict[str, EvalResult]:
-        trials = self.trials if trials is None else trials
-        if trials not in self._references:
-            self._references[trials] = {
-                name: evaluate(self.cfg, controller, trials, self.steps, seed=TEST_SEED)
+        """The references on the curve's trials (``trials`` None) or on the final figure's (that many of the test
+        seed's)."""
+        key = -1 if trials is None else trials
+        if key not in self._references:
+            count, seed = (self.trials, DEVELOPMENT_SEED) if trials is None else (trials, TEST_SEED)
+            self._references[key] = {
+                name: evaluate(self.cfg, controller, count, self.steps, seed=seed)
                 for name, controller in CONTROLLERS.items()
             }
-        return self._references[trials]
+        return self._references[key]
 
     def to_meta(self) -> dict[str, Any]:
         return {"coverage_curve": list(self.curve)}
 
     def restore(self, meta: dict[str, Any]) -> None:
         self.curve = [(float(t), float(c)) for t, c in meta["coverage_curve"]]
-
-    def _evaluate(self, policy: Policy, trials: int) -> EvalResult:
-        return evaluate(self.cfg, PolicyController(policy), trials, self.steps, seed=TEST_SEED)
 
 
 def _spread(result: EvalResult) -> dict[str, float]:

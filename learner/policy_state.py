@@ -4,7 +4,6 @@ Usage (thread-safe: every method takes the state's own lock)::
 
     state = PolicyState(n_robots=10, formulation=f, scenario="cmommt-v1", action_steps=5, method="...")
     state.adopt(discretization)            # after phase 1: tables from the labels, or carried over on a refit
-    state.adopt(discretization, fresh=True)  # a new draw: tables from its labels again
     state.add_increment(msg)               # an actor's table change; False if it was over another discretization
     update = state.publish()               # merge what is pending, bump the version: the PolicyUpdate to broadcast
     state.current                          # the latest broadcast (late joiners get it)
@@ -68,8 +67,10 @@ class PolicyState:
         self.stale_increments = 0
         """Of those, increments over another discretization than the current one: not merged (docs/protocol.md §5)."""
         self.dropped_visits = 0
-        """Visits acknowledged but in no table: those of stale increments, and of the tables and pending increments a
-        new draw replaced; with the visits the tables and pending increments hold, every visit acknowledged."""
+        """Visits acknowledged but in no table: those of stale increments (over a discretization no longer held)."""
+        self.carried_visits = 0
+        """Visits of the tables a refit carried over into its new cells' values (its visit counts start afresh): with
+        the visits the tables and pending increments hold and the dropped ones, every visit acknowledged."""
 
     @property
     def version(self) -> int:
@@ -91,18 +92,17 @@ class PolicyState:
         with self._lock:
             return self._disc is not None
 
-    def adopt(self, disc: Discretization, fresh: bool = False) -> None:
-        """Take a new discretization: the first one's tables, and a ``fresh`` one's (a new draw, whose increments
-        pending are dropped with the tables they were learned on), start from its labels; a later one inherits the
-        current values (pending increments merged first), each new prototype from the nearest old one."""
+    def adopt(self, disc: Discretization) -> None:
+        """Take a new discretization: the first one's tables start from its labels; a later one (a refit) inherits
+        the current values (pending increments merged first), each new prototype from the nearest old one, so no
+        acknowledged experience is thrown away with the cells it was learned on."""
         with self._lock:
-            if self._disc is None or fresh:
-                self.dropped_visits += int(self._visits.sum()) + sum(int(v.sum()) for _, v in self._pending.values())
-                self._pending.clear()
+            if self._disc is None:
                 tables = np.tile(disc.labels.astype(np.float64), (self.n_robots, 1))
             else:
                 self._merge_pending()
                 tables = disc.carry_over(self._disc, self._tables)
+                self.carried_visits += int(self._visits.sum())
             self._disc = disc
             self._disc_id += 1
             self._tables = tables
@@ -168,7 +168,10 @@ class PolicyState:
                 "increments": self.increments,
                 "stale_increments": self.stale_increments,
             }
-            dropped = {"dropped_visits": np.array(self.dropped_visits, np.int64)}
+            dropped = {
+                "dropped_visits": np.array(self.dropped_visits, np.int64),
+                "carried_visits": np.array(self.carried_visits, np.int64),
+            }
             if self._disc is None:
                 return dropped, meta
             arrays = {
@@ -197,7 +200,8 @@ class PolicyState:
             self._disc_of_version = _unranges(meta["disc_of_version"])
             self.increments = int(meta["increments"])
             self.stale_increments = int(meta["stale_increments"])
-            self.dropped_visits = int(arrays.get("dropped_visits", 0))  # none in checkpoints written before draws
+            self.dropped_visits = int(arrays.get("dropped_visits", 0))
+            self.carried_visits = int(arrays.get("carried_visits", 0))  # none in checkpoints of earlier versions
             if "prototypes" not in arrays:
                 return
             self._disc = Discretization(arrays["prototypes"], arrays["labels"], arrays["offsets"], arrays.get("scale"))

@@ -22,8 +22,7 @@ from typing import TYPE_CHECKING, Any
 from algorithm.wire import figures_from_counters, status_counters
 
 if TYPE_CHECKING:  # the parts; readers of the figures (``ennc-ql up``) need none of them
-    from algorithm.policy import Policy
-    from algorithm.selection import BestPolicy, MarginChoice
+    from algorithm.selection import SavedPolicy
     from learner.config import LearnerConfig
     from learner.evaluator import Evaluator
     from learner.intake import IntakeFigures
@@ -138,36 +137,21 @@ class LearnerReport:
     """On the final figure's trials, the final policy (``learned``) and every reference: ``coverage``, how the team
     spread over the targets per robot-step (``only_shared_pct``, ``none_in_view_pct``,
     ``robots_per_covered_target``), for a law action set's learned policy the percentage of its robots' decisions
-    that took another move than law (``off_law_pct``) and, for a reference, the paired difference learned − it
-    (``learned_minus``) with its standard error (``learned_minus_se``); empty when no policy was learned."""
+    that took another move than law (``off_law_pct``), of those taken where a teammate shared the robot's targets
+    (``shared_decisions_pct``) and how many of these did (``shared_off_law_pct``); for a reference, the paired
+    difference learned − it (``learned_minus``) with its standard error (``learned_minus_se``). Empty when no
+    policy was learned."""
     policy_file: str | None
     checkpoint: str
     seconds: float
-    kept: dict[str, Any] | None = None
-    """With ``keep_best``: the policy saved and scored, the best on the validation trials (``version``, ``at_s``,
-    ``validation_coverage``), those trials (``validation_trials``, ``validation_seed``) and every evaluated
-    policy's score on them (``validation_curve``, [[seconds, %], ...], the last one scored at the end); None
-    without ``keep_best`` or before a policy was scored."""
-    law_margin: dict[str, Any] | None = None
-    """With a law action set: the margin the saved policy is read with (``margin``; a robot departs from the move law
-    only where another move's value beats it by more) and, when the run chose it, every margin's score on the
-    validation trials (``validation_coverage``: {margin: %}, ``validation_trials``, ``validation_seed``) with its
-    robots per covered target there (``validation_spread``: {margin: robots}); None for other action sets or before a
-    policy was learned."""
-    candidates: list[dict[str, Any]] = field(default_factory=list)
-    """With an early candidate (``early_window``) other than the kept policy: both, as scored on the margin's
-    validation trials (``source`` kept or early, the early one's ``draw``, ``version``, ``at_s``,
-    ``validation_coverage``, ``robots_per_covered_target`` there, a law margin choice's ``margin``, and which one was
-    saved, ``chosen``); empty otherwise. The early one is the best of the draws (``draws``)."""
-    draws: list[dict[str, Any]] = field(default_factory=list)
-    """Each draw's early candidate as scored when its window closed (``draw``, ``version``, ``at_s``,
-    ``validation_coverage``, ``robots_per_covered_target`` there, a law margin choice's ``margin``,
-    ``prototypes_per_action``); empty before the first window closed."""
-    spread_cap: dict[str, Any] | None = None
-    """With ``spread_cap``: the hand-made controller whose spread held the choices (``reference``) and its robots per
-    covered target on the margin's validation trials (``robots_per_covered_target``, ``validation_trials``): a
-    margin, draw or saved policy above it was chosen only where none was at or below it. None: coverage alone, or no
-    choice was made."""
+    base_law: str = "a-cmommt"
+    """The hand-made controller the learned policy is measured against first (``sim.formulation.Formulation.base_law``:
+    for a law action set the law its move ``law`` follows): what learning added is the paired difference from it."""
+    saved: dict[str, Any] | None = None
+    """Which policy the run saved and why (``algorithm.selection.SavedPolicy.to_dict``): its ``version``, the run
+    clock it was made at (``at_s``), a law action set's ``margin``, how the margin was chosen (``choice``: every
+    margin's ``validation_coverage`` and ``validation_spread`` on ``validation_trials`` of ``validation_seed``;
+    None where it was given) and the rule's ``reason``; None before a policy was learned."""
     resumes: list[dict[str, Any]] = field(default_factory=list)
     """Every time the run was resumed from its checkpoint: the run clock it resumed at (``at_s``), the policy version
     of its first broadcast, that broadcast's wall time and the seconds from the process's start to it."""
@@ -187,12 +171,7 @@ class LearnerReport:
         policy_file: Path | None,
         checkpoint: Path,
         resumes: list[dict[str, Any]] | None = None,
-        keeper: BestPolicy | None = None,
-        margin: MarginChoice | None = None,
-        policy: Policy | None = None,
-        candidates: list[dict[str, Any]] | None = None,
-        draws: list[dict[str, Any]] | None = None,
-        spread_cap: tuple[str, float] | None = None,
+        saved: SavedPolicy | None = None,
     ) -> LearnerReport:
         """The report of a run that ended with ``status`` (built from the same ``intake`` figures) and the final
         figure ``final`` (None: no policy was learned, and no reference is measured)."""
@@ -229,17 +208,8 @@ class LearnerReport:
             checkpoint=str(checkpoint),
             seconds=round(status.elapsed, 2),
             resumes=list(resumes or []),
-            kept=None if keeper is None or keeper.best is None else _kept(keeper),
-            law_margin=_law_margin(policy, margin),
-            candidates=list(candidates or []),
-            draws=list(draws or []),
-            spread_cap=None
-            if spread_cap is None
-            else {
-                "reference": spread_cap[0],
-                "robots_per_covered_target": round(spread_cap[1], 4),
-                "validation_trials": config.margin_trials,
-            },
+            base_law=config.resolved.base_law,
+            saved=None if saved is None else saved.to_dict(),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -262,30 +232,3 @@ class LearnerReport:
 
     def with_extra(self, **extra: Any) -> LearnerReport:
         return dataclasses.replace(self, extra={**self.extra, **extra})
-
-
-def _law_margin(policy: Policy | None, margin: MarginChoice | None) -> dict[str, Any] | None:
-    if policy is None or policy.formulation.actions.law is None:
-        return None
-    if margin is None:
-        return {"margin": policy.law_margin}
-    return {
-        "margin": margin.margin,
-        "validation_coverage": {f"{m:g}": round(c, 3) for m, c in margin.scores.items()},
-        **({"validation_spread": {f"{m:g}": round(r, 4) for m, r in margin.spreads.items()}} if margin.spreads else {}),
-        "validation_trials": margin.trials,
-        "validation_seed": margin.seed,
-    }
-
-
-def _kept(keeper: BestPolicy) -> dict[str, Any]:
-    best = keeper.best
-    assert best is not None
-    return {
-        "version": best.policy.version,
-        "at_s": round(best.at, 2),
-        "validation_coverage": round(best.coverage, 3),
-        "validation_trials": keeper.trials,
-        "validation_seed": keeper.seed,
-        "validation_curve": [list(p) for p in keeper.scores],
-    }

@@ -54,7 +54,6 @@ def train(out: Path, formulation: str, minutes: float, seed: int) -> dict[str, A
 
 def row(formulation: str, minutes: float, seed: int, report: dict[str, Any]) -> dict[str, Any]:
     comparison = report.get("final_comparison") or {}
-    chosen = [c for c in report.get("candidates") or [] if c["chosen"]]
     return {
         "formulation": formulation,
         "minutes": minutes,
@@ -67,7 +66,7 @@ def row(formulation: str, minutes: float, seed: int, report: dict[str, Any]) -> 
         "versus_a_cmommt": comparison.get("a-cmommt", {}).get("learned_minus"),
         "versus_a_cmommt_se": comparison.get("a-cmommt", {}).get("learned_minus_se"),
         "robots_per_covered_target": comparison.get("learned", {}).get("robots_per_covered_target"),
-        "saved": chosen[0] if chosen else None,
+        "saved": report.get("saved"),
     }
 
 
@@ -124,7 +123,7 @@ def main() -> int:
         refs = ", ".join(f"{k} {v:.2f}" for k, v in r["references"].items() if k in REFERENCES)
         gap, se = r["versus_a_cmommt"], r["versus_a_cmommt_se"]
         versus = "" if gap is None else f", {gap:+.2f} ± {se:.2f} over a-cmommt"
-        saved = "" if r["saved"] is None else f", saved {r['saved']['source']} v{r['saved']['version']}"
+        saved = "" if r["saved"] is None else f", saved v{r['saved']['version']} margin {r['saved']['margin']}"
         print(
             f"{r['formulation']:>18} {r['minutes']:>4g} min seed {r['seed']}: {r['final_coverage']:.2f} %{versus} "
             f"({r['tuples'] / 1e6:.0f} M tuples, {r['prototypes']} prototypes{saved}; {refs})"

@@ -179,6 +179,16 @@ class Formulation:
         """d, the state's dimension."""
         return self.featurizer.dim
 
+    @property
+    def base_law(self) -> str:
+        """The hand-made controller a policy of this formulation is measured against first, by its CLI name: for a
+        law action set the law its move ``law`` follows, on the state's own information (``force-recall`` for a
+        remembering state, ``force-6d-shared`` otherwise), so that what learning added over it is the difference; for
+        other sets the tuned A-CMOMMT."""
+        if self.actions.law is None:
+            return "a-cmommt"
+        return "force-recall" if self.featurizer.recalls else "force-6d-shared"
+
     def describe(self) -> str:
         every = {None: "every action", 1: "every step"}.get(self.act_every, f"every {self.act_every} steps")
         rules = "" if self.trial_rules == PAPER_RULES else f", {self.trial_rules.name} trial rules"

@@ -96,6 +96,16 @@ class EvalResult:
         return float(diff.mean()), se
 
 
+WITHIN_NOISE = ", within noise (|difference| < 2 s.e.)"
+"""What a paired difference's reading says where :func:`within_noise` holds."""
+
+
+def within_noise(mean: float, se: float) -> bool:
+    """Whether a paired difference of ``mean`` ± ``se`` tells its two policies apart by no more than noise: |mean| < 2
+    standard errors (an unknown s.e. tells nothing apart)."""
+    return not abs(mean) >= 2.0 * se
+
+
 def evaluate(
     cfg: ScenarioConfig,
     controller: Controller,

@@ -31,6 +31,7 @@ TINY = Budget(
     codebook_patterns=1500,
     test_trials=2,
     test_steps=120,
+    law_margin_trials=2,
 )
 """A learning process in a second or three: poor policies, but policies the project wrote."""
 

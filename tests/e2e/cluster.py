@@ -43,8 +43,6 @@ FAST_LEARNER = [
     "1",
     "--threads",
     "1",
-    "--draws",  # one draw: these tests find every acknowledged visit in the tables (test_chaos runs the draws)
-    "1",
 ]
 
 

@@ -25,6 +25,7 @@ import psutil
 import pytest
 
 from algorithm.policy_file import load_policy
+from learner.checkpoint import kept_visits
 from tests import system
 from tests.e2e import ACTOR_PACE, ennc_ql
 from tools.chaos import FAULTS
@@ -126,9 +127,9 @@ def run_chaos(tmp_path: Path) -> tuple[dict[str, Any], Path, str]:
 def assert_exactly_once(run_dir: Path, report: dict[str, Any], out: dict[str, Any], faults: Faults) -> None:
     """From three processes: the learner's report, each actor's final status, chaos's observer (the last status of a
     killed incarnation: what it had seen acknowledged, a lower bound of what it had stored). And every acknowledged
-    increment's visits are in the final tables, or, once a draw of phase 1 replaced the tables, counted as dropped."""
-    drew = report["phase1_fits"] > 1  # no refits here: every fit after the first is a draw
-    assert report["gaps"] == 0 and (report["stale_increments"] == 0 or drew)
+    increment's visits are applied to the tables the learner holds at the end, and none is stale: no fit replaced
+    the tables under the actors."""
+    assert report["gaps"] == 0 and report["stale_increments"] == 0 and report["phase1_fits"] == 1
     killed: dict[str, dict[str, int]] = {}
     for kill in faults["actor-kill"]:
         for k, n in kill["last_seen"].items():
@@ -144,15 +145,17 @@ def assert_exactly_once(run_dir: Path, report: dict[str, Any], out: dict[str, An
         else:
             assert stored == final["tuples_sent"]
         assert out["actors"][actor]["stored"] == stored and out["actors"][actor]["tuples_sent"] == final["tuples_sent"]
-    # (Read from the final checkpoint: the policy file is the one kept on validation trials, maybe an earlier one.)
+    # Read from the final checkpoint, and from the policy file: the saved tables are the last ones, so they hold
+    # every visit the checkpoint's tables hold (a team policy: the robots' rows merged by their visits).
+    in_tables, dropped = kept_visits(Path(report["checkpoint"]))
     with np.load(report["checkpoint"]) as checkpoint:
-        in_tables = int(checkpoint["visits"].astype(np.int64).sum())
-        in_tables += int(checkpoint["pending_visits"].astype(np.int64).sum()) if "pending_visits" in checkpoint else 0
-        dropped = int(checkpoint["dropped_visits"])
-    load_policy(report["policy_file"])  # and the run saved a policy that loads
+        held = int(checkpoint["visits"].astype(np.int64).sum())
+    saved, _ = load_policy(report["policy_file"])
+    assert saved.version == report["saved"]["version"] == report["policy_version"]
     acked = sum(f["visits_acked"] for f in finals.values()) + sum(k["visits_acked"] for k in killed.values())
-    assert dropped == 0 or drew
-    assert in_tables + dropped >= acked > 0  # a killed incarnation's: a lower bound only
+    assert dropped == 0
+    assert in_tables >= acked > 0  # a killed incarnation's: a lower bound only
+    assert in_tables == held  # nothing pending after the final merge, nothing carried (no refit)
 
 
 def assert_versions(run_dir: Path, out: dict[str, Any], faults: Faults) -> None:

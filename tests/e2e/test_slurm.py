@@ -45,8 +45,8 @@ SMALL_RUN = [
     "--learner-final-eval-trials=2",
     "--learner-checkpoint-interval=1",
     "--learner-phase1-max-iterations=1",
-    # A requeue in the first 30 s of phase 2 scores the kept policy and the early candidate in the wind-down: with the
-    # default 300 validation trials x 7 margins each, past the test cluster's KillWait of 30 s on loaded cores.
+    # The run's end chooses the saved policy's law margin: with the default 300 validation trials x 7 margins, past
+    # the test cluster's KillWait of 30 s on loaded cores.
     "--learner-margin-trials=2",
     "--learner-phase1-seed-prototypes=32",  # the default 512 seeds take the first fit 10-16 s on loaded cores
     # A requeue stops the router with the rest: the actors' last acknowledgements cannot come, so they stop soon.

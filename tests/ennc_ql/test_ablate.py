@@ -34,11 +34,6 @@ from tools.sweeps.ablate import REFERENCES, Setup, ablate, parse_sets, variants
         (["--set", "reward=money"], "unknown reward 'money'; known: paper, observed, eq2, difference"),
         (["--set", "trial_rules=lenient"], "unknown trial rules 'lenient'; known: paper, search-on"),
         (["--set", "budget.law_margin_trials=-1"], "budget.law_margin_trials: law_margin_trials must be >= 0"),
-        (
-            ["--set", "budget.law_margin_trials=300", "--set", "actions=relative"],
-            "budget.law_margin_trials: a law margin reads a law action set (actions=law, law-search or law-track), "
-            "not 'relative'",
-        ),
     ],
 )
 def test_bad_settings_are_one_line_errors(
@@ -88,6 +83,7 @@ def tiny(test_trials: int) -> Budget:
         phase1=Phase1Config(max_iterations=1, max_patterns=1500, n_cycles=5),
         test_trials=test_trials,
         test_steps=60,
+        law_margin_trials=2,
     )
 
 

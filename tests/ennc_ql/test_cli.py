@@ -191,6 +191,7 @@ def test_eval_reads_a_policy_with_the_law_margin_given_and_names_it(
 ) -> None:
     from algorithm.policy import PolicyController
     from algorithm.policy_file import save_policy
+    from algorithm.selection import TEST_SEED
     from tests.algorithm.test_selection import law_or_back
 
     policy = law_or_back(0.25)  # argmax: back everywhere; a margin of 0.3 reads the law
@@ -199,7 +200,7 @@ def test_eval_reads_a_policy_with_the_law_margin_given_and_names_it(
     plain, margin = run_json(capsys, *argv), run_json(capsys, *argv, "--law-margin", "0.3")
     assert (plain["law_margin"], margin["law_margin"]) == (0.0, 0.3)
     assert (plain["off_law_pct"], margin["off_law_pct"]) == (100.0, 0.0)
-    law = evaluate(scenario(), PolicyController(dataclasses.replace(policy, law_margin=0.3)), 3, 150)
+    law = evaluate(scenario(), PolicyController(dataclasses.replace(policy, law_margin=0.3)), 3, 150, seed=TEST_SEED)
     np.testing.assert_allclose(margin["coverage_per_trial"], law.coverage_per_trial, atol=1e-4)
     assert margin["coverage_mean"] > plain["coverage_mean"] + 10
     for bad, message in [("a-cmommt", "is a hand-made controller"), (path, None)]:

@@ -109,7 +109,11 @@ def test_markdown_report_opens_with_the_result_beside_its_references(tmp_path: P
     assert (markdown_path, png_path) == (tmp_path / "report.md", tmp_path / "learning_curve.png")
     lines = markdown_path.read_text().splitlines()
     assert lines[:3] == ["# ennc-ql run 20260101-120000", "", "## Result"]
-    assert lines[4].startswith("The learned policy observes **61.23 %** of the targets on 50 seeded test trials")
+    assert lines[4] == (
+        "What learning added over its base law, A-CMOMMT: **-11.02 ± 0.50 points** (paired difference ± s.e., 50 "
+        "trials)."
+    )
+    assert lines[6].startswith("The learned policy observes **61.23 %** of the targets on 50 seeded test trials")
     table = lines[lines.index("| policy | what it is | % of targets observed (50 trials) |") :][2:10]
     assert table == [
         "| **learned policy** | version 37, formulation shared-difference | **61.23** |",
@@ -160,16 +164,16 @@ def test_markdown_report_carries_the_figures_and_ends_with_the_next_commands(tmp
 
 def test_terminal_summary_opens_with_the_result_and_ends_with_what_comes_next(tmp_path: Path) -> None:
     lines = terminal_summary({**run_report(tmp_path), "report_md": str(tmp_path / "report.md")}).splitlines()
-    assert lines[0] == (
-        "result: the learned policy observes 61.23 % of the targets (50 seeded test trials, formulation "
-        "shared-difference)"
-    )
+    # A report without base_law (another formulation's, or an older one): A-CMOMMT is the base it is read against.
+    assert lines[0] == "result: learned - A-CMOMMT (its base law): -11.02 ± 0.50 points (paired, 50 trials)"
     assert lines[1] == (
-        "on the same trials: A-CMOMMT 72.25 %, force law, 6-D state + shared flags 71.00 %, A-CMOMMT, public "
-        "untuned parameters 69.50 %, force law on the 6-D state 69.75 %, local 57.00 %, random 16.75 %, A-CMOMMT "
-        "oracle (true positions) 74.50 %"
+        "the learned policy observes 61.23 % of the targets (50 seeded test trials, formulation shared-difference)"
     )
-    assert lines[2] == "learned - A-CMOMMT: -11.02 ± 0.50 points (paired, 50 trials)"
+    assert lines[2] == (
+        "on the same trials: A-CMOMMT oracle (true positions) 74.50 %, A-CMOMMT 72.25 %, force law, 6-D state + "
+        "shared flags 71.00 %, force law on the 6-D state 69.75 %, A-CMOMMT, public untuned parameters 69.50 %, "
+        "local 57.00 %, random 16.75 %"
+    )  # sorted by score
     assert lines[3] == (
         "robots per covered target: learned 1.375, A-CMOMMT 1.062 (how thickly each team crowds the targets it covers)"
     )
@@ -328,103 +332,63 @@ def test_after_a_slurm_job_the_next_commands_are_new_jobs_not_arguments_to_its_s
     assert again in lines and f"{again} --duration 960" in lines
 
 
-KEPT = {
-    "version": 31,
-    "at_s": 337.9,
-    "validation_coverage": 62.5,
-    "validation_trials": 30,
-    "validation_seed": 1000,
-    "validation_curve": [[95.2, 50.25], [337.9, 62.5], [480.3, 60.125]],
-}
-"""A run report's ``kept``."""
-
-
-def test_a_kept_policy_is_named_with_its_validation_score_beside_the_last_one_s(tmp_path: Path) -> None:
-    text = write_run_report({**run_report(tmp_path), "kept": KEPT}, tmp_path)[0].read_text()
-    assert "| **learned policy** | version 31, formulation shared-difference | **61.23** |" in text
-    assert (
-        "| kept policy | version 31 of 338 s, the best on 30 validation trials (seed 1000, not the test trials): "
-        "62.50 %; the last policy's 60.12 % |" in text
-    )
-    assert "kept policy" not in write_run_report(run_report(tmp_path), tmp_path)[0].read_text()
-
-
-def test_the_early_candidate_and_the_kept_policy_are_named_with_the_one_saved(tmp_path: Path) -> None:
-    candidates = [
-        {"source": "kept", "version": 31, "at_s": 337.9, "validation_coverage": 78.52, "margin": 0.3, "chosen": False},
-        {"source": "early", "version": 7, "at_s": 46.5, "validation_coverage": 78.99, "margin": 0.5, "chosen": True},
-    ]
-    report = {**run_report(tmp_path), "kept": KEPT, "candidates": candidates}
-    text = write_run_report(report, tmp_path)[0].read_text()
-    # The learned policy is the one saved, not the kept one.
-    assert "| **learned policy** | version 7, formulation shared-difference | **61.23** |" in text
-    assert (
-        "| kept or early | kept: version 31 of 338 s, 78.52 %; early: version 7 of 46 s, 78.99 % (saved), both "
-        "scored on the same validation trials |" in text
-    )
-    assert "kept or early" not in write_run_report({**run_report(tmp_path), "kept": KEPT}, tmp_path)[0].read_text()
-    assert "| draws |" not in text  # one draw: the row above says it all
-
-
-def test_the_draws_are_named_by_their_early_candidates_scores_with_the_best(tmp_path: Path) -> None:
-    draws = [
-        {"draw": d, "version": v, "at_s": a, "validation_coverage": c, "prototypes_per_action": 1700.0}
-        for d, v, a, c in [(0, 10, 38.3, 78.76), (1, 24, 83.2, 78.22), (2, 40, 134.6, 78.91), (3, 56, 185.6, 78.91)]
-    ]
-    candidates = [
-        {"source": "kept", "version": 105, "at_s": 346.5, "validation_coverage": 78.42, "chosen": False},
-        {"source": "early", "draw": 2, "version": 40, "at_s": 134.6, "validation_coverage": 78.91, "chosen": True},
-    ]
-    report = {**run_report(tmp_path), "kept": KEPT, "candidates": candidates, "draws": draws}
-    text = write_run_report(report, tmp_path)[0].read_text()
-    assert "; early of draw 2: version 40 of 135 s, 78.91 % (saved), both scored" in text
-    assert (
-        "| draws | 4 draws of phase 1 on the first fit's tuples, each one's early candidate on the validation trials: "
-        "0: 78.76 %, 1: 78.22 %, 2: 78.91 %, 3: 78.91 % (the best: draw 2) |" in text
-    )
-
-
-def test_under_a_spread_cap_the_best_draw_is_the_best_within_it_and_the_cap_is_named(tmp_path: Path) -> None:
-    draws = [
-        {"draw": d, "version": v, "at_s": 40.0 * d, "validation_coverage": c, "robots_per_covered_target": r}
-        for d, v, c, r in [(0, 10, 78.76, 1.081), (1, 24, 78.22, 1.05), (2, 40, 78.91, 1.07), (3, 56, 78.5, 1.062)]
-    ]
-    cap = {"reference": "a-cmommt", "robots_per_covered_target": 1.062, "validation_trials": 300}
-    text = write_run_report({**run_report(tmp_path), "kept": KEPT, "draws": draws, "spread_cap": cap}, tmp_path)[0]
-    assert (
-        "trials (% observed at robots per covered target): 0: 78.76 % at 1.081, 1: 78.22 % at 1.050, 2: 78.91 % at "
-        "1.070, 3: 78.50 % at 1.062 (the best: draw 3) |" in text.read_text()
-    )
-    assert (
-        "| spread cap | 1.062 robots per covered target, a-cmommt's on the 300 validation trials: a margin, draw or "
-        "policy above it was chosen only where none was at or below it |" in text.read_text()
-    )
-    uncapped = write_run_report({**run_report(tmp_path), "kept": KEPT, "draws": draws}, tmp_path)[0].read_text()
-    assert "(the best: draw 2) |" in uncapped and "spread cap" not in uncapped
-
-
-def test_the_law_margin_is_given_with_every_margin_s_validation_score(tmp_path: Path) -> None:
-    chosen = {
-        "margin": 1.0,
+SAVED = {
+    "version": 41,
+    "at_s": 480.3,
+    "margin": 1.0,
+    "reason": "the last tables, the margin that scored best on 300 validation trials",
+    "choice": {
         "validation_coverage": {"0": 76.62, "0.5": 77.85, "1": 78.13, "2": 77.76},
+        "validation_spread": {"0": 1.13, "0.5": 1.074, "1": 1.064, "2": 1.053},
         "validation_trials": 300,
         "validation_seed": 1000,
+    },
+}
+"""A run report's ``saved`` (``algorithm.selection.SavedPolicy.to_dict``)."""
+
+
+def test_the_saved_policy_is_named_as_the_run_recorded_it(tmp_path: Path) -> None:
+    text = write_run_report({**run_report(tmp_path), "saved": SAVED}, tmp_path)[0].read_text()
+    assert "| **learned policy** | version 41, formulation shared-difference | **61.23** |" in text
+    assert (
+        "| saved policy | version 41 of 480 s, the last tables, the margin that scored best on 300 validation trials; "
+        "law margin 1 (validation seed 1000, % observed at robots per covered target: 0 76.62 % at 1.130, 0.5 "
+        "77.85 % at 1.074, 1 78.13 % at 1.064, 2 77.76 % at 1.053) |" in text
+    )
+    given = {**SAVED, "margin": 0.5, "choice": None, "reason": "the last tables, the margin given"}
+    text = write_run_report({**run_report(tmp_path), "saved": given}, tmp_path)[0].read_text()
+    assert "| saved policy | version 41 of 480 s, the last tables, the margin given; law margin 0.5 |" in text
+    assert "saved policy" not in write_run_report(run_report(tmp_path), tmp_path)[0].read_text()
+
+
+def test_the_result_leads_with_what_learning_added_over_its_base_law(tmp_path: Path) -> None:
+    """A law action set's run is read against the law its move ``law`` follows, first, with its decisions off the
+    law; a difference under two standard errors says so."""
+    report = run_report(tmp_path)
+    comparison = {**report["final_comparison"]}
+    comparison["force-recall"] = {**comparison["a-cmommt"], "learned_minus": 0.31, "learned_minus_se": 0.21}
+    comparison["learned"] = {
+        **comparison["learned"],
+        "off_law_pct": 12.5,
+        "shared_decisions_pct": 8.0,
+        "shared_off_law_pct": 2.25,
     }
-    text = write_run_report({**run_report(tmp_path), "law_margin": chosen}, tmp_path)[0].read_text()
-    assert (
-        "| law margin | 1, the best on 300 validation trials (seed 1000): 0 76.62 %, 0.5 77.85 %, 1 78.13 %, "
-        "2 77.76 % |" in text
+    report = {**report, "final_comparison": comparison, "base_law": "force-recall"}
+    lines = terminal_summary(report).splitlines()
+    assert lines[0] == (
+        "result: learned - force law + shared flags + memory (its base law): +0.31 ± 0.21 points, within noise "
+        "(|difference| < 2 s.e.) (paired, 50 trials)"
     )
-    spreads = {**chosen, "margin": 2.0, "validation_spread": {"0": 1.13, "0.5": 1.074, "1": 1.064, "2": 1.053}}
-    cap = {"reference": "a-cmommt", "robots_per_covered_target": 1.055, "validation_trials": 300}
-    capped = write_run_report({**run_report(tmp_path), "law_margin": spreads, "spread_cap": cap}, tmp_path)[0]
-    assert (
-        "| law margin | 2, the best on 300 validation trials (seed 1000), held to the spread cap: 0 76.62 % at "
-        "1.130, 0.5 77.85 % at 1.074, 1 78.13 % at 1.064, 2 77.76 % at 1.053 |" in capped.read_text()
+    assert lines[1] == (
+        "decisions off the law: 12.5 %; where a teammate shared the robot's targets (8.0 % of the decisions): 2.2 %"
     )
-    given = write_run_report({**run_report(tmp_path), "law_margin": {"margin": 0.0}}, tmp_path)[0].read_text()
-    assert "| law margin | 0 (not chosen on validation trials) |" in given
-    assert "law margin" not in write_run_report(run_report(tmp_path), tmp_path)[0].read_text()
+    assert "learned - A-CMOMMT: -11.02 ± 0.50 points (paired, 50 trials)" in lines
+    text = write_run_report(report, tmp_path)[0].read_text()
+    assert (
+        "What learning added over its base law, force law + shared flags + memory: **+0.31 ± 0.21 points, within noise"
+        in text
+    )
+    assert "Its robots left the law on 12.5 % of their decisions; where a teammate shared the robot's targets" in text
 
 
 def test_the_learned_policy_s_decisions_off_law_are_given_when_counted(tmp_path: Path) -> None:

@@ -17,12 +17,13 @@ from actors.wiring import connect as connect_actor
 from algorithm.discretization import Discretization
 from algorithm.phase1 import Phase1Config
 from algorithm.policy import PolicyController
+from algorithm.selection import TEST_SEED
 from learner.config import LearnerConfig
 from learner.policy_state import PolicyState
 from learner.service import LearnerService
 from learner.wiring import connect as connect_learner
 from protocol import ExperienceBatch, InMemoryBus, InMemoryTransport, PolicyUpdate, QTableIncrement, Reject
-from sim import evaluate
+from sim import HAND_MADE, evaluate
 from sim.formulation import DEFAULT_FORMULATION, FORMULATIONS
 from tests.fakes import run_until, run_with_actor
 
@@ -228,7 +229,6 @@ def test_refits_warm_start_and_carry_q_values_over(tmp_path: Path) -> None:
     config = LearnerConfig(
         min_tuples=6000,
         refit_growth=2.0,
-        draws=1,
         phase1=Phase1Config(max_iterations=1, n_cycles=15, max_patterns=600),
         broadcast_interval=0.3,
         eval_interval=1000.0,
@@ -351,163 +351,33 @@ def test_a_poisoned_message_is_rejected_by_its_seq_and_the_stream_flows_on(tmp_p
     assert figures.rejected_by_type == {"InvalidValues": 2, "StateDimension": 1} and figures.duplicates == 2
 
 
-def test_the_run_saves_and_scores_the_policy_best_on_validation_trials_and_resumes_with_it(tmp_path: Path) -> None:
+def test_the_run_saves_its_last_policy_not_an_earlier_one_that_scored_more(tmp_path: Path) -> None:
+    """The saved policy is the one the whole run's experience made: the last, whatever an evaluation of an earlier
+    version scored."""
     from algorithm.policy_file import load_policy
-    from learner.service import BEST_POLICY
     from tests.algorithm.test_selection import constant, validation
 
-    config = dataclasses.replace(FAST, keep_best=True, validation_trials=3, final_eval_trials=3, duration=0.5)
+    config = dataclasses.replace(FAST, final_eval_trials=3, duration=0.5, law_margin=0.0)
     scores = {a: validation(constant(a, version=1), 3) for a in range(8)}
     good, bad = max(scores, key=scores.__getitem__), min(scores, key=scores.__getitem__)
-    offered = iter([constant(bad, version=3), constant(good, version=4), constant(bad, version=5)])
+    current = [constant(good, version=3)]
     with InMemoryTransport(InMemoryBus()) as t:
         service = LearnerService(t, config, tmp_path)
         service.state.adopt(one_cell_per_action(DIM))
-        service.state.policy = lambda: next(offered)  # type: ignore[method-assign]
+        service.state.policy = lambda: current[0]  # type: ignore[method-assign]
         service._evaluate()
-        service._evaluate()
-        service.checkpoint()
-        report = service.run(threading.Event())  # half a second, then the end: the last policy is offered too
+        current[0] = constant(bad, version=4)
+        report = service.run(threading.Event())
     saved, _ = load_policy(tmp_path / "policy.npz")
-    assert int(np.argmax(saved.tables[0])) == good and saved.version == 4
-    assert report.kept is not None and report.kept["version"] == 4
-    assert report.kept["validation_coverage"] == round(scores[good], 3)
-    assert [c for _, c in report.kept["validation_curve"]] == [round(scores[a], 3) for a in (bad, good, bad)]
-    # The final figure is the kept policy's, on the test trials.
+    assert int(np.argmax(saved.tables[0])) == bad and saved.version == 4
+    assert report.saved is not None and report.saved["version"] == 4 and report.saved["margin"] == 0.0
+    assert len(report.coverage_curve) == 1  # the good version's evaluation: on the curve, not a choice
     assert report.final_coverage_mean == round(
-        evaluate(service.scenario, PolicyController(constant(good, 1)), 3, FAST.eval_steps, seed=0).coverage_mean, 3
+        evaluate(
+            service.scenario, PolicyController(constant(bad, 1)), 3, FAST.eval_steps, seed=TEST_SEED
+        ).coverage_mean,
+        3,
     )
-    # A resumed learner keeps it (from its file); without the file it forgets it, and says so.
-    with InMemoryTransport(InMemoryBus()) as t:
-        resumed = LearnerService(t, config, tmp_path, resume=True)
-    assert resumed.keeper is not None and resumed.keeper.best is not None
-    assert int(np.argmax(resumed.keeper.best.policy.tables[0])) == good
-    (tmp_path / BEST_POLICY).unlink()
-    with InMemoryTransport(InMemoryBus()) as t:
-        forgot = LearnerService(t, config, tmp_path, resume=True)
-    assert forgot.keeper is not None and forgot.keeper.best is None and len(forgot.keeper.scores) == 3
-
-
-@pytest.mark.parametrize("early_window", [0.0, 1e6])
-def test_an_early_candidate_that_scores_more_on_validation_trials_is_saved_and_resumes(
-    tmp_path: Path, early_window: float
-) -> None:
-    from algorithm.policy_file import load_policy
-    from learner.service import EARLY_POLICY
-    from tests.algorithm.test_selection import constant, validation
-
-    # The margin given (0: the argmax), so each candidate scores as it is: the early one the best action's.
-    config = dataclasses.replace(
-        FAST, validation_trials=3, final_eval_trials=3, duration=0.5, law_margin=0.0, early_window=early_window
-    )
-    scores = {a: validation(constant(a, version=1), 3) for a in range(8)}
-    good, bad = max(scores, key=scores.__getitem__), min(scores, key=scores.__getitem__)
-    current = [constant(good, version=2)]
-    with InMemoryTransport(InMemoryBus()) as t:
-        service = LearnerService(t, config, tmp_path)
-        service._adopt(one_cell_per_action(DIM))  # the first policy: the early window opens
-        service.state.policy = lambda: current[0]  # type: ignore[method-assign]
-        service._offer_early()
-        current[0] = constant(bad, version=3)
-        service._offer_early()
-        service._evaluate()  # the keeper's only offer before the end: bad, version 3
-        service.checkpoint()
-        report = service.run(threading.Event())
-    saved, _ = load_policy(tmp_path / "policy.npz")
-    if early_window == 0:
-        assert service.early is None and not (tmp_path / EARLY_POLICY).exists() and report.candidates == []
-        assert int(np.argmax(saved.tables[0])) == bad and saved.version == 3
-        return
-    assert int(np.argmax(saved.tables[0])) == good and saved.version == 2
-    assert [(c["source"], c["version"], c["chosen"]) for c in report.candidates] == [
-        ("kept", 3, False),
-        ("early", 2, True),
-    ]
-    # Each scored on the margin's validation trials (3 of them here), not the keeper's.
-    assert [c["validation_coverage"] for c in report.candidates] == [round(scores[bad], 3), round(scores[good], 3)]
-    assert report.final_coverage_mean == round(
-        evaluate(service.scenario, PolicyController(constant(good, 1)), 3, FAST.eval_steps, seed=0).coverage_mean, 3
-    )
-    # A resumed learner has the early candidate (from its file) and the window's start.
-    with InMemoryTransport(InMemoryBus()) as t:
-        resumed = LearnerService(t, config, tmp_path, resume=True)
-    assert resumed.early is not None and resumed.early.best is not None
-    assert resumed.early.best.policy.version == 2 and int(np.argmax(resumed.early.best.policy.tables[0])) == good
-    assert resumed._window_at == service._window_at is not None
-
-
-def test_the_early_candidate_is_scored_once_its_window_closes_so_the_wind_down_scores_only_the_kept_policy(
-    tmp_path: Path,
-) -> None:
-    # The wind-down must fit a SIGTERM's grace (SLURM's KillWait): one margin choice there, as before the candidate.
-    from tests.algorithm.test_selection import constant, validation
-
-    config = dataclasses.replace(
-        FAST, validation_trials=3, final_eval_trials=3, duration=0.5, law_margin=0.0, early_window=30.0
-    )
-    scores = {a: validation(constant(a, version=1), 3) for a in range(8)}
-    good, bad = max(scores, key=scores.__getitem__), min(scores, key=scores.__getitem__)
-    clock, current = [0.0], [constant(good, version=2)]
-    with InMemoryTransport(InMemoryBus()) as t:
-        service = LearnerService(t, config, tmp_path)
-        service.elapsed = lambda: clock[0]  # type: ignore[method-assign]
-        service._adopt(one_cell_per_action(DIM))  # the window opens at 0 s
-        service.state.policy = lambda: current[0]  # type: ignore[method-assign]
-        clock[0] = 10.0
-        service._offer_early()
-        current[0] = constant(bad, version=3)
-        clock[0] = 31.0
-        scored: list[int] = []
-        score = service._score
-
-        def counted(policy: Any, *stop: Any) -> Any:
-            scored.append(policy.version)
-            return score(policy, *stop)
-
-        service._score = counted  # type: ignore[method-assign]
-        service._offer_early()  # the window has closed: version 3 is not offered, the early candidate is scored
-        assert scored == [2] and service._drawn is not None and service._drawn.policy.version == 2
-        service._offer_early()
-        assert scored == [2]  # once
-        service._evaluate()
-        del service.elapsed  # the run's own clock for run()
-        report = service.run(threading.Event())
-    assert scored == [2, 3]  # the wind-down scored only the kept policy
-    assert [(c["source"], c["version"], c["chosen"]) for c in report.candidates] == [
-        ("kept", 3, False),
-        ("early", 2, True),
-    ]
-    assert report.candidates[1]["validation_coverage"] == round(scores[good], 3)
-
-
-def test_the_early_candidate_loses_to_the_kept_policy_on_a_tie_and_both_read_with_their_own_law_margin(
-    tmp_path: Path,
-) -> None:
-    from algorithm.policy_file import load_policy
-    from algorithm.selection import choose_margin
-    from tests.algorithm.test_selection import law_or_back
-
-    config = dataclasses.replace(FAST, validation_trials=3, final_eval_trials=3, duration=0.5, early_window=1e6)
-    # Both run from every target under a small margin and read the law above their gaps: the same best score.
-    early, kept = dataclasses.replace(law_or_back(0.25), version=2), dataclasses.replace(law_or_back(0.75), version=3)
-    current = [early]
-    with InMemoryTransport(InMemoryBus()) as t:
-        service = LearnerService(t, config, tmp_path)
-        service._adopt(one_cell_per_action(DIM))
-        service.state.policy = lambda: current[0]  # type: ignore[method-assign]
-        service._offer_early()
-        current[0] = kept
-        service._evaluate()
-        report = service.run(threading.Event())
-    saved, _ = load_policy(tmp_path / "policy.npz")
-    assert saved.version == 3 and saved.law_margin == 1.0  # the smallest margin at or above 0.75 that reads law
-    expected = [choose_margin(service.scenario, p, 3, FAST.eval_steps) for p in (kept, early)]
-    assert [(c["source"], c["margin"], c["chosen"]) for c in report.candidates] == [
-        ("kept", 1.0, True),
-        ("early", 0.3, False),
-    ]
-    assert [c["validation_coverage"] for c in report.candidates] == [round(e.scores[e.margin], 3) for e in expected]
-    assert expected[0].scores[1.0] == expected[1].scores[0.3]  # a tie: the law on the same trials
 
 
 @pytest.mark.parametrize("given", [None, 0.0, 0.5])
@@ -518,7 +388,7 @@ def test_the_saved_policy_is_read_with_the_law_margin_chosen_on_validation_trial
     from algorithm.selection import LAW_MARGINS, choose_margin
     from tests.algorithm.test_selection import law_or_back
 
-    config = dataclasses.replace(FAST, validation_trials=3, final_eval_trials=3, duration=0.5, law_margin=given)
+    config = dataclasses.replace(FAST, final_eval_trials=3, duration=0.5, law_margin=given)
     policy = law_or_back(0.25)  # its argmax runs from every target; a margin of 0.3 or more reads the law
     with InMemoryTransport(InMemoryBus()) as t:
         service = LearnerService(t, config, tmp_path)
@@ -526,37 +396,68 @@ def test_the_saved_policy_is_read_with_the_law_margin_chosen_on_validation_trial
         service.state.policy = lambda: policy  # type: ignore[method-assign]
         report = service.run(threading.Event())
     saved, _ = load_policy(tmp_path / "policy.npz")
+    assert report.saved is not None and report.base_law == "force-recall"
     if given is None:
-        expected = choose_margin(service.scenario, policy, 3, FAST.eval_steps, cap=service.spread_cap)
+        expected = choose_margin(service.scenario, policy, 3, FAST.eval_steps)
         assert expected.margin == 0.3 and saved.law_margin == 0.3
-        assert report.law_margin == {
-            "margin": 0.3,
+        assert report.saved["margin"] == 0.3
+        assert report.saved["choice"] == {
             "validation_coverage": {f"{m:g}": round(expected.scores[m], 3) for m in LAW_MARGINS},
             "validation_spread": {f"{m:g}": round(expected.spreads[m], 4) for m in LAW_MARGINS},
             "validation_trials": 3,
             "validation_seed": 1000,
         }
     else:
-        assert saved.law_margin == given and report.law_margin == {"margin": given}
+        assert saved.law_margin == given and report.saved["margin"] == given and report.saved["choice"] is None
     # Below the gap of 0.25 every decision leaves law for back; at or above it none does.
-    assert report.final_comparison["learned"]["off_law_pct"] == (100.0 if saved.law_margin < 0.25 else 0.0)
-    # The final figure is that of the policy as saved, margin and all.
+    learned = report.final_comparison["learned"]
+    assert learned["off_law_pct"] == (100.0 if saved.law_margin < 0.25 else 0.0)
+    assert learned["shared_off_law_pct"] == (
+        100.0 if saved.law_margin < 0.25 and learned["shared_decisions_pct"] else 0.0
+    )
+    # The final figure is that of the policy as saved, margin and all, on the reported test trials.
     read = dataclasses.replace(policy, law_margin=saved.law_margin)
     assert report.final_coverage_mean == round(
-        evaluate(service.scenario, PolicyController(read), 3, FAST.eval_steps, seed=0).coverage_mean, 3
+        evaluate(service.scenario, PolicyController(read), 3, FAST.eval_steps, seed=TEST_SEED).coverage_mean, 3
     )
+    base = report.final_comparison["force-recall"]
+    law = evaluate(service.scenario, HAND_MADE["force-recall"], 3, FAST.eval_steps, seed=TEST_SEED)
+    assert base["coverage"] == round(law.coverage_mean, 3)
 
 
-def test_experience_is_acknowledged_while_an_evaluation_holds_the_loop(tmp_path: Path) -> None:
-    # An evaluation is seconds of trials on the loop's thread; the checkpoints, and the acks after them, go on
-    # meanwhile, or every actor's outbox would fill with unacknowledged experience.
-    from protocol import Ack
+def test_a_run_stopped_by_a_signal_saves_its_last_tables_without_a_margin_choice(tmp_path: Path) -> None:
+    from algorithm.policy_file import load_policy
+    from algorithm.selection import FALLBACK_MARGIN
+    from tests.algorithm.test_selection import law_or_back
 
-    config = dataclasses.replace(FAST, eval_interval=0.01, checkpoint_interval=0.05)
+    config = dataclasses.replace(FAST, final_eval_trials=3)
+    policy = law_or_back(0.25)
+    stop = threading.Event()
+    stop.set()
+    with InMemoryTransport(InMemoryBus()) as t:
+        service = LearnerService(t, config, tmp_path)
+        service.state.adopt(one_cell_per_action(DIM))
+        service.state.policy = lambda: policy  # type: ignore[method-assign]
+        service.rule = dataclasses.replace(service.rule, trials=10**6)  # a choice would never end
+        report = service.run(stop)
+    saved, _ = load_policy(tmp_path / "policy.npz")
+    assert saved.law_margin == FALLBACK_MARGIN and report.saved is not None
+    assert report.saved["margin"] == FALLBACK_MARGIN and report.saved["choice"] is None
+    assert "stopped" in report.saved["reason"] and report.final_coverage_mean is not None
+
+
+def test_acks_policies_and_status_go_out_while_an_evaluation_is_under_way(tmp_path: Path) -> None:
+    # An evaluation is seconds of trials; the checkpoints (and the acks after them), the policies and the status go
+    # on meanwhile, or every actor's outbox would fill with unacknowledged experience and a client would see the
+    # learner fall silent.
+    from protocol import Ack, Status
+
+    config = dataclasses.replace(FAST, eval_interval=0.01, checkpoint_interval=0.05, status_interval=0.1)
     acks: list[Ack] = []
+    heard: list[tuple[str, float]] = []
     evaluating, release, returned = threading.Event(), threading.Event(), threading.Event()
 
-    def held(policy: Any, at: float) -> float:
+    def held(policy: Any, at: float, stop: Any = None) -> float:
         evaluating.set()
         release.wait(60.0)
         returned.set()
@@ -564,6 +465,8 @@ def test_experience_is_acknowledged_while_an_evaluation_holds_the_loop(tmp_path:
 
     with InMemoryTransport(InMemoryBus()) as t:
         t.subscribe(t.keys.ack(), Ack, acks.append)
+        t.subscribe(t.keys.policy(), PolicyUpdate, lambda u: heard.append(("policy", time.monotonic())))
+        t.subscribe(t.keys.status(), Status, lambda u: heard.append(("status", time.monotonic())))
         service = LearnerService(t, config, tmp_path)
         handles = connect_learner(service, t)
         service.state.adopt(one_cell_per_action(DIM))
@@ -579,12 +482,17 @@ def test_experience_is_acknowledged_while_an_evaluation_holds_the_loop(tmp_path:
             while not any(a.seq == 1 for a in acks) and time.monotonic() < deadline:
                 time.sleep(0.01)
             acked_while_held = any(a.seq == 1 for a in acks) and not returned.is_set()
+            held_since = time.monotonic()
+            while len([k for k, at in heard if at > held_since]) < 6 and time.monotonic() < deadline:
+                time.sleep(0.01)
+            during = {k for k, at in heard if at > held_since} if not returned.is_set() else set()
         finally:
             release.set()
             stop.set()
             thread.join()
             handles.close()
     assert acked_while_held
+    assert during == {"policy", "status"}  # both kept going out while the evaluation held its thread
     assert service.intake.figures().tuples_received == 6
 
 

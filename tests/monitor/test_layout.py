@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 import rerun.blueprint as rrb
 
+from algorithm.selection import DEVELOPMENT_SEED
 from learner.config import LearnerConfig
-from learner.evaluator import TEST_SEED
 from learner.service import LearnerService
 from monitor import Sink, open_monitor, paths, style
 from monitor.layout import TITLE_MAX, rose
@@ -78,10 +78,10 @@ def test_the_learning_curve_comes_first_with_its_reference_levels(sent: Layout) 
     assert sent.containers["training trials"] == ["training coverage (%)", "mean trial reward", "spread over targets"]
 
 
-def test_reference_levels_are_the_hand_made_controllers_on_the_test_trials(recording: Path) -> None:
+def test_reference_levels_are_the_hand_made_controllers_on_the_curve_s_trials(recording: Path) -> None:
     cfg = scenario(CONFIG.scenario)
     for name, controller in CONTROLLERS.items():
-        expected = evaluate(cfg, controller, CONFIG.eval_trials, CONFIG.eval_steps, seed=TEST_SEED).coverage_mean
+        expected = evaluate(cfg, controller, CONFIG.eval_trials, CONFIG.eval_steps, seed=DEVELOPMENT_SEED).coverage_mean
         ((_, level),) = rows(recording, paths.reference(name), "Scalars:scalars", paths.TRAIN_TIME)
         assert level == [pytest.approx(expected)]
     assert set(style.REFERENCES) == set(CONTROLLERS)  # each level has its legend name and colour

@@ -31,7 +31,7 @@ run too; where namespaces cannot be made (not root, no iproute2 or iptables), th
 why. The rotation always completes one round, past ``--duration`` if need be; after that no fault starts once the
 duration is over. Then the actors are stopped (each flushes its outbox and prints its final status), then the
 learner (it writes ``RUN/report.json``), then the router, and the contract is checked, each check from figures of
-different processes: exactly-once storage, every acknowledged visit in the final tables (or counted as dropped),
+different processes: exactly-once storage, every acknowledged visit applied to the final tables and none stale,
 policy versions strictly increasing across restarts, the poisoned stream flowing on, nothing stored from hostile
 peers, bounded RSS, and with network faults the experience carried by the links (not by shared memory). Exit status
 0 if every check holds, 1 if one fails; ``RUN/chaos.json`` holds what ``--json`` prints. Usage::

@@ -14,8 +14,9 @@ values sweep it, and several ``--set`` sweep their product. Usage::
 Every variant's row carries the coverage of :data:`REFERENCES` on the same test trials of its scenario, its paired
 difference with each of them (the processes' mean per trial less the reference's, ± its standard error over the
 trials), and the paper's figure for the method, so a result is read beside what the hand-made controllers and the
-paper reach. ``--set budget.law_margin_trials=300`` reads each process's policy (a law action set's) with the law
-margin the learner would choose on that many validation trials, instead of its argmax.
+paper reach. Every process saves its policy by the learner's rule (:class:`algorithm.selection.SaveRule`): the last
+tables, a law action set's read with the law margin that scores best on ``budget.law_margin_trials`` validation
+trials (``--set budget.law_margin_trials=0``: the argmax).
 """
 
 from __future__ import annotations
@@ -94,11 +95,6 @@ class Setup:
             )
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
-        if self.budget.law_margin_trials and formulation.actions.law is None:
-            raise ConfigError(
-                f"budget.law_margin_trials: a law margin reads a law action set (actions=law, law-search or "
-                f"law-track), not {formulation.actions.name!r}"
-            )
         return formulation
 
 
