@@ -123,6 +123,12 @@ def headline(report: Mapping[str, Any]) -> list[str]:
             f"decisions off the law: {learned['off_law_pct']:.1f} %; where a teammate shared the robot's targets "
             f"({shared:.1f} % of the decisions): {shared_off:.1f} %"
         )
+    team = report.get("team_table")
+    if team:
+        lines.append(
+            f"each robot on its own table (option 2, saved) - the rows merged into one team table: {_team(team)} "
+            f"(team table {team['coverage']:.2f} %)"
+        )
     lines.append(f"the learned policy observes {final:.2f} % of the targets ({trials} seeded test trials{what})")
     references = sorted(
         ((n, float(row["coverage"])) for n, row in comparison.items() if n != "learned"), key=lambda r: -r[1]
@@ -139,6 +145,11 @@ def headline(report: Mapping[str, Any]) -> list[str]:
         )
     lines[0] = "result: " + lines[0]
     return lines
+
+
+def _team(team: Mapping[str, float]) -> str:
+    mean, se = team["per_robot_minus"], team["per_robot_minus_se"]
+    return f"{mean:+.2f} ± {se:.2f} points" + (WITHIN_NOISE if within_noise(mean, se) else "")
 
 
 def _paired(row: Mapping[str, float]) -> str:
@@ -201,6 +212,16 @@ def result_rows(report: Mapping[str, Any]) -> list[tuple[str, str]]:
     saved = report.get("saved")
     if saved:
         rows.insert(-1, ("saved policy", _saved(saved)))
+    team = report.get("team_table")
+    if team:
+        rows.insert(
+            -1,
+            (
+                "team table",
+                f"the robots' rows merged by their visits: {team['coverage']:.2f} %; each robot on its own row - it: "
+                f"{_team(team)}",
+            ),
+        )
     off_law = (report.get("final_comparison") or {}).get("learned", {}).get("off_law_pct")
     if off_law is not None:
         rows.insert(-1, ("decisions off law", f"{off_law:.1f} % of the learned robots' decisions on the final trials"))

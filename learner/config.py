@@ -53,11 +53,11 @@ class LearnerConfig:
     """ENNC-QL phase 1."""
     broadcast_interval: float = 3.0
     """Seconds between merges + policy broadcasts."""
-    team_policy: bool = True
-    """Evaluate and save the policy with one table every robot uses, the actors' per-robot tables merged by their
-    visits (docs/learning-quality.md, "the learner's merge across robots"); the broadcast keeps each robot's own
-    table, so the actors learn on option 2 either way. Off: each robot acts on its own row, as the paper's option 2
-    [paper]."""
+    team_policy: bool = False
+    """Save and score the policy with one table every robot uses, the actors' per-robot tables merged by their
+    visits (docs/learning-quality.md, "the learner's merge across robots"). Off (default): each robot acts on its own
+    row, the paper's option 2 [paper], and the final report scores the merged team table beside it; the broadcast
+    keeps each robot's own table, so the actors learn on option 2 either way."""
     eval_interval: float = 20.0
     """Seconds between evaluations of the current policy."""
     eval_trials: int = 10

@@ -41,6 +41,7 @@ class Evaluator:
         self._references: dict[int, dict[str, EvalResult]] = {}
         self._final: EvalResult | None = None
         self._off_law: OffLaw | None = None
+        self._team: tuple[EvalResult, OffLaw | None] | None = None
 
     def periodic(self, policy: Policy, at: float, stop: threading.Event | None = None) -> float:
         """Coverage (%) of ``policy``, kept on the curve at ``at`` seconds of training; EvaluationStopped (nothing
@@ -71,9 +72,27 @@ class Evaluator:
         return {name: _spread(r) for name, r in self._reference_results(trials).items()}
 
     def final(self, policy: Policy) -> float:
-        """The final figure; the curve keeps one protocol, so this point stays off it."""
+        """The final figure; the curve keeps one protocol, so this point stays off it. A policy of several robots'
+        rows (option 2) is scored beside its rows merged into one team table (:meth:`team_table`)."""
         self._final, self._off_law = evaluate_off_law(self.cfg, policy, self.final_trials, self.steps, TEST_SEED)
+        self._team = None
+        if policy.tables.shape[0] > 1:
+            self._team = evaluate_off_law(self.cfg, policy.team(), self.final_trials, self.steps, TEST_SEED)
         return self._final.coverage_mean
+
+    def team_table(self) -> dict[str, float] | None:
+        """The final policy's rows merged into one table, on the final figure's trials: its coverage, its decisions
+        off the law, and the paired difference of the per-robot policy from it (``per_robot_minus`` ± s.e.); None
+        when the final policy has one row."""
+        if self._final is None or self._team is None:
+            return None
+        team, off = self._team
+        mean, se = self._final.minus(team)
+        row = {"coverage": round(team.coverage_mean, 3), "per_robot_minus": round(mean, 3)}
+        row["per_robot_minus_se"] = round(se, 3)
+        if off is not None:
+            row["off_law_pct"] = round(off.pct, 3)
+        return row
 
     def comparison(self) -> dict[str, dict[str, float]]:
         """The final policy (``learned``) and every reference on the final figure's trials: coverage, the team's

@@ -144,6 +144,10 @@ class LearnerReport:
     policy_file: str | None
     checkpoint: str
     seconds: float
+    team_table: dict[str, float] | None = None
+    """With per-robot tables saved (option 2): their rows merged into one team table, scored on the same final trials
+    (``coverage``, ``off_law_pct``) and the paired difference per-robot − team (``per_robot_minus`` ± s.e.); None for
+    a one-table policy or before a final figure."""
     base_law: str = "a-cmommt"
     """The hand-made controller the learned policy is measured against first (``sim.formulation.Formulation.base_law``:
     for a law action set the law its move ``law`` follows): what learning added is the paired difference from it."""
@@ -208,6 +212,7 @@ class LearnerReport:
             checkpoint=str(checkpoint),
             seconds=round(status.elapsed, 2),
             resumes=list(resumes or []),
+            team_table=None if final is None else evaluator.team_table(),
             base_law=config.resolved.base_law,
             saved=None if saved is None else saved.to_dict(),
         )

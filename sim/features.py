@@ -41,6 +41,12 @@ ends:
   potential-based shaping, Ng, Harada & Russell 1999; undiscounted, so with the learner's γ < 1 it also charges a
   redundant step (1 − γ)Φ(s′), the same sign as the redundancy charge].
 
+* ``coverage-split``: each target the robot observes, split evenly among the robots observing it, Σ_j b_ij / Σ_k
+  b_kj, earned at every step and paid per decision as ``difference-decision`` is: the team's rewards sum to metric A's
+  summand at every step, so a team policy that covers more targets earns more on average, which the difference
+  rewards do not guarantee (a team that keeps some targets watched twice covers more and is paid less) [beyond the
+  paper].
+
 ``paper`` names the featurizer's own reward of the paper: ``observed`` for ``local2d``, ``eq2`` for the collaborative
 states. :mod:`sim.formulation` resolves the names of a formulation's parts into these objects, once.
 """
@@ -295,6 +301,13 @@ def _difference_redundancy(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
     return out
 
 
+def _coverage_split(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
+    if obs.sighted is None:
+        raise ValueError("coverage-split reads which robot observes which target: an observation made by sense()")
+    watchers = obs.sighted.sum(axis=1, keepdims=True)  # (E, 1, n) robots observing each target
+    return (obs.sighted / np.maximum(watchers, 1)).sum(axis=-1).astype(np.float32)
+
+
 def _redundancy_potential(cfg: ScenarioConfig, obs: Observation) -> np.ndarray:
     redundant = (obs.n_seen > 0) & (obs.n_only == 0)
     closeness = 1.0 - np.hypot(obs.features[..., 0], obs.features[..., 1]) / cfg.sensing_range
@@ -310,6 +323,7 @@ REWARDS: dict[str, Reward] = {
         Reward("difference-decision", _difference, per_decision=True),
         Reward("difference-redundancy", _difference_redundancy, per_decision=True),
         Reward("difference-shaped", _difference_redundancy, per_decision=True, potential=_redundancy_potential),
+        Reward("coverage-split", _coverage_split, per_decision=True),
     )
 }
 """Every reward function by name; ``paper`` is accepted wherever a reward is named: the featurizer's own

@@ -238,6 +238,9 @@ FORMULATIONS: dict[str, Formulation] = {
     "frame-recall-track": Formulation.of(
         "frame11d-recall", "difference-redundancy", "law-track", act_every=1, trial_rules="guided-search"
     ),
+    "frame-recall-split": Formulation.of(
+        "frame11d-recall", "coverage-split", "law-track", act_every=1, trial_rules="guided-search"
+    ),
 }
 """Every formulation by name: ``paper`` is the paper's collaborative formulation [paper §4, Eq. 2];
 ``shared-difference`` the best with the world-frame state and compass moves that the README's ablations found;
@@ -254,7 +257,8 @@ of the learned choices [beyond the paper; the same document's "Tenth round"]; ``
 heading, so that leaving a crowd to search along it is the move ``law`` [beyond the paper; the same document's
 "Twelfth round"]; ``frame-recall-track`` the same with ``law-track`` moves, whose search heading follows the law's
 pull, so that ``law`` is the hand-made law's own move everywhere, its search included [beyond the paper; the same
-document's "Seventeenth round"]."""
+document's "Seventeenth round"]; ``frame-recall-split`` the same paid ``coverage-split``, whose team total is metric A's
+summand at every step (docs/learning-quality.md, "2026-12-07") [beyond the paper]."""
 DEFAULT_FORMULATION = "frame-recall-track"
 """The formulation of every process (``up``, ``learner``, ``actor``, compose's) unless another is named."""
 

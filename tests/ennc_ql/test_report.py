@@ -383,6 +383,13 @@ def test_the_result_leads_with_what_learning_added_over_its_base_law(tmp_path: P
         "decisions off the law: 12.5 %; where a teammate shared the robot's targets (8.0 % of the decisions): 2.2 %"
     )
     assert "learned - A-CMOMMT: -11.02 ± 0.50 points (paired, 50 trials)" in lines
+    assert not [line for line in lines if "team table" in line]  # a one-table policy has none
+    team = {"coverage": 61.5, "per_robot_minus": -0.27, "per_robot_minus_se": 0.08, "off_law_pct": 3.0}
+    lines = terminal_summary({**report, "team_table": team}).splitlines()
+    assert lines[2] == (
+        "each robot on its own table (option 2, saved) - the rows merged into one team table: -0.27 ± 0.08 points "
+        "(team table 61.50 %)"
+    )
     text = write_run_report(report, tmp_path)[0].read_text()
     assert (
         "What learning added over its base law, force law + shared flags + memory: **+0.31 ± 0.21 points, within noise"

@@ -82,10 +82,10 @@ def test_serial_learner_and_actor_exchange_experience_and_policies(tmp_path: Pat
     assert round(stopped_at[0], 2) <= report.seconds < stopped_at[0] + 1.5  # the report rounds to 0.01 s
     assert report.increments > 0 and status.policies_applied >= 1
     # Only the learned robots produced tuples, and their tables (the broadcast's rows) moved away from the phase-1
-    # labels; the team policy evaluated and saved merges them into one.
+    # labels; the policy evaluated and saved holds every robot's own row (option 2).
     assert report.prototypes_per_action and (tmp_path / "checkpoint.npz").exists()
     policy, current = service.state.policy(), service.state.current
-    assert policy is not None and current is not None and policy.tables.shape[0] == 1
+    assert policy is not None and current is not None and policy.tables.shape[0] == 10
     moved = np.abs(current.q_tables - policy.discretization.labels[None, :]).sum(axis=1)
     assert (moved[[0, 1, 2]] > 0).all() and (moved[3:] == 0).all()
 
@@ -423,6 +423,35 @@ def test_the_saved_policy_is_read_with_the_law_margin_chosen_on_validation_trial
     base = report.final_comparison["force-recall"]
     law = evaluate(service.scenario, HAND_MADE["force-recall"], 3, FAST.eval_steps, seed=TEST_SEED)
     assert base["coverage"] == round(law.coverage_mean, 3)
+
+
+def test_each_robot_acts_on_its_own_row_and_the_merged_team_table_is_scored_beside_it(tmp_path: Path) -> None:
+    """Option 2 as the paper has it: the policy file holds every robot's row and each robot acts on its own; the
+    report scores the rows merged by their visits beside it, on the same trials."""
+    from algorithm.policy_file import load_policy
+
+    config = dataclasses.replace(FAST, final_eval_trials=4, duration=0.5, law_margin=0.0)
+    with InMemoryTransport(InMemoryBus()) as t:
+        service = LearnerService(t, config, tmp_path)
+        assert service.state.team is False
+        service.state.adopt(one_cell_per_action(DIM))
+        service.state.publish()  # version 1: the increments are learned over it
+        # Robot 3 alone values move 5 ("back") highest; the others' visits outweigh it in the merge.
+        service.state.add_increment(increment("a", 0, [0.0] * 5 + [9.0, 0.0, 0.0], [1] * 8, robot=3))
+        service.state.add_increment(increment("a", 1, [1.0] + [0.0] * 7, [50] * 8, robot=4))
+        report = service.run(threading.Event())
+    saved, _ = load_policy(tmp_path / "policy.npz")
+    assert saved.tables.shape[0] == 10 and saved.robot_table.tolist() == list(range(10))
+    assert int(np.argmax(saved.tables[3])) == 5 and int(np.argmax(saved.tables[4])) == 0
+    team = saved.team()
+    assert team.tables.shape[0] == 1 and int(np.argmax(team.tables[0])) == 0
+    per_robot = evaluate(service.scenario, PolicyController(saved), 4, FAST.eval_steps, seed=TEST_SEED)
+    merged = evaluate(service.scenario, PolicyController(team), 4, FAST.eval_steps, seed=TEST_SEED)
+    assert report.final_coverage_mean == round(per_robot.coverage_mean, 3)
+    assert report.team_table is not None and report.team_table["coverage"] == round(merged.coverage_mean, 3)
+    mean, se = per_robot.minus(merged)
+    assert report.team_table["per_robot_minus"] == round(mean, 3)
+    assert report.team_table["per_robot_minus_se"] == round(se, 3)
 
 
 def test_a_run_stopped_by_a_signal_saves_its_last_tables_without_a_margin_choice(tmp_path: Path) -> None:

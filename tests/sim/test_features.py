@@ -124,7 +124,32 @@ def test_paper_names_each_featurizers_own_reward_and_unknown_names_are_refused()
         "difference-decision",
         "difference-redundancy",
         "difference-shaped",
+        "coverage-split",
     }
+
+
+def test_coverage_split_pays_each_observed_target_once_shared_evenly_among_its_observers() -> None:
+    """Two robots on one target, one alone on another, one on none: 1/2, 1/2, 1, 0; the team's sum is metric A's
+    summand (targets covered), whatever the crowding."""
+    from sim import scenario
+    from sim.world import Observation
+
+    cfg = scenario("cmommt-v1")
+    sighted = np.zeros((2, 4, 3), bool)
+    sighted[0, 0, 0] = sighted[0, 1, 0] = sighted[0, 2, 1] = True
+    sighted[1, :, 2] = True  # every robot on one target
+    obs = Observation(
+        features=np.zeros((2, 4, 6), np.float32),
+        n_seen=sighted.sum(-1).astype(np.int32),
+        sees_robot=np.zeros((2, 4), bool),
+        covered=sighted.any(1).sum(-1).astype(np.int32),
+        shared=np.zeros((2, 4, 2), bool),
+        n_only=np.zeros((2, 4), np.int32),
+        sighted=sighted,
+    )
+    value = REWARDS["coverage-split"].value(cfg, obs)
+    np.testing.assert_allclose(value, [[0.5, 0.5, 1.0, 0.0], [0.25, 0.25, 0.25, 0.25]])
+    np.testing.assert_allclose(value.sum(-1), obs.covered)
 
 
 @pytest.mark.parametrize("featurizer", list(FEATURIZER_REGISTRY))
