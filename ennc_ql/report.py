@@ -28,6 +28,7 @@ from algorithm.policy_file import load_policy, scenario_from_header
 from ennc_ql.command import emit
 from ennc_ql.figures import policy_figure
 from learner.report import LearnerReport
+from monitor.sinks import WEB_VIEWER, WEB_VIEWER_WHY, has_display
 from monitor.style import REFERENCES as STYLES
 from sim.controllers import COMPASS_NAMES
 from sim.formulation import FORMULATIONS
@@ -175,7 +176,10 @@ def next_commands(report: Mapping[str, Any]) -> list[tuple[str, str]]:
         )
     recording = (report.get("recording") or {}).get("path")
     if recording:
-        commands.append((f"rerun {recording}", "open the recording in the Rerun viewer"))
+        if has_display():
+            commands.append((f"rerun {recording}", "open the recording in the Rerun viewer"))
+        else:
+            commands.append((f"{WEB_VIEWER} {recording}", WEB_VIEWER_WHY))
     duration = (report.get("config") or {}).get("duration")
     if str(report.get("command", "")).startswith("sbatch "):
         # Submitting a job script again continues its run; another run is another folder, from the same settings.

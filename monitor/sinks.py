@@ -37,6 +37,21 @@ def viewer_executable() -> str | None:
     return str(beside) if beside.is_file() else shutil.which("rerun")
 
 
+def has_display() -> bool:
+    """Whether a viewer's window can open here: not Linux, or a Linux session with an X or Wayland display."""
+    return not sys.platform.startswith("linux") or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+WEB_VIEWER = "rerun --serve-web --bind 127.0.0.1"
+"""How a recording is watched where there is no display: Rerun's web viewer on http://127.0.0.1:9090 (its page) and
+gRPC on 127.0.0.1:9876 (the recording), both on loopback only (``--bind``: Rerun listens on every interface
+without it)."""
+WEB_VIEWER_WHY = (
+    "no display here: serve it to a browser at http://127.0.0.1:9090 (loopback only; from another machine first "
+    "ssh -L 9090:127.0.0.1:9090 -L 9876:127.0.0.1:9876 to this one)"
+)
+
+
 def spawn_problem(port: int = VIEWER_PORT) -> str | None:
     """Why ``--rerun spawn`` cannot show a viewer here, or None: checked before anything starts."""
     with socket.socket() as probe:
@@ -45,11 +60,11 @@ def spawn_problem(port: int = VIEWER_PORT) -> str | None:
             return None  # a viewer (or a rerun --serve-web) runs already: spawn streams to it
     if viewer_executable() is None:
         return "no Rerun viewer here (rerun-sdk installs `rerun` beside python; pip install rerun-sdk)"
-    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+    if not has_display():
         return (
             "no display for the viewer's window here (DISPLAY and WAYLAND_DISPLAY are unset); record instead "
             "(--rerun save FILE.rrd, ennc-ql up's default) and open it with rerun FILE.rrd where there is a screen, "
-            "or serve it to a browser: rerun --serve-web FILE.rrd"
+            f"or serve it to a browser on this machine's loopback: {WEB_VIEWER} FILE.rrd (http://127.0.0.1:9090)"
         )
     return None
 

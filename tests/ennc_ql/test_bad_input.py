@@ -415,7 +415,11 @@ ENV_ROWS: list[tuple[dict[str, str], list[str], str]] = [
     ({"SLURM_ARRAY_TASK_ID": ""}, ["slurm", "task", "empty"], "SLURM_ARRAY_TASK_ID='': expected a task number"),
     # A headless machine (no viewer runs on port 9876 during the tests): before a process starts, with the way out.
     ({"DISPLAY": "", "WAYLAND_DISPLAY": ""}, ["up", "--rerun", "spawn"], "--rerun spawn: no display for the viewer"),
-    ({"DISPLAY": "", "WAYLAND_DISPLAY": ""}, ["eval", "--rerun", "spawn"], "rerun --serve-web FILE.rrd"),
+    (
+        {"DISPLAY": "", "WAYLAND_DISPLAY": ""},
+        ["eval", "--rerun", "spawn"],
+        "rerun --serve-web --bind 127.0.0.1 FILE.rrd",
+    ),
 ]
 
 

@@ -136,7 +136,10 @@ def test_markdown_report_opens_with_the_result_beside_its_references(tmp_path: P
     assert "![the learning curve beside the hand-made controllers' levels](learning_curve.png)" in lines
 
 
-def test_markdown_report_carries_the_figures_and_ends_with_the_next_commands(tmp_path: Path) -> None:
+def test_markdown_report_carries_the_figures_and_ends_with_the_next_commands(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("DISPLAY", ":0")  # where a viewer's window can open: the recording opens in it
     report = run_report(tmp_path)
     text = write_run_report(report, tmp_path)[0].read_text()
     assert "| duration | 480 |" in text and "| formulation | shared-difference |" in text
@@ -162,7 +165,10 @@ def test_markdown_report_carries_the_figures_and_ends_with_the_next_commands(tmp
     )
 
 
-def test_terminal_summary_opens_with_the_result_and_ends_with_what_comes_next(tmp_path: Path) -> None:
+def test_terminal_summary_opens_with_the_result_and_ends_with_what_comes_next(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("DISPLAY", ":0")
     lines = terminal_summary({**run_report(tmp_path), "report_md": str(tmp_path / "report.md")}).splitlines()
     # A report without base_law (another formulation's, or an older one): A-CMOMMT is the base it is read against.
     assert lines[0] == "result: learned - A-CMOMMT (its base law): -11.02 ± 0.50 points (paired, 50 trials)"
@@ -405,3 +411,17 @@ def test_the_learned_policy_s_decisions_off_law_are_given_when_counted(tmp_path:
     text = write_run_report({**report, "final_comparison": comparison}, tmp_path)[0].read_text()
     assert "| decisions off law | 26.0 % of the learned robots' decisions on the final trials |" in text
     assert "decisions off law" not in write_run_report(report, tmp_path)[0].read_text()
+
+
+def test_without_a_display_the_recording_is_served_to_a_browser_on_loopback(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    commands = dict(next_commands(run_report(tmp_path)))
+    serve = f"rerun --serve-web --bind 127.0.0.1 {tmp_path / 'recording.rrd'}"
+    assert serve in commands and f"rerun {tmp_path / 'recording.rrd'}" not in commands
+    assert (
+        "http://127.0.0.1:9090" in commands[serve]
+        and "ssh -L 9090:127.0.0.1:9090 -L 9876:127.0.0.1:9876" in (commands[serve])
+    )

@@ -149,7 +149,7 @@ def test_spawn_is_checked_before_anything_starts(monkeypatch: pytest.MonkeyPatch
     monkeypatch.delenv("DISPLAY")
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     problem = sinks.spawn_problem(port)
-    assert problem is not None and "no display" in problem and "rerun --serve-web FILE.rrd" in problem
+    assert problem is not None and "no display" in problem and "rerun --serve-web --bind 127.0.0.1 FILE.rrd" in problem
     monkeypatch.setattr(sinks, "viewer_executable", lambda: None)
     assert "no Rerun viewer here" in (sinks.spawn_problem(port) or "")
     with socket.create_server(("127.0.0.1", 0)) as viewer:  # a viewer runs: spawn streams to it

@@ -308,9 +308,10 @@ def _watch(
         version: int = 0
         coverage: float | None = None
         actors_running = True
+        shown = 0.0  # the clock as shown: a status that arrives late carries it back, and a clock never runs back
         while LEARNER not in supervisor.finished and LEARNER not in supervisor.given_up:
             if stop.wait(1.0):
-                bar.mark("stopping: the actors and the learner wind down")
+                bar.mark("stopping: the actors hand in their outboxes, then the learner checkpoints and reports")
                 return
             for message in supervisor.check():
                 bar.mark(message)
@@ -318,7 +319,7 @@ def _watch(
             if status is None:
                 continue
             fresh = age <= 2 * learner.status_interval
-            n = min(status.elapsed + (age if fresh else 0.0), duration)
+            shown = n = max(shown, min(status.elapsed + (age if fresh else 0.0), duration))
             if actors_running and fresh and n >= duration - lead:
                 bar.mark("training ends: the actors stop and hand in their outboxes", n)
                 supervisor.stop(actors, actor_stop_s)
