@@ -272,7 +272,7 @@ def add_process_args(
     p.add_argument("--json", action="store_true", help="print the final result as one JSON object")
     add_config_flags(p.add_argument_group(title), cls, choices=choices)
     add_connection_args(p)
-    add_rerun_args(p)
+    add_rerun_args(p, relay=cls.__name__ == "ActorConfig")
 
 
 def checked_zenoh(args: argparse.Namespace, command: str, ident: str) -> zenoh.Config:

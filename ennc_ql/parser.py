@@ -105,11 +105,26 @@ class CommandParser(argparse.ArgumentParser):
         sys.stderr.write(f"{self.prog}: error: {self._reword(message)}\n{self.short_usage()}\n")
         raise SystemExit(2)
 
+    show_all = False
+    """Whether the help lists the tuning options too (``--help-all``)."""
+
     def format_help(self) -> str:
         # The generated usage of a command with 60 flags is a block of 40 lines; they are listed below it anyway.
         if self.usage is None:
             self.usage = self._synopsis()
-        return super().format_help()
+        tuning = [] if self.show_all else [a for a in self._actions if is_tuning(a)]
+        helps = [a.help for a in tuning]
+        for action in tuning:
+            action.help = argparse.SUPPRESS
+        try:
+            text = super().format_help()
+        finally:
+            for action, help_text in zip(tuning, helps, strict=True):
+                action.help = help_text
+        if tuning:
+            hidden = f"{len(tuning)} tuning options not shown (the learner's and actors' algorithm settings)"
+            text += f"\n{hidden}: {self.prog} --help-all\n"
+        return text
 
     def short_usage(self) -> str:
         """One line: the command, ``[OPTIONS]`` and its positional arguments, and where the full list is."""
@@ -160,6 +175,25 @@ class CommandParser(argparse.ArgumentParser):
         return message.replace("expected one argument", "needs a value")
 
 
+def is_tuning(action: argparse.Action) -> bool:
+    """A flag of a nested configuration table (``--learner-phase1-n-cycles``, ``--actor-phase2-alpha``): its field
+    path has a dot. A command's help lists them only with ``--help-all``."""
+    return bool(action.option_strings) and "." in (action.dest or "")
+
+
+class _HelpAll(argparse.Action):
+    """``--help-all``: the help page with every option, the tuning ones included."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str = argparse.SUPPRESS, **kwargs: Any) -> None:
+        super().__init__(option_strings, dest=dest, nargs=0, default=argparse.SUPPRESS, **kwargs)
+
+    def __call__(self, parser: argparse.ArgumentParser, *args: Any, **kwargs: Any) -> NoReturn:
+        assert isinstance(parser, CommandParser)
+        parser.show_all = True
+        parser.print_help()
+        parser.exit()
+
+
 def add_commands(parser: argparse.ArgumentParser, dest: str, title: str = "commands") -> Any:
     """The subcommand list of ``parser`` (its subparsers action), required and named COMMAND in messages; the
     name given is stored as ``dest``."""
@@ -168,8 +202,10 @@ def add_commands(parser: argparse.ArgumentParser, dest: str, title: str = "comma
 
 def add_command(sub: Any, info: CommandHelp) -> CommandParser:
     """A command's parser on ``sub`` (from :func:`add_commands`), with its description, examples and run time."""
+    # The examples come right after the description, before the options: what a reader looks for first.
     parser: CommandParser = sub.add_parser(
-        info.name, help=info.summary, description=wrap(plain(info.description)), epilog=info.epilog()
+        info.name, help=info.summary, description=wrap(plain(info.description)) + "\n\n" + info.epilog()
     )
+    parser.add_argument("--help-all", action=_HelpAll, help="show every option, the tuning ones included, and exit")
     parser.set_defaults(prog=parser.prog)  # the name errors are reported under, for main's last-resort message
     return parser

@@ -144,12 +144,16 @@ class _SinkAction(argparse.Action):
         setattr(namespace, self.dest, sink)
 
 
-def add_rerun_args(parser: argparse.ArgumentParser, default: Sink | None = Sink(), default_text: str = "off") -> None:
-    """Add ``--rerun off|save PATH|spawn|connect URL|serve`` and ``--recording-id ID``.
+def add_rerun_args(
+    parser: argparse.ArgumentParser, default: Sink | None = Sink(), default_text: str = "off", relay: bool = False
+) -> None:
+    """Add ``--rerun off|save PATH|spawn|connect URL|serve`` (and ``learner`` with ``relay``: an actor's) and
+    ``--recording-id ID``.
 
     ``default`` is what ``--rerun`` holds when not given (``None`` lets the command choose, e.g. a path inside the
     run folder it creates), described in the help as ``default_text``.
     """
+    relayed = " | learner (the learner logs this actor's rows)" if relay else ""
     group = parser.add_argument_group("monitoring (Rerun)")
     group.add_argument(
         "--rerun",
@@ -158,8 +162,8 @@ def add_rerun_args(parser: argparse.ArgumentParser, default: Sink | None = Sink(
         default=default,
         metavar="SINK",
         help=(
-            "off | save PATH | spawn | connect URL (rerun+http://HOST:9876/proxy) | serve | learner (an actor: the "
-            f"learner logs its rows) (default: {default_text})"
+            f"off | save PATH | spawn | connect URL (rerun+http://HOST:9876/proxy) | serve{relayed} (default: "
+            f"{default_text})"
         ),
     )
     group.add_argument(

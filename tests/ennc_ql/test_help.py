@@ -58,7 +58,9 @@ def test_every_help_page_has_a_description_two_examples_and_a_run_time(prog: str
     assert len(description.split()) >= 12, description
     examples = text.split("examples:\n")[1].split("\n\n")[0].splitlines()
     assert len(examples) >= 2 and all(line.startswith("  ennc-ql ") and "  # " in line for line in examples)
-    assert re.search(r"\ntypical run time: \S.*\n$", text), text[-300:]
+    # The examples and the run time before the options: what a reader looks for first.
+    assert re.search(r"\ntypical run time: \S.*\n\n(options|positional arguments):", text), text[:2000]
+    assert text.index("examples:") < text.index("options:")
     for leak in ("``", ":mod:", ":class:", ":data:", ":func:"):
         assert leak not in text
 
@@ -154,3 +156,16 @@ def test_every_help_example_is_a_command_line_the_parser_takes(prog: str, capsys
             build_parser().parse_args(words[1:])
         except SystemExit as exc:  # --help and --version exit 0; bad input exits 2
             assert exc.code == 0, f"{example}: {capsys.readouterr().err}"
+
+
+def test_help_lists_the_common_flags_and_help_all_every_one() -> None:
+    """``up --help`` hides the learner's and actors' tuning flags behind ``--help-all``, and says so."""
+    parser = PARSERS["ennc-ql up"]
+    short = parser.format_help()
+    assert "--duration" in short and "--formulation" in short and "--learner-phase1-n-cycles" not in short
+    assert short.rstrip().endswith(
+        "tuning options not shown (the learner's and actors' algorithm settings): ennc-ql up --help-all"
+    )
+    done = subprocess.run([str(ENNC_QL), "up", "--help-all"], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and "--learner-phase1-n-cycles" in done.stdout and "tuning options" not in done.stdout
+    assert len(short) < len(done.stdout) / 2
