@@ -213,6 +213,14 @@ def result_rows(report: Mapping[str, Any]) -> list[tuple[str, str]]:
         ("coverage curve", ", ".join(f"{t:.0f}s: {c:.1f}%" for t, c in curve)),
         ("policy file", str(report["policy_file"])),
     ]
+    stops = report.get("interruptions") or []
+    if stops:
+        current = report.get("interrupted")
+        text = "; ".join(
+            f"{i['signal']} at {i['at_s']:.0f}/{i['duration_s']:g} s" + ("" if i == current else ", then resumed")
+            for i in stops
+        )
+        rows.insert(1, ("interruptions", text))
     saved = report.get("saved")
     if saved:
         rows.insert(-1, ("saved policy", _saved(saved)))
@@ -486,9 +494,15 @@ def learning_curve_figure(report: Mapping[str, Any]) -> Figure:
             ax.plot([at[name]], [finals[name]], "D", ms=6, color=_colour(name), label="_nolegend_")
         ax.axhline(level, ls="--", lw=1.2, color=_colour(name), label=label)
     if curve:
-        ax.plot([t for t, _ in curve], [c for _, c in curve], "o-", color=LEARNED_COLOUR, label="learned policy")
+        label = "the policy the learner held"
+        ax.plot([t for t, _ in curve], [c for _, c in curve], "o-", color=LEARNED_COLOUR, label=label)
+    for k, resume in enumerate(report.get("resumes") or []):
+        label = "resumed from the checkpoint" if k == 0 else "_nolegend_"
+        ax.axvline(float(resume["at_s"]), ls=":", lw=1.2, color="#555555", label=label)
     if final is not None:
-        label = f"final policy: {final:.2f} % ({final_trials} trials)"
+        saved = report.get("saved") or {}
+        read = "" if saved.get("margin") is None else f", margin {saved['margin']:g}"
+        label = f"saved: the last policy{read}: {final:.2f} % ({final_trials} trials)"
         ax.plot([end + step], [final], "*", ms=15, color=LEARNED_COLOUR, label=label)
     elif not curve:
         ax.text(0.5, 0.5, "no evaluation: no policy was learned", transform=ax.transAxes, ha="center")

@@ -149,16 +149,18 @@ def cmd_up(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace, run_dir: Path, config: UpConfig, *, resume: bool) -> int:
     """The run, fresh or resumed, to its report: the exit status (128 + the signal that stopped it, or 0)."""
     started = time.monotonic()
+    # Read before the learner replaces the report: a resumed run's report keeps how it was stopped before.
+    earlier = _earlier_interruptions(run_dir) if resume else ()
     interrupts = Interrupts(say=_say)
     # Installed until the report is written: a signal then still counts, and never cuts the report short.
     with interrupts.installed():
         if not args.serial:
-            return _processes_and_report(args, config, run_dir, resume, interrupts, started)
+            return _processes_and_report(args, config, run_dir, resume, interrupts, started, earlier)
         # One process: no child to kill first; a second signal ends it at once (exit 130, as Ctrl-C does).
         interrupts.escalate(_interrupt_now)
         learner, actors = child_configs(config)
         report = run_serial(learner, actors, run_dir, stop=interrupts.stop)
-        summary = _summary(config, run_dir, started, None, secure=False, serial=True)
+        summary = _summary(config, run_dir, started, None, secure=False, serial=True, earlier=earlier)
         if interrupts.first is not None:
             summary = dataclasses.replace(summary, interrupted=_interruption(interrupts, report, config, run_dir))
         emit_run_report(report, summary, args.json)
@@ -189,8 +191,10 @@ def _processes_and_report(
     resume: bool,
     interrupts: Interrupts,
     started: float,
+    earlier: tuple[dict[str, Any], ...],
 ) -> int:
-    """The run as OS processes, then its report from what the learner saved, however it ended."""
+    """The run as OS processes, then its report from what the learner saved, however it ended; ``earlier``: the
+    run's interruptions before this resume."""
     learner, actors = child_configs(config)
     report, done = _processes(args, config, learner, actors, run_dir, resume, interrupts)
     signum = interrupts.first
@@ -202,7 +206,8 @@ def _processes_and_report(
             file=sys.stderr,
         )
         return interrupts.exit_code
-    summary = _summary(config, run_dir, started, done.recording, secure=_secure(args, run_dir), run=done.run)
+    secure = _secure(args, run_dir)
+    summary = _summary(config, run_dir, started, done.recording, secure=secure, run=done.run, earlier=earlier)
     if signum is not None:
         summary = dataclasses.replace(summary, interrupted=_interruption(interrupts, report, config, run_dir))
     emit_run_report(report, summary, args.json)
@@ -227,10 +232,26 @@ def _summary(
     *,
     serial: bool = False,
     run: ProcessRun | None = None,
+    earlier: tuple[dict[str, Any], ...] = (),
 ) -> RunSummary:
     command = f"ennc-ql up --config {run_dir / 'up.toml'}"
     wall_seconds = time.monotonic() - started
-    return RunSummary(run_dir, command, config, secure, wall_seconds, recording, serial=serial, run=run)
+    return RunSummary(
+        run_dir, command, config, secure, wall_seconds, recording, serial=serial, run=run, earlier=earlier
+    )
+
+
+def _earlier_interruptions(run_dir: Path) -> tuple[dict[str, Any], ...]:
+    """The interruptions the run folder's report holds (a resumed run's, from before this resume): the new report
+    keeps them, so that a run stopped and resumed says so."""
+    try:
+        old = json.loads((run_dir / "report.json").read_text())
+    except (OSError, ValueError):
+        return ()
+    if not isinstance(old, dict):
+        return ()
+    earlier = old.get("interruptions") or ([old["interrupted"]] if old.get("interrupted") else [])
+    return tuple(i for i in earlier if isinstance(i, dict))
 
 
 def _processes(

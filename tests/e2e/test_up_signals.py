@@ -183,6 +183,11 @@ def test_sigterm_during_phase_1_then_resume_keeps_every_acknowledged_tuple(tmp_p
         assert not up.left()
     out = json.loads(up.stdout())
     assert "interrupted" not in out and out["resumes"][0]["at_s"] == pytest.approx(first["seconds"], abs=2.0)
+    # The resumed run's report keeps how it was stopped before: the stopped run's interruption, then resumed.
+    assert out["interruptions"] == [first["interrupted"]]
+    assert f"| interruptions | SIGTERM at {first['interrupted']['at_s']:.0f}/30 s, then resumed |" in (
+        (run_dir / "report.md").read_text()
+    )
     # Everything the stopped run stored (and so acknowledged) is in the resumed one's store, exactly once.
     assert out["tuples_received"] >= first["tuples_received"] + acked(out)
     # A batch whose ack comes later than the actor's resend timeout (a loaded learner fitting phase 1) is sent again

@@ -198,8 +198,8 @@ def test_learning_curve_is_titled_by_its_result_and_draws_the_measured_reference
     gap = f"{FINAL_REFERENCES['a-cmommt'] - 61.234:.1f} points below A-CMOMMT ({FINAL_REFERENCES['a-cmommt']:.1f} %)"
     assert ax.get_title() == f"the learned policy observes 61.2 % of the targets, {gap}\nformulation shared-difference"
     lines = {line.get_label(): line for line in ax.get_lines() if not line.get_label().startswith("_")}
-    np.testing.assert_allclose(np.asarray(lines["learned policy"].get_xydata()), report["coverage_curve"])
-    [[x, y]] = lines["final policy: 61.23 % (50 trials)"].get_xydata().tolist()
+    np.testing.assert_allclose(np.asarray(lines["the policy the learner held"].get_xydata()), report["coverage_curve"])
+    [[x, y]] = lines["saved: the last policy: 61.23 % (50 trials)"].get_xydata().tolist()
     assert y == 61.234 and x > report["seconds"]
     assert lines["A-CMOMMT: 66.8 %, 72.2 % ◆"].get_ydata() == [66.75, 66.75]
     assert lines["A-CMOMMT oracle (true positions): 71.5 %, 74.5 % ◆"].get_ydata() == [71.5, 71.5]
@@ -425,3 +425,23 @@ def test_without_a_display_the_recording_is_served_to_a_browser_on_loopback(
         "http://127.0.0.1:9090" in commands[serve]
         and "ssh -L 9090:127.0.0.1:9090 -L 9876:127.0.0.1:9876" in (commands[serve])
     )
+
+
+def test_a_resumed_run_keeps_its_interruptions_in_the_report_and_its_resumes_on_the_curve(tmp_path: Path) -> None:
+    first = {"signal": "SIGINT", "at_s": 27.4, "duration_s": 60.0, "resume": "ennc-ql up --resume x"}
+    report = {
+        **run_report(tmp_path),
+        "interruptions": [first],
+        "resumes": [{"at_s": 27.4, "policy_version": 9, "wall_time": 0.0, "startup_s": 4.0}],
+        "saved": {**SAVED, "margin": 0.5},
+    }
+    text = write_run_report(report, tmp_path)[0].read_text()
+    assert "| interruptions | SIGINT at 27/60 s, then resumed |" in text
+    ax = learning_curve_figure(report).axes[0]
+    labels = {line.get_label(): line for line in ax.get_lines()}
+    assert labels["resumed from the checkpoint"].get_xdata()[0] == 27.4
+    assert "saved: the last policy, margin 0.5: 61.23 % (50 trials)" in labels
+    # Stopped again after the resume: both stops, the last one not resumed (yet).
+    second = {"signal": "SIGTERM", "at_s": 50.0, "duration_s": 60.0, "resume": "ennc-ql up --resume x"}
+    text = write_run_report({**report, "interruptions": [first, second], "interrupted": second}, tmp_path)[0]
+    assert "| interruptions | SIGINT at 27/60 s, then resumed; SIGTERM at 50/60 s |" in text.read_text()

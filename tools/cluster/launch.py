@@ -99,6 +99,8 @@ class RunSummary:
     """The job: its id, times requeued, nodes and where each process ran."""
     interrupted: dict[str, Any] | None = None
     """The signal that stopped the run, when, and the command that continues it."""
+    earlier: tuple[dict[str, Any], ...] = ()
+    """The interruptions of the run before this resume (from the report it replaces), oldest first."""
 
     def figures(self, report: LearnerReport) -> dict[str, Any]:
         """The summary as the report carries it (``report.json``'s keys beside the learner's)."""
@@ -123,4 +125,6 @@ class RunSummary:
             out["slurm"] = self.slurm
         if self.interrupted is not None:
             out["interrupted"] = self.interrupted
+        if self.earlier or self.interrupted is not None:
+            out["interruptions"] = [*self.earlier, *([] if self.interrupted is None else [self.interrupted])]
         return out
