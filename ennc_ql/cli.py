@@ -30,7 +30,7 @@ broadcasts policies back; training is watched in the Rerun viewer."""
 EPILOG = """\
 first steps:
   ennc-ql eval --policy a-cmommt        # the hand-made reference on 10 test trials (about 1 s)
-  ennc-ql up --duration 120             # a 2-minute training run on this machine (about 3 min in all)
+  ennc-ql up --duration 120             # a 2-minute training run on this machine (2 min 25 s in all)
   ennc-ql up                            # the main job, as make run (about 8 min)
   ennc-ql COMMAND --help                # what a command does, with examples and its run time"""
 
