@@ -265,9 +265,8 @@ class LearnerService:
         fit a SIGTERM's grace) and saves the same tables by the rule's fallback."""
         self.fitter.join()
         final = None
-        last = self.state.policy()
-        if last is not None:
-            self._broadcast()
+        if self.state.fitted:
+            self._broadcast()  # the increments still pending merged: the last policy holds them
             last = self.state.policy()
             assert last is not None
             try:
