@@ -22,7 +22,7 @@ from sim import ScenarioConfig, evaluate
 from sim.features import lost
 from sim.formulation import Formulation
 from sim.recall import Recall, forget_all, view_of
-from sim.rollout import EvalResult
+from sim.rollout import EvalResult, StepHook
 from sim.world import Observation, WorldState
 
 LostBehaviour = Literal["wander", "stay", "policy"]
@@ -157,15 +157,15 @@ class OffLaw:
 
 
 def evaluate_off_law(
-    cfg: ScenarioConfig, policy: Policy, trials: int, steps: int, seed: int
+    cfg: ScenarioConfig, policy: Policy, trials: int, steps: int, seed: int, on_step: StepHook | None = None
 ) -> tuple[EvalResult, OffLaw | None]:
     """``sim.evaluate`` of ``policy`` on those trials, and with a law action set how often its robots' decisions took
     another move than ``law`` (None for other sets): how far the learned policy departs from the hand-made law it
     holds as one of its moves, and where."""
     if policy.formulation.actions.law is None:
-        return evaluate(cfg, PolicyController(policy), trials, steps, seed=seed), None
+        return evaluate(cfg, PolicyController(policy), trials, steps, seed=seed, on_step=on_step), None
     controller = PolicyController(policy, tally=np.zeros(TALLY, np.int64))
-    result = evaluate(cfg, controller, trials, steps, seed=seed)
+    result = evaluate(cfg, controller, trials, steps, seed=seed, on_step=on_step)
     return result, controller.off_law()
 
 

@@ -7,6 +7,7 @@ Usage::
     evaluator.periodic(policy, at=61.0)      # a point of the learning curve (10 trials of DEVELOPMENT_SEED)
     evaluator.periodic(policy, 61.0, stop)   # the same, given up (EvaluationStopped) once the event is set
     evaluator.final(policy)                  # the final figure, on its own (50 trials of TEST_SEED)
+    evaluator.final(policy, progress, stop)  # progress(done, total) after each part; EvaluationStopped once stop is set
     evaluator.curve                          # [(seconds, coverage %), ...]
     evaluator.latest                         # the newest point's coverage (None before the first evaluation)
     evaluator.references()                   # the hand-made controllers on the curve's trials
@@ -18,6 +19,7 @@ Usage::
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from typing import Any
 
 from algorithm.policy import OffLaw, Policy, PolicyController, evaluate_off_law
@@ -26,7 +28,7 @@ from sim import CONTROLLERS, EvalResult, ScenarioConfig, evaluate
 
 
 class EvaluationStopped(Exception):
-    """A periodic evaluation given up because the run stopped."""
+    """An evaluation given up because the run stopped (a periodic one), or stopped again (the final one)."""
 
 
 class Evaluator:
@@ -71,13 +73,45 @@ class Evaluator:
         """How each hand-made controller's team spreads over the targets on the same trials as :meth:`references`."""
         return {name: _spread(r) for name, r in self._reference_results(trials).items()}
 
-    def final(self, policy: Policy) -> float:
+    def final(
+        self,
+        policy: Policy,
+        progress: Callable[[int, int], None] | None = None,
+        stop: threading.Event | None = None,
+    ) -> float:
         """The final figure; the curve keeps one protocol, so this point stays off it. A policy of several robots'
-        rows (option 2) is scored beside its rows merged into one team table (:meth:`team_table`)."""
-        self._final, self._off_law = evaluate_off_law(self.cfg, policy, self.final_trials, self.steps, TEST_SEED)
-        self._team = None
+        rows (option 2) is scored beside its rows merged into one team table (:meth:`team_table`), and every reference
+        on the same trials (:meth:`comparison`). ``progress(done, total)`` follows each of these parts;
+        EvaluationStopped (nothing kept) once ``stop`` is set, checked every step."""
+
+        def check(*_: object) -> None:
+            if stop is not None and stop.is_set():
+                raise EvaluationStopped
+
+        scored = self.final_trials in self._references
+        total = 1 + (policy.tables.shape[0] > 1) + (0 if scored else len(CONTROLLERS))
+        done = 0
+
+        def step() -> None:
+            nonlocal done
+            done += 1
+            if progress is not None:
+                progress(done, total)
+
+        final = evaluate_off_law(self.cfg, policy, self.final_trials, self.steps, TEST_SEED, on_step=check)
+        step()
+        team = None
         if policy.tables.shape[0] > 1:
-            self._team = evaluate_off_law(self.cfg, policy.team(), self.final_trials, self.steps, TEST_SEED)
+            team = evaluate_off_law(self.cfg, policy.team(), self.final_trials, self.steps, TEST_SEED, on_step=check)
+            step()
+        if not scored:
+            references = {}
+            for name, controller in CONTROLLERS.items():
+                result = evaluate(self.cfg, controller, self.final_trials, self.steps, seed=TEST_SEED, on_step=check)
+                references[name] = result
+                step()
+            self._references[self.final_trials] = references
+        (self._final, self._off_law), self._team = final, team
         return self._final.coverage_mean
 
     def team_table(self) -> dict[str, float] | None:

@@ -58,6 +58,8 @@ class LearnerStatus:
     """Phase-1 fits done."""
     elapsed: float = 0.0
     """Seconds of training."""
+    scoring: float | None = None
+    """Share (0-1) of the final evaluation done, in the wind-down (None, and no counter sent: not under way)."""
 
     @classmethod
     def of(
@@ -68,6 +70,7 @@ class LearnerStatus:
         evaluator: Evaluator,
         fits: int,
         elapsed: float,
+        scoring: float | None = None,
     ) -> LearnerStatus:
         return cls(
             tuples_received=intake.tuples_received,
@@ -83,6 +86,7 @@ class LearnerStatus:
             coverage=evaluator.latest,
             fits=fits,
             elapsed=elapsed,
+            scoring=scoring,
         )
 
     def to_counters(self) -> dict[str, float]:

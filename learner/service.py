@@ -164,7 +164,7 @@ class LearnerService:
                 stop.wait(0.05)
             self._stopped_at = self.elapsed()
             self._ending.set()
-        return self._finish(stopped=stop.is_set())
+        return self._finish(stopped=stop.is_set(), urgent=getattr(stop, "urgent", None))
 
     def _adopt(self, disc: Discretization) -> None:
         """A fit's new discretization (on the fit's thread): on disk before its first broadcast, so a resumed
@@ -197,9 +197,10 @@ class LearnerService:
         self.watch.evaluated(policy, coverage, spread, trials=self.config.eval_trials)
         log.info("evaluation of policy version %d: %.2f%% of targets observed", policy.version, coverage)
 
-    def _publish_status(self) -> None:
+    def _publish_status(self, scoring: float | None = None) -> None:
         figures = self.intake.figures()
-        status = LearnerStatus.of(figures, self.state, self.members, self.evaluator, self.fitter.fits, self.elapsed())
+        fits, elapsed = self.fitter.fits, self.elapsed()
+        status = LearnerStatus.of(figures, self.state, self.members, self.evaluator, fits, elapsed, scoring)
         me = self.config.learner_id
         msg = Status(sender=me, role="learner", wall_time=time.time(), counters=status.to_counters())
         self.transport.publish(self.transport.keys.status(me), msg)
@@ -259,12 +260,14 @@ class LearnerService:
             self.state.version,
         )
 
-    def _finish(self, stopped: bool) -> LearnerReport:
+    def _finish(self, stopped: bool, urgent: threading.Event | None = None) -> LearnerReport:
         """The end: a fit under way finishes (its work is in the last policy), the last policy is saved by the rule
-        and scored on the reported trials. A run stopped by a signal gives the margin choice up (the wind-down must
-        fit a SIGTERM's grace) and saves the same tables by the rule's fallback."""
+        and scored on the reported trials, with a status after each part of the scoring (its progress). A run stopped
+        by a signal gives the margin choice up (the wind-down must fit a SIGTERM's grace) and saves the same tables
+        by the rule's fallback; stopped again (``urgent``), it skips the scoring too and reports the policy
+        unscored."""
         self.fitter.join()
-        final = None
+        policy = None
         if self.state.fitted:
             self._broadcast()  # the increments still pending merged: the last policy holds them
             last = self.state.policy()
@@ -277,12 +280,24 @@ class LearnerService:
                 policy, self.saved = self.rule.fallback(last, self.elapsed())
             self._saved_policy = policy
             log.info("saving policy version %d: %s", policy.version, self.saved.reason)
-            final = self.evaluator.final(policy)
-            self.watch.final(policy, final, self.config.final_eval_trials, self.evaluator.comparison())
-            log.info("final policy version %d: %.2f%% of targets observed", policy.version, final)
-        report = self._report(final, self.checkpoint(), self.elapsed())
+        checkpoint = self.checkpoint()  # first: whatever the scoring meets, every acknowledged tuple is kept
+        final = None if policy is None else self._score(policy, urgent)
+        report = self._report(final, checkpoint, self.elapsed())
         write_atomic(self.run_dir / "report.json", json.dumps(report.to_dict(), indent=2).encode())
         return report
+
+    def _score(self, policy: Policy, urgent: threading.Event | None) -> float | None:
+        """The saved policy's final figure, with a status after each part of the scoring; None once ``urgent`` is
+        set (stopped again)."""
+        self._publish_status(scoring=0.0)
+        try:
+            final = self.evaluator.final(policy, lambda done, total: self._publish_status(done / total), urgent)
+        except EvaluationStopped:
+            log.warning("stopped again: the final evaluation skipped, the policy is saved unscored")
+            return None
+        self.watch.final(policy, final, self.config.final_eval_trials, self.evaluator.comparison())
+        log.info("final policy version %d: %.2f%% of targets observed", policy.version, final)
+        return final
 
     def saved_report(self) -> LearnerReport:
         """The report of what a resumed learner's checkpoint holds, with its policy file (the last tables by the

@@ -219,7 +219,7 @@ def test_a_secure_run_stopped_mid_training_resumes_over_tls_and_trains_only_what
     assert out["rejected"] == 0 and out["refused_tokens"] == 0
 
 
-def test_ctrl_c_twice_just_after_a_checkpoint_kills_the_actors_and_the_learner_still_reports(tmp_path: Path) -> None:
+def test_ctrl_c_twice_kills_the_actors_and_the_learner_reports_after_its_checkpoint_unscored(tmp_path: Path) -> None:
     run_dir = tmp_path / "r"
     # Unpaced actors: a paced one resting with every batch acknowledged stops at once on the first Ctrl-C, before
     # the second could kill it, and this test is about the second.
@@ -233,7 +233,11 @@ def test_ctrl_c_twice_just_after_a_checkpoint_kills_the_actors_and_the_learner_s
         up.send(signal.SIGINT)
         out = assert_stopped(up, run_dir, signal.SIGINT, learner="finished")
     assert out["interrupted"]["signals"] == 2 and "killed actor-0, actor-1" in up.stderr()
-    assert out["final_coverage_mean"] is not None and (run_dir / "policy.npz").exists()
+    assert "the learner skips its final evaluation" in up.stderr()
+    # The second stop cuts the scoring, never the checkpoint or the policy file.
+    assert "final evaluation skipped" in (run_dir / "learner.log").read_text()
+    assert out["final_coverage_mean"] is None and (run_dir / "policy.npz").exists()
+    assert out["policy_version"] >= 1 and out["saved"]["version"] == out["policy_version"]
 
 
 def test_three_signals_kill_everything_and_the_report_comes_from_the_checkpoint(tmp_path: Path) -> None:
@@ -242,6 +246,10 @@ def test_three_signals_kill_everything_and_the_report_comes_from_the_checkpoint(
     with Up(tmp_path, "up", *flags) as up:
         wait_for(lambda: checkpoint_version(run_dir) >= 1, 120, "a checkpointed policy")
         saved = checkpoint_version(run_dir)
+        # A learner that hangs: the second signal (which makes a live one skip its scoring) cannot end it, the third
+        # kills it.
+        learner = next(p for p in up.seen.values() if "learner" in p.cmdline())
+        learner.suspend()
         for sig in (signal.SIGHUP, signal.SIGTERM, signal.SIGTERM):
             up.send(sig)
         out = assert_stopped(up, run_dir, signal.SIGHUP, learner="killed")

@@ -475,6 +475,45 @@ def test_a_run_stopped_by_a_signal_saves_its_last_tables_without_a_margin_choice
     assert "stopped" in report.saved["reason"] and report.final_coverage_mean is not None
 
 
+def test_the_final_evaluation_reports_its_progress_and_a_second_stop_skips_it_after_the_checkpoint(
+    tmp_path: Path,
+) -> None:
+    # The wind-down's scoring is seconds of trials: a launcher shows how far it got from the statuses, and a user who
+    # stops again gets the policy and the checkpoint without it.
+    from algorithm.policy_file import load_policy
+    from learner.checkpoint import CHECKPOINT
+    from learner.report import LearnerStatus
+    from protocol import Status
+    from sim import CONTROLLERS
+    from tests.algorithm.test_selection import law_or_back
+    from tools.system import Stop
+
+    config = dataclasses.replace(FAST, final_eval_trials=3, law_margin=0.5)
+    policy = law_or_back(0.25)
+    for again in (False, True):
+        run_dir = tmp_path / str(again)
+        stop = Stop()
+        stop.set()
+        if again:
+            stop.urgent.set()
+        statuses: list[Status] = []
+        with InMemoryTransport(InMemoryBus()) as t:
+            t.subscribe(t.keys.status(), Status, statuses.append)
+            service = LearnerService(t, config, run_dir)
+            service.state.adopt(one_cell_per_action(DIM))
+            service.state.policy = lambda: policy  # type: ignore[method-assign]
+            report = service.run(stop)
+        shares = [s for m in statuses if (s := LearnerStatus.from_counters(m.counters).scoring) is not None]
+        saved, _ = load_policy(run_dir / "policy.npz")
+        assert saved.law_margin == 0.5 and (run_dir / CHECKPOINT).exists()
+        if again:
+            assert report.final_coverage_mean is None and shares == [0.0]
+        else:
+            parts = 1 + len(CONTROLLERS)  # the policy (one row), then every reference on the same trials
+            assert report.final_coverage_mean is not None
+            assert shares == [0.0, *(k / parts for k in range(1, parts + 1))]
+
+
 def test_acks_policies_and_status_go_out_while_an_evaluation_is_under_way(tmp_path: Path) -> None:
     # An evaluation is seconds of trials; the checkpoints (and the acks after them), the policies and the status go
     # on meanwhile, or every actor's outbox would fill with unacknowledged experience and a client would see the

@@ -149,7 +149,7 @@ def run_processes(
     if interrupts is not None:
         stop = interrupts.stop
         interrupts.escalate(
-            lambda: f"killed {', '.join(children.kill_now(ids)) or 'no actor'}; again to kill the learner too",
+            lambda: _sooner(children, ids),
             lambda: f"killed {', '.join(children.kill_now({LEARNER, ROUTER})) or 'nothing'}",
         )
     actor_stop_s = max((a.flush_timeout for a in actors), default=0.0) + ACTOR_STOP_EXTRA_S
@@ -311,7 +311,7 @@ def _watch(
         shown = 0.0  # the clock as shown: a status that arrives late carries it back, and a clock never runs back
         while LEARNER not in supervisor.finished and LEARNER not in supervisor.given_up:
             if stop.wait(1.0):
-                bar.mark("stopping: the actors hand in their outboxes, then the learner checkpoints and reports")
+                _wind_down(bar, latest, supervisor, actors if actors_running else [], actor_stop_s)
                 return
             for message in supervisor.check():
                 bar.mark(message)
@@ -326,7 +326,56 @@ def _watch(
                 actors_running = False
             _mark_events(bar, status, n, version, coverage)
             version, coverage = status.policy_version, status.coverage
-            bar.show(n, "training over: final evaluation and report" if n >= duration else cluster_status(status))
+            bar.show(n, _scoring(status) if n >= duration else cluster_status(status))
+
+
+def _sooner(children: Children, actors: list[str]) -> str:
+    """A second signal's step: the actors killed (what their outboxes held is lost) and the learner told to stop
+    again, which skips its final evaluation once its checkpoint is written."""
+    killed = ", ".join(children.kill_now(actors)) or "no actor"
+    if LEARNER in children.running():
+        children.signal(LEARNER, children.stop_signal)
+    return f"killed {killed}; the learner skips its final evaluation; again to kill the learner too"
+
+
+def _scoring(status: LearnerStatus) -> str:
+    done = "" if status.scoring is None else f" ({status.scoring:.0%})"
+    return f"training over: final evaluation{done} and report"
+
+
+def _wind_down(
+    bar: ProgressBar, latest: _LatestStatus, supervisor: Supervisor, actors: list[str], actor_stop_s: float
+) -> None:
+    """Stop the actors (they hand in their outboxes), then the learner (its checkpoint, its scoring, its report), the
+    bar showing each phase's seconds and the scoring's progress from the learner's statuses."""
+    bar.mark("stopping: the actors hand in their outboxes, then the learner checkpoints, scores and reports")
+    if actors:
+        _phase(bar, "the actors hand in their outboxes", lambda: supervisor.stop(actors, actor_stop_s), None)
+    learner = "the learner checkpoints, scores and reports"
+    _phase(bar, learner, lambda: supervisor.stop([LEARNER], LEARNER_STOP_S), latest)
+
+
+def _phase(bar: ProgressBar, what: str, work: Any, latest: _LatestStatus | None) -> None:
+    """``work`` (a blocking stop) on a thread of its own while the bar ticks every half second; its error raised."""
+    done = threading.Event()
+    errors: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            work()
+        except BaseException as exc:  # raised again below, on the launcher's thread
+            errors.append(exc)
+        finally:
+            done.set()
+
+    threading.Thread(target=run, name="wind-down", daemon=True).start()
+    began = time.monotonic()
+    while not done.wait(0.5):
+        status, _ = latest.get() if latest is not None else (None, 0.0)
+        scoring = "" if status is None or status.scoring is None else f", scoring {status.scoring:.0%}"
+        bar.show(status=f"stopping: {what} ({time.monotonic() - began:.0f} s{scoring})")
+    if errors:
+        raise errors[0]
 
 
 def _mark_events(bar: ProgressBar, status: LearnerStatus, n: float, version: int, coverage: float | None) -> None:
