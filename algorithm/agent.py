@@ -45,6 +45,13 @@ class Phase2Config:
     carry a payoff that comes decisions later (a search's) back to the move that started it without bootstrapping
     through every aliased cell between]."""
 
+    consistent: bool = False
+    """Where s′ falls in the cell of (s, a) itself (a robot still in the situation it acted in), the target
+    bootstraps from that cell's own value, Q(s′, a), instead of max_b Q(s′, b): the action is taken to persist while
+    the robot stays in its cell, as a policy that decides every step on a cell does [beyond the paper: Bellemare et
+    al. 2016's consistent Bellman operator, whose fixed point ranks the actions of an aggregated state correctly where
+    the max through the same cell lets an inferior action borrow the best one's value]."""
+
     def __post_init__(self) -> None:
         if not 0.0 < self.alpha <= 1.0:
             raise ValueError(f"alpha must lie in (0, 1], got {self.alpha}")
@@ -56,6 +63,8 @@ class Phase2Config:
             raise ValueError(f"epsilon must lie in [0, 1], got {self.epsilon}")
         if self.n_step < 1:
             raise ValueError(f"n_step must be at least 1, got {self.n_step}")
+        if self.consistent and self.n_step > 1:
+            raise ValueError("consistent targets are one-step targets: n_step must be 1")
 
 
 class TabularAgent:
@@ -121,8 +130,12 @@ class TabularAgent:
         if robots.size == 0:
             return
         rows = self.template.rows(robots)
-        targets = q_targets(row_best(self.tables, rows, next_cells)[0], rewards, dones, self.config.gamma)
         size = self.tables.shape[1]
+        bootstrap = row_best(self.tables, rows, next_cells)[0]
+        if self.config.consistent:
+            same = (np.asarray(next_cells) == np.asarray(cell_sa)[:, None]).any(axis=1)
+            bootstrap = np.where(same, self.tables[rows, cell_sa], bootstrap)
+        targets = q_targets(bootstrap, rewards, dones, self.config.gamma)
         q_update(
             self.tables.reshape(-1),
             self.visits.reshape(-1),

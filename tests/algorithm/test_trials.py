@@ -101,6 +101,31 @@ def test_phase2_learns_that_moving_away_from_a_lone_target_loses_it() -> None:
     assert agent.visits.sum() > 0
 
 
+@pytest.mark.parametrize("consistent", [False, True])
+def test_consistent_targets_bootstrap_from_the_cell_itself_where_the_robot_stays_in_it(consistent: bool) -> None:
+    # One cell per action; action 1's is worth 10. A tuple of action 0 whose s' falls in action 0's own cell: the max
+    # would lend it action 1's 10, the consistent target keeps its own value (0); a tuple whose s' leaves the cell
+    # (another cell of action 0's) bootstraps from the max either way.
+    protos = [np.array([[0.0, 0.0], [140.0, 0.0]])] * 8
+    disc = Discretization.from_per_action(protos)
+    tables = np.zeros((1, disc.size), np.float32)
+    stay, leave = disc.offsets[:-1], disc.offsets[:-1] + 1  # each action's first and second cell
+    tables[0, stay[1]] = 10.0
+    agent = TabularAgent(
+        Policy(LOCAL, disc, tables, np.zeros(1, np.int64)), Phase2Config(alpha=1.0, gamma=0.5, consistent=consistent)
+    )
+    robots = np.zeros(2, np.int64)
+    agent.update(robots[:1], np.array([stay[0]]), stay[None, :], np.array([1.0]), np.array([False]))
+    assert agent.tables[0, stay[0]] == (1.0 if consistent else 1.0 + 0.5 * 10.0)
+    agent.update(robots[:1], np.array([leave[0]]), stay[None, :], np.array([1.0]), np.array([False]))
+    assert agent.tables[0, leave[0]] == 1.0 + 0.5 * 10.0
+
+
+def test_consistent_targets_are_one_step_targets() -> None:
+    with pytest.raises(ValueError, match="n_step must be 1"):
+        Phase2Config(consistent=True, n_step=3)
+
+
 def test_n_step_targets_apply_every_tuple_by_the_trials_end_and_learn_other_values() -> None:
     cfg = scenario(n_robots=2)
     protos = [np.array([[0.0, 0.0], [140.0, 0.0], [-140.0, 0.0]])] * 8
