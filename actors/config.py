@@ -66,7 +66,7 @@ class ActorConfig:
     Eq. 2 otherwise)."""
     trial_rules: str | None = None
     """Learning-trial rules instead of the formulation's (none: the formulation's; paper: a learner that loses every
-    target ends its trial and the time-out is terminal; the others go beyond the paper, see docs/simulator.md). The
+    target ends its trial and the time-out is terminal; the others go beyond the paper, see docs/concepts/simulator.md). The
     learner never reads them."""
     learning_steps: int | None = None
     """Steps of each learning trial instead of the scenario's (None: the scenario's) [beyond the paper; the

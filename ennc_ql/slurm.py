@@ -36,7 +36,7 @@ SLURM = CommandHelp(
     "Trains on a SLURM allocation: slurm train writes a run folder and its job script (router and learner on the "
     "first node, actors round-robin on the others as job steps), and slurm run is what the script runs inside the "
     "allocation. Sweeps (ablate and reproduce --slurm) run their learning processes as one job array of slurm task. "
-    "See each subcommand's help, and docs/slurm.md.",
+    "See each subcommand's help, and docs/guide/slurm.md.",
     (
         ("ennc-ql slurm train --actors 4 --nodes 3 --submit", "a training job on 3 nodes"),
         ("ennc-ql ablate --slurm ennc-ql-local --set budget.phase2.alpha=0.1,0.3", "a sweep as one job array"),

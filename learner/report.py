@@ -1,6 +1,6 @@
 """The learner's typed figures: the live status it publishes and the report it writes at the end.
 
-``LearnerStatus`` travels in a ``Status`` message's counters (names and meanings in docs/protocol.md); readers such
+``LearnerStatus`` travels in a ``Status`` message's counters (names and meanings in docs/reference/protocol.md); readers such
 as ``ennc-ql up`` turn the counters back into it instead of reading them by name. Both are built from the learner's
 parts, never field by field by the learner::
 
@@ -116,7 +116,7 @@ class LearnerReport:
     never): usual, since experience and table increments travel on two subscriptions."""
     rejected: int
     rejected_by_type: dict[str, int]
-    """Messages refused, each once, by error class (docs/protocol.md §6) or ``StateDimension``."""
+    """Messages refused, each once, by error class (docs/reference/protocol.md §6) or ``StateDimension``."""
     refused_tokens: int
     """Liveliness tokens refused because their id is not an identifier (not listed among ``actors``)."""
     increments: int
