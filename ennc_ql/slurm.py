@@ -23,7 +23,7 @@ from ennc_ql.command import configure, emit, fail, refuse_run, writable_dir
 from ennc_ql.parser import CommandHelp, add_command, add_commands
 from ennc_ql.report import emit_run_report
 from protocol import check_id
-from tools.cluster import SET_BY_UP, UP_PRESETS, LaunchError, RunSummary, UpConfig
+from tools.cluster import SET_BY_UP, UP_PRESETS, LaunchError, RunSummary, SlurmFigures, UpConfig
 from tools.config import ConfigError, add_config_flags, folder, load_config
 from tools.slurm.array import run_task
 from tools.slurm.job import JOB_SCRIPT, SlurmJob, run_training_job, write_training_job
@@ -174,12 +174,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     except (SlurmError, LaunchError, ConfigError) as exc:
         fail("slurm run", str(exc))
     alloc = done.allocation
-    slurm = {
-        "job_id": alloc.job_id,
-        "requeued": alloc.restarts,
-        "nodes": list(alloc.nodes),
-        "placement": dict(done.placement.node_of),
-    }
+    slurm = SlurmFigures(alloc.job_id, alloc.restarts, tuple(alloc.nodes), dict(done.placement.node_of))
     wall_seconds = time.monotonic() - started
     command = f"sbatch {run_dir / JOB_SCRIPT}"
     summary = RunSummary(
