@@ -11,6 +11,9 @@ prints the mean coverage (metric A: % of targets in view of at least one robot, 
 ``--violate`` exists to show that the rules matter: ``still-start`` gives robots no search heading (lost robots
 stand still), ``no-reflect`` never reflects the search heading off the wall (wandering robots stick to the rim).
 Section names in the comments refer to docs/reference/policy-file.md.
+
+Over 400 lines: the whole of the document's rules (scenario, state, frames, moves, trials) in one file of plain
+numpy, as a client in another language would write it; it imports nothing of the project, by design.
 """
 
 from __future__ import annotations

@@ -22,6 +22,10 @@ ack/outbox contract of docs/reference/protocol.md:
 * messages published while no subscriber is connected are not stored anywhere.
 
 Memory held per subscription is bounded by ``channel_capacity`` × the largest payload.
+
+Over 400 lines: everything that touches a zenoh session (declaring, the bounded channels and their workers, the
+watchdog that reopens a broken session, closing) in one class, so that no other module holds zenoh's objects and
+the session's life is read in one place.
 """
 
 from __future__ import annotations
