@@ -57,8 +57,8 @@ class ActorConfig:
     scenario: str = "cmommt-v1"
     """Scenario the actor simulates."""
     formulation: str = DEFAULT_FORMULATION
-    """State, reward and action set of the learning robots, by name (see README "Formulation"; paper is the
-    paper's). The learner's must be the same: its experience is the actors'."""
+    """State, reward and action set of the learning robots, by name (see docs/concepts/learning.md; paper is
+    the paper's). The learner's must be the same: its experience is the actors'."""
     featurizer: str | None = None
     """State definition instead of the formulation's (none: the formulation's)."""
     reward: str | None = None
@@ -66,11 +66,12 @@ class ActorConfig:
     Eq. 2 otherwise)."""
     trial_rules: str | None = None
     """Learning-trial rules instead of the formulation's (none: the formulation's; paper: a learner that loses every
-    target ends its trial and the time-out is terminal; the others go beyond the paper, see docs/simulator.md). The
-    learner never reads them."""
+    target ends its trial and the time-out is terminal; the others go beyond the paper, see
+    docs/concepts/simulator.md). The learner never reads them."""
     learning_steps: int | None = None
     """Steps of each learning trial instead of the scenario's (None: the scenario's) [beyond the paper; the
-    learner's test trials keep theirs; docs/learning-quality.md, tenth round]."""
+    learner's test trials keep theirs; screened in docs/notebook.md, "2026-12-04: the law's move as one of the
+    learned choices"]."""
     learn: tuple[int, ...] | None = field(default=None, metadata={"parse": parse_robots})
     """Robot ids whose tables this actor learns (and whose tuples it streams), e.g. 0-4,7; None = every robot."""
     arenas: int = 256

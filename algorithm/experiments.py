@@ -132,9 +132,11 @@ class Budget:
     tables, read with the margin of :data:`algorithm.selection.LAW_MARGINS` that scores best on this many validation
     trials; 0: the argmax (margin 0 given) [beyond the paper]."""
     test_trials: int = 10
+    """Test trials of each learning process [paper: 10]."""
     test_steps: int = 1000
+    """Steps of a test trial [paper]."""
     test_seed: int = 0
-    """Every method is tested on the same seeded trials, as the hand-made controllers are."""
+    """Seed of the test trials: every method is tested on the same seeded trials, as the hand-made controllers are."""
 
     def __post_init__(self) -> None:
         if self.law_margin_trials < 0:

@@ -45,7 +45,9 @@ class FQIConfig:
     steps: int = 300
     """Adam steps per iteration (minibatches of ``batch_size``)."""
     batch_size: int = 2048
+    """Transitions per Adam step."""
     lr: float = 1e-3
+    """Adam's learning rate."""
     gamma: float = 0.9
     """Discount per decision, as phase 2's."""
     epsilon: float = 0.1

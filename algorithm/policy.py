@@ -63,7 +63,7 @@ class Policy:
     """With a law action set: a robot takes another move than ``law`` (action 0) only where its value beats
     ``law``'s by more than this; 0: the plain argmax [beyond the paper: a cell's value of a departure averages over
     every state the cell holds, so it can beat the law's there while losing in most states where the argmax takes
-    it; docs/learning-quality.md, "Eighteenth round"]."""
+    it; docs/concepts/saving.md]."""
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.law_margin) and self.law_margin >= 0):

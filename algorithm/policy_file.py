@@ -1,6 +1,6 @@
 """The portable policy file: one ``.npz`` archive (a zip of ``.npy`` arrays) with a JSON header.
 
-Layout (format ``ennc-ql-policy``, version 1; see docs/policy-file.md):
+Layout (format ``ennc-ql-policy``, version 1; see docs/reference/policy-file.md):
 
 ============  ================  ============================================================
 member        dtype / shape     content

@@ -107,7 +107,7 @@ BENCHMARKS: dict[str, tuple[Callable[[argparse.Namespace], Figures], CommandHelp
                 ("ennc-ql bench ennc", "every part"),
                 ("ennc-ql bench ennc --phase1-tuples 0 --region-patterns 0 --threads 1", "ENNC against k-means only"),
             ),
-            "about 1.5 min on an idle machine (the sum of its parts in the README's performance notes)",
+            "about 1.5 min on an idle machine (the sum of its parts in docs/performance.md)",
         ),
     ),
     "transport": (

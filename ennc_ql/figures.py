@@ -2,7 +2,7 @@
 move it chooses where (the move map).
 
 The same geometry and colours as the Rerun views (``monitor.geometry``, ``monitor.style``), rendered with
-matplotlib so that a run folder and the README carry a picture without a viewer. Usage::
+matplotlib so that a run folder carries a picture without a viewer. Usage::
 
     policy, header = load_policy("runs/x/policy.npz")
     policy_figure(policy, scenario_from_header(header), Path("runs/x/policy.png"))

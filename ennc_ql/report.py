@@ -1,13 +1,13 @@
 """Human-readable reports of a training run: the terminal summary, ``report.md`` and ``learning_curve.png``, all
 written and printed by :func:`emit_run_report` (``up`` and a SLURM job alike).
 
-Input is the learner's report (``runs/<id>/report.json``, a ``learner.report.LearnerReport`` as a dict),
-optionally completed by the launcher with ``run_id``, ``run_dir``, ``command``, ``config``, ``wall_seconds`` and
-``recording``. Each opens with the result: the final coverage beside the hand-made controllers' on the same test
-trials (the learner measures them, ``reference_coverage`` and ``final_reference_coverage``), and ends with the
-commands that come next. Usage::
+Input is a :class:`tools.cluster.report.RunReport`: the learner's report (``learner.report.LearnerReport``) and,
+from a launcher, its figures beside it (run id, command, settings, recording, supervision, how it was stopped),
+read by attribute from the run's end to ``report.md``. Each opens with the result: the final coverage beside the
+hand-made controllers' on the same test trials (the learner measures them, ``reference_coverage`` and
+``final_reference_coverage``), and ends with the commands that come next. Usage::
 
-    report = json.loads((run_dir / "report.json").read_text())
+    report = RunReport.from_dict(json.loads((run_dir / "report.json").read_text()))
     markdown_path, png_path = write_run_report(report, run_dir)
     print(terminal_summary(report))
 
@@ -17,6 +17,7 @@ labels, colours, reference rows and the title that states the result.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from collections.abc import Mapping
@@ -25,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 
 from algorithm.files import write_atomic
 from algorithm.policy_file import load_policy, scenario_from_header
+from algorithm.selection import SavedPolicy
 from ennc_ql.command import emit
 from ennc_ql.figures import policy_figure
 from learner.report import LearnerReport
@@ -33,6 +35,7 @@ from monitor.style import REFERENCES as STYLES
 from sim.controllers import COMPASS_NAMES
 from sim.formulation import FORMULATIONS
 from sim.rollout import WITHIN_NOISE, within_noise
+from tools.cluster.report import Interruption, RunReport
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -75,46 +78,48 @@ def _references(levels: Mapping[str, float]) -> list[tuple[str, float]]:
     return [(name, float(levels[name])) for name in order]
 
 
-def _formulation(report: Mapping[str, Any]) -> str | None:
-    name = (report.get("config") or {}).get("formulation")
-    return str(name) if name else None
+def _formulation(report: RunReport) -> str | None:
+    if report.launch is None or not report.launch.config.formulation:
+        return None
+    return report.launch.config.formulation
 
 
-def _run_dir(report: Mapping[str, Any]) -> Path:
-    return Path(str(report.get("run_dir") or Path(str(report["checkpoint"])).parent))
+def _stop(report: RunReport) -> Interruption | None:
+    return None if report.launch is None else report.launch.interrupted
 
 
-def interruption(report: Mapping[str, Any]) -> str | None:
+def interruption(report: RunReport) -> str | None:
     """How a run that was stopped by a signal ended, in one line; None for a run that ran its course."""
-    stop = report.get("interrupted")
-    if not stop:
+    stop = _stop(report)
+    if stop is None:
         return None
     how = (
         "the learner checkpointed and wrote its report"
-        if stop.get("learner") == "finished"
+        if stop.learner == "finished"
         else "the learner was killed: the figures are those of its last checkpoint"
     )
-    return f"interrupted by {stop['signal']} at {stop['at_s']:.0f}/{stop['duration_s']:g} s of training; {how}"
+    return f"interrupted by {stop.signal} at {stop.at_s:.0f}/{stop.duration_s:g} s of training; {how}"
 
 
-def headline(report: Mapping[str, Any]) -> list[str]:
+def headline(report: RunReport) -> list[str]:
     """The result in a few lines: the final figure, its references on the same trials, the paired difference from
     A-CMOMMT and how thickly each team covers its targets."""
-    final = report.get("final_coverage_mean")
-    if final is None and report.get("interrupted") and report.get("policy_version"):
-        curve = report.get("coverage_curve") or []
+    ours = report.learner
+    final = ours.final_coverage_mean
+    if final is None and _stop(report) is not None and ours.policy_version:
+        curve = ours.coverage_curve
         last = f"; its last evaluation: {curve[-1][1]:.2f} % at {curve[-1][0]:.0f} s" if curve else ""
-        return [f"result so far: policy version {report['policy_version']}, not scored at the end (stopped){last}"]
-    if final is None and report.get("interrupted"):
+        return [f"result so far: policy version {ours.policy_version}, not scored at the end (stopped){last}"]
+    if final is None and _stop(report) is not None:
         return ["result so far: no policy yet (stopped before the first fit, which waits for --learner-min-tuples)"]
     if final is None:
         return ["result: no policy was learned (the first fit waits for --learner-min-tuples tuples)"]
     formulation = _formulation(report)
-    trials = report.get("final_eval_trials", 200)
+    trials = ours.final_eval_trials
     what = f", formulation {formulation}" if formulation else ""
-    comparison = report.get("final_comparison") or {}
+    comparison = ours.final_comparison
     learned = comparison.get("learned") or {}
-    base = str(report.get("base_law") or "a-cmommt")
+    base = ours.base_law or "a-cmommt"
     lines = []
     if base in comparison:
         lines.append(f"learned - {_label(base)} (its base law): {_paired(comparison[base])} (paired, {trials} trials)")
@@ -124,7 +129,7 @@ def headline(report: Mapping[str, Any]) -> list[str]:
             f"decisions off the law: {learned['off_law_pct']:.1f} %; where a teammate shared the robot's targets "
             f"({shared:.1f} % of the decisions): {shared_off:.1f} %"
         )
-    team = report.get("team_table")
+    team = ours.team_table
     if team:
         lines.append(
             f"each robot on its own table (option 2, saved) - the rows merged into one team table: {_team(team)} "
@@ -133,7 +138,7 @@ def headline(report: Mapping[str, Any]) -> list[str]:
     lines.append(f"the learned policy observes {final:.2f} % of the targets ({trials} seeded test trials{what})")
     references = sorted(
         ((n, float(row["coverage"])) for n, row in comparison.items() if n != "learned"), key=lambda r: -r[1]
-    ) or _references(report.get("final_reference_coverage") or {})
+    ) or _references(ours.final_reference_coverage)
     if references:
         lines.append("on the same trials: " + ", ".join(f"{_label(n)} {v:.2f} %" for n, v in references))
     rival = comparison.get("a-cmommt")
@@ -158,39 +163,38 @@ def _paired(row: Mapping[str, float]) -> str:
     return f"{mean:+.2f} ± {se:.2f} points" + (WITHIN_NOISE if within_noise(mean, se) else "")
 
 
-def next_commands(report: Mapping[str, Any]) -> list[tuple[str, str]]:
+def next_commands(report: RunReport) -> list[tuple[str, str]]:
     """What a user runs next, as (command line, why): score the policy, open the recording, repeat or go on."""
-    run_dir = _run_dir(report)
+    run_dir, launch, ours = report.run_dir, report.launch, report.learner
     commands: list[tuple[str, str]] = []
-    stop = report.get("interrupted")
-    if stop:
-        left = float(stop["duration_s"]) - float(stop["at_s"])
-        commands.append((str(stop["resume"]), f"continue the run from its checkpoint ({left:.0f} s of training left)"))
-    if report.get("policy_file"):
-        trials = report.get("final_eval_trials", 200)
+    stop = _stop(report)
+    if stop is not None:
+        left = stop.duration_s - stop.at_s
+        commands.append((stop.resume, f"continue the run from its checkpoint ({left:.0f} s of training left)"))
+    if ours.policy_file:
         commands.append(
             (
-                f"ennc-ql eval --policy {report['policy_file']} --trials {trials}",
+                f"ennc-ql eval --policy {ours.policy_file} --trials {ours.final_eval_trials}",
                 "score the policy again (--seed 1: other trials)",
             )
         )
-    recording = (report.get("recording") or {}).get("path")
+    recording = None if launch is None or launch.recording is None else launch.recording.path
     if recording:
         if has_display():
             commands.append((f"rerun {recording}", "open the recording in the Rerun viewer"))
         else:
             commands.append((f"{WEB_VIEWER} {recording}", WEB_VIEWER_WHY))
-    duration = (report.get("config") or {}).get("duration")
-    if str(report.get("command", "")).startswith("sbatch "):
+    duration = None if launch is None else launch.config.duration
+    if launch is not None and launch.command.startswith("sbatch "):
         # Submitting a job script again continues its run; another run is another folder, from the same settings.
         again = f"ennc-ql slurm train --config {run_dir / 'up.toml'} --run-id NEW-ID --submit"
         commands.append((again, "repeat the run as a new job"))
         if duration:
-            commands.append((f"{again} --duration {2 * float(duration):g}", "train twice as long, as a new job"))
-    elif report.get("command"):
-        commands.append((str(report["command"]), "repeat the run exactly"))
+            commands.append((f"{again} --duration {2 * duration:g}", "train twice as long, as a new job"))
+    elif launch is not None and launch.command:
+        commands.append((launch.command, "repeat the run exactly"))
         if duration:
-            commands.append((f"{report['command']} --duration {2 * float(duration):g}", "train twice as long"))
+            commands.append((f"{launch.command} --duration {2 * duration:g}", "train twice as long"))
     else:
         commands.append(
             (f"ennc-ql learner --run-dir {run_dir} --resume ...", "continue from the checkpoint, with the same flags")
@@ -198,33 +202,32 @@ def next_commands(report: Mapping[str, Any]) -> list[tuple[str, str]]:
     return commands
 
 
-def result_rows(report: Mapping[str, Any]) -> list[tuple[str, str]]:
+def result_rows(report: RunReport) -> list[tuple[str, str]]:
     """The figures of a run as (name, value) pairs, the rows of both the terminal table and ``report.md``."""
-    curve = report.get("coverage_curve") or []
+    ours = report.learner
     rows = [
-        ("run folder", str(report.get("run_dir", "–"))),
-        ("actors", ", ".join(report["actors"]) or "–"),
-        ("tuples received", f"{report['tuples_received']:,}"),
-        ("duplicates / gaps", f"{report['duplicates']} / {report['gaps']}"),
-        ("rejected messages", str(report["rejected"])),
-        ("policy version", str(report["policy_version"])),
-        ("prototypes per action", str(report["prototypes_per_action"])),
-        ("final coverage", _coverage(report["final_coverage_mean"])),
-        ("coverage curve", ", ".join(f"{t:.0f}s: {c:.1f}%" for t, c in curve)),
-        ("policy file", str(report["policy_file"])),
+        ("run folder", "–" if report.launch is None else report.launch.run_dir),
+        ("actors", ", ".join(ours.actors) or "–"),
+        ("tuples received", f"{ours.tuples_received:,}"),
+        ("duplicates / gaps", f"{ours.duplicates} / {ours.gaps}"),
+        ("rejected messages", str(ours.rejected)),
+        ("policy version", str(ours.policy_version)),
+        ("prototypes per action", str(ours.prototypes_per_action)),
+        ("final coverage", _coverage(ours.final_coverage_mean)),
+        ("coverage curve", ", ".join(f"{t:.0f}s: {c:.1f}%" for t, c in ours.coverage_curve)),
+        ("policy file", str(ours.policy_file)),
     ]
-    stops = report.get("interruptions") or []
+    stops = () if report.launch is None else report.launch.interruptions
     if stops:
-        current = report.get("interrupted")
+        current = _stop(report)
         text = "; ".join(
-            f"{i['signal']} at {i['at_s']:.0f}/{i['duration_s']:g} s" + ("" if i == current else ", then resumed")
-            for i in stops
+            f"{i.signal} at {i.at_s:.0f}/{i.duration_s:g} s" + ("" if i == current else ", then resumed") for i in stops
         )
         rows.insert(1, ("interruptions", text))
-    saved = report.get("saved")
-    if saved:
+    saved = ours.saved_policy
+    if saved is not None:
         rows.insert(-1, ("saved policy", _saved(saved)))
-    team = report.get("team_table")
+    team = ours.team_table
     if team:
         rows.insert(
             -1,
@@ -234,7 +237,7 @@ def result_rows(report: Mapping[str, Any]) -> list[tuple[str, str]]:
                 f"{_team(team)}",
             ),
         )
-    off_law = (report.get("final_comparison") or {}).get("learned", {}).get("off_law_pct")
+    off_law = ours.final_comparison.get("learned", {}).get("off_law_pct")
     if off_law is not None:
         rows.insert(-1, ("decisions off law", f"{off_law:.1f} % of the learned robots' decisions on the final trials"))
     formulation = _formulation(report)
@@ -243,36 +246,34 @@ def result_rows(report: Mapping[str, Any]) -> list[tuple[str, str]]:
     return rows
 
 
-def _saved(saved: Mapping[str, Any]) -> str:
+def _saved(saved: SavedPolicy) -> str:
     """Which policy the run saved and why, as the run recorded it, and a margin choice's validation scores."""
-    margin = saved.get("margin")
-    text = f"version {saved['version']} of {saved['at_s']:.0f} s, {saved.get('reason', '')}"
-    if margin is not None:
-        text += f"; law margin {margin:g}"
-    choice = saved.get("choice")
-    if choice:
-        spreads = choice.get("validation_spread") or {}
+    text = f"version {saved.version} of {saved.at_s:.0f} s, {saved.reason}"
+    if saved.margin is not None:
+        text += f"; law margin {saved.margin:g}"
+    choice = saved.choice
+    if choice is not None:
         tried = ", ".join(
-            f"{m} {c:.2f} %" + (f" at {spreads[m]:.3f}" if m in spreads else "")
-            for m, c in choice["validation_coverage"].items()
+            f"{m:g} {c:.2f} %" + (f" at {choice.spreads[m]:.3f}" if m in choice.spreads else "")
+            for m, c in choice.scores.items()
         )
-        text += f" (validation seed {choice['validation_seed']}, % observed at robots per covered target: {tried})"
+        text += f" (validation seed {choice.seed}, % observed at robots per covered target: {tried})"
     return text
 
 
-def results_table(report: Mapping[str, Any]) -> str:
+def results_table(report: RunReport) -> str:
     """The figures of a run, aligned."""
     rows = result_rows(report)
     width = max(len(k) for k, _ in rows)
     return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
 
 
-def terminal_summary(report: Mapping[str, Any]) -> str:
+def terminal_summary(report: RunReport) -> str:
     """What ``ennc-ql up`` prints at the end of a run: the result, the figures, where the report is, and next."""
     stop = interruption(report)
     lines = [*([stop, ""] if stop else []), *headline(report), "", results_table(report), ""]
-    if report.get("report_md"):
-        lines += [f"report: {report['report_md']} (learning curve {report.get('learning_curve', '–')})", ""]
+    if report.report_md:
+        lines += [f"report: {report.report_md} (learning curve {report.learning_curve or '–'})", ""]
     commands = next_commands(report)
     width = max(len(line) for line, _ in commands)
     lines += ["next:", *(f"  {line:<{width}}  # {why}" for line, why in commands)]
@@ -285,22 +286,24 @@ def _table(header: tuple[str, ...], rows: list[tuple[Any, ...]]) -> list[str]:
     return [*lines, ""]
 
 
-def _result(report: Mapping[str, Any], curve_png: str) -> list[str]:
-    final = report.get("final_coverage_mean")
+def _result(report: RunReport, curve_png: str) -> list[str]:
+    ours = report.learner
+    final = ours.final_coverage_mean
     lines = ["## Result", ""]
     if final is None:
         return [*lines, headline(report)[0].removeprefix("result: ").capitalize() + ".", ""]
-    trials = report.get("final_eval_trials", 200)
+    trials = ours.final_eval_trials
     formulation = _formulation(report)
-    version = (report.get("saved") or {}).get("version", report["policy_version"])
+    saved = ours.saved_policy
+    version = ours.policy_version if saved is None else saved.version
     learned = f"version {version}" + (f", formulation {formulation}" if formulation else "")
     rows = [("**learned policy**", learned, f"**{final:.2f}**")]
     rows += [
         (_label(name), REFERENCE_NOTES.get(name, "hand-made"), f"{value:.2f}")
-        for name, value in _references(report.get("final_reference_coverage") or {})
+        for name, value in _references(ours.final_reference_coverage)
     ]
-    comparison = report.get("final_comparison") or {}
-    base = str(report.get("base_law") or "a-cmommt")
+    comparison = ours.final_comparison
+    base = ours.base_law or "a-cmommt"
     added = []
     if base in comparison:
         added = [
@@ -308,12 +311,12 @@ def _result(report: Mapping[str, Any], curve_png: str) -> list[str]:
             f"difference ± s.e., {trials} trials).",
             "",
         ]
-    ours = comparison.get("learned") or {}
-    if "off_law_pct" in ours:
+    learned_row = comparison.get("learned") or {}
+    if "off_law_pct" in learned_row:
         added += [
-            f"Its robots left the law on {ours['off_law_pct']:.1f} % of their decisions; where a teammate shared "
-            f"the robot's targets ({ours.get('shared_decisions_pct', 0.0):.1f} % of the decisions), on "
-            f"{ours.get('shared_off_law_pct', 0.0):.1f} % of them.",
+            f"Its robots left the law on {learned_row['off_law_pct']:.1f} % of their decisions; where a teammate "
+            f"shared the robot's targets ({learned_row.get('shared_decisions_pct', 0.0):.1f} % of the decisions), on "
+            f"{learned_row.get('shared_off_law_pct', 0.0):.1f} % of them.",
             "",
         ]
     lines += [
@@ -322,7 +325,7 @@ def _result(report: Mapping[str, Any], curve_png: str) -> list[str]:
         "the hand-made controllers on the same trials:",
         "",
         *_table(("policy", "what it is", f"% of targets observed ({trials} trials)"), rows),
-        *_spread(report.get("final_comparison") or {}, trials),
+        *_spread(comparison, trials),
         f"![the learning curve beside the hand-made controllers' levels]({curve_png})",
         "",
     ]
@@ -367,14 +370,14 @@ def _spread(comparison: Mapping[str, Mapping[str, float]], trials: int) -> list[
     ]
 
 
-def _throughput(report: Mapping[str, Any]) -> list[str]:
-    received = int(report["tuples_received"])
-    by_actor: dict[str, int] = report.get("tuples_by_actor") or {}
+def _throughput(report: RunReport) -> list[str]:
+    ours = report.learner
+    received, by_actor = ours.tuples_received, ours.tuples_by_actor
     lines = [
         "## Throughput",
         "",
-        f"{received:,} tuples in {report['seconds']:.0f} s of training: {report['tuples_per_s']:,.0f} tuples/s "
-        f"into the learner's store ({report['store_size']:,} kept, {report['overwritten']:,} overwritten).",
+        f"{received:,} tuples in {ours.seconds:.0f} s of training: {ours.tuples_per_s:,.0f} tuples/s "
+        f"into the learner's store ({ours.store_size:,} kept, {ours.overwritten:,} overwritten).",
         "",
     ]
     if by_actor:
@@ -383,22 +386,21 @@ def _throughput(report: Mapping[str, Any]) -> list[str]:
     return lines
 
 
-def _integrity(report: Mapping[str, Any]) -> list[str]:
-    rejected_by_type: dict[str, int] = report.get("rejected_by_type") or {}
-    lag: dict[str, int] = report.get("policy_lag") or {}
+def _integrity(report: RunReport) -> list[str]:
+    ours = report.learner
     rows = [
-        ("duplicate batches", report["duplicates"]),
-        ("sequence gaps (never filled)", report["gaps"]),
-        ("out-of-order arrivals (filled later unless counted as gaps)", report.get("out_of_order", "–")),
-        ("rejected messages", report["rejected"]),
-        ("rejected by type", ", ".join(f"{k}: {v}" for k, v in sorted(rejected_by_type.items())) or "–"),
-        ("table increments merged / stale", f"{report['increments']} / {report['stale_increments']}"),
-        ("policy lag per actor (versions)", ", ".join(f"{a}: {v}" for a, v in sorted(lag.items())) or "–"),
+        ("duplicate batches", ours.duplicates),
+        ("sequence gaps (never filled)", ours.gaps),
+        ("out-of-order arrivals (filled later unless counted as gaps)", ours.out_of_order),
+        ("rejected messages", ours.rejected),
+        ("rejected by type", ", ".join(f"{k}: {v}" for k, v in sorted(ours.rejected_by_type.items())) or "–"),
+        ("table increments merged / stale", f"{ours.increments} / {ours.stale_increments}"),
+        ("policy lag per actor (versions)", ", ".join(f"{a}: {v}" for a, v in sorted(ours.policy_lag.items())) or "–"),
     ]
     return ["## Duplicates, gaps, rejected", "", *_table(("figure", "value"), rows)]
 
 
-def _move_names(report: Mapping[str, Any]) -> tuple[str, ...]:
+def _move_names(report: RunReport) -> tuple[str, ...]:
     """The names of the policy's own moves: its formulation's action set (relative moves are no compass points)."""
     formulation = _formulation(report)
     if formulation in FORMULATIONS:
@@ -406,59 +408,61 @@ def _move_names(report: Mapping[str, Any]) -> tuple[str, ...]:
     return COMPASS_NAMES
 
 
-def _policy(report: Mapping[str, Any]) -> list[str]:
-    sizes: list[int] = report["prototypes_per_action"]
+def _policy(report: RunReport) -> list[str]:
+    ours = report.learner
+    sizes = ours.prototypes_per_action
     lines = [
         "## Policy",
         "",
-        f"Version {report['policy_version']} after {report['phase1_fits']} phase-1 fit(s); "
-        f"policy file `{report['policy_file']}`, checkpoint `{report.get('checkpoint', '–')}`.",
+        f"Version {ours.policy_version} after {ours.phase1_fits} phase-1 fit(s); "
+        f"policy file `{ours.policy_file}`, checkpoint `{ours.checkpoint}`.",
         "",
     ]
     if sizes:
         lines.append(f"Prototypes per action (mean {sum(sizes) / len(sizes):.1f}):")
         lines.append("")
         lines += _table(_move_names(report)[: len(sizes)], [tuple(sizes)])
-    if report.get("policy_figure"):
-        name = Path(str(report["policy_figure"])).name
+    if report.policy_figure:
+        name = Path(report.policy_figure).name
         lines += [f"![a test arena under the policy, and its prototypes per action coloured by Q]({name})", ""]
     return lines
 
 
-def _curve(report: Mapping[str, Any]) -> list[str]:
-    curve = report.get("coverage_curve") or []
+def _curve(report: RunReport) -> list[str]:
+    curve = report.learner.coverage_curve
     lines = ["## Learning curve", ""]
     if not curve:
         return [*lines, "No evaluation: no policy was learned in this run.", ""]
-    trials = report.get("eval_trials", 10)
+    trials = report.learner.eval_trials
     lines += [
         f"The policy of the moment on {trials} seeded test trials, every evaluation interval:",
         "",
         *_table(("seconds", "coverage %"), [(f"{t:.0f}", f"{c:.2f}") for t, c in curve]),
     ]
-    references = _references(report.get("reference_coverage") or {})
+    references = _references(report.learner.reference_coverage)
     if references:
         levels = ", ".join(f"{_label(n)} {v:.2f} %" for n, v in references)
         lines += [f"The hand-made controllers on the same {trials} trials: {levels}.", ""]
     return lines
 
 
-def markdown_report(report: Mapping[str, Any], curve_png: str = LEARNING_CURVE_PNG) -> str:
+def markdown_report(report: RunReport, curve_png: str = LEARNING_CURVE_PNG) -> str:
     """``report.md``: the result beside its references, then configuration, figures, the learning curve,
     throughput, integrity and policy, and the commands that come next."""
-    config: dict[str, Any] = report.get("config") or {}
-    title = report.get("run_id") or _run_dir(report).name
+    launch = report.launch
+    title = report.run_dir.name if launch is None else launch.run_id
     stop = interruption(report)
     lines = [f"# ennc-ql run {title}", "", *([f"**{stop[0].upper() + stop[1:]}.**", ""] if stop else [])]
     lines += _result(report, curve_png)
-    if "command" in report:
-        lines += ["```", str(report["command"]), "```", ""]
-    took = f"{report['seconds']:.0f} s of training"
-    if "wall_seconds" in report:
-        took += f", {report['wall_seconds']:.0f} s in all"
-    lines += [f"Learner `{report.get('learner_id', 'learner')}`, {took}.", ""]
-    if config:
-        settings = [(k, f"{v:g}" if isinstance(v, float) else v) for k, v in config.items()]
+    if launch is not None:
+        lines += ["```", launch.command, "```", ""]
+    took = f"{report.learner.seconds:.0f} s of training"
+    if launch is not None:
+        took += f", {launch.wall_seconds:.0f} s in all"
+    lines += [f"Learner `{report.learner.learner_id}`, {took}.", ""]
+    if launch is not None:
+        values = [(f.name, getattr(launch.config, f.name)) for f in dataclasses.fields(launch.config)]
+        settings = [(k, f"{v:g}" if isinstance(v, float) else v) for k, v in values]
         lines += ["## Configuration", "", *_table(("setting", "value"), settings)]
     lines += ["## Figures", "", *_table(("figure", "value"), result_rows(report))]
     lines += _curve(report) + _throughput(report) + _integrity(report) + _policy(report)
@@ -466,26 +470,27 @@ def markdown_report(report: Mapping[str, Any], curve_png: str = LEARNING_CURVE_P
     return "\n".join(lines)
 
 
-def learning_curve_figure(report: Mapping[str, Any]) -> Figure:
+def learning_curve_figure(report: RunReport) -> Figure:
     """Evaluation coverage against training seconds, titled by the result and the formulation, with the hand-made
     controllers' levels on the same trials: lines on the curve's trials, diamonds on the final figure's."""
     # Imported here: every command line builds up's parser, and matplotlib is needed only once a run has ended. The
     # object-oriented Figure needs no pyplot: no global backend switch, no figure registry to leak into.
     from matplotlib.figure import Figure
 
-    curve = report.get("coverage_curve") or []
-    duration = (report.get("config") or {}).get("duration") or report["seconds"]
-    end = float(report["seconds"])
-    trials, final_trials = report.get("eval_trials", 10), report.get("final_eval_trials", 200)
-    final = report.get("final_coverage_mean")
-    finals = dict(report.get("final_reference_coverage") or {})
+    ours = report.learner
+    curve = ours.coverage_curve
+    duration = ours.seconds if report.launch is None else report.launch.config.duration
+    end = float(ours.seconds)
+    trials, final_trials = ours.eval_trials, ours.final_eval_trials
+    final = ours.final_coverage_mean
+    finals = dict(ours.final_reference_coverage)
     fig = Figure(figsize=(10, 4.8))
     ax = fig.subplots()
     xmax = max([float(duration), end, *(t for t, _ in curve)])
     # The final figures side by side just past the curve's end, the learned policy's first: at one x they hid each
     # other wherever they lie within a point of each other.
     step = 0.03 * xmax
-    references = _references(report.get("reference_coverage") or {})
+    references = _references(ours.reference_coverage)
     at = {name: end + step * (k + 2) for k, name in enumerate(n for n, _ in references if n in finals)}
     for name, level in references:
         label = f"{_label(name)}: {level:.1f} %"
@@ -496,12 +501,12 @@ def learning_curve_figure(report: Mapping[str, Any]) -> Figure:
     if curve:
         label = "the policy the learner held"
         ax.plot([t for t, _ in curve], [c for _, c in curve], "o-", color=LEARNED_COLOUR, label=label)
-    for k, resume in enumerate(report.get("resumes") or []):
+    for k, resume in enumerate(ours.resumes):
         label = "resumed from the checkpoint" if k == 0 else "_nolegend_"
         ax.axvline(float(resume["at_s"]), ls=":", lw=1.2, color="#555555", label=label)
     if final is not None:
-        saved = report.get("saved") or {}
-        read = "" if saved.get("margin") is None else f", margin {saved['margin']:g}"
+        saved = ours.saved_policy
+        read = "" if saved is None or saved.margin is None else f", margin {saved.margin:g}"
         label = f"saved: the last policy{read}: {final:.2f} % ({final_trials} trials)"
         ax.plot([end + step], [final], "*", ms=15, color=LEARNED_COLOUR, label=label)
     elif not curve:
@@ -511,7 +516,7 @@ def learning_curve_figure(report: Mapping[str, Any]) -> Figure:
     ax.set_xlabel("training time (s)")
     ax.set_ylabel("% of targets observed")
     formulation = _formulation(report)
-    what = f"formulation {formulation}" if formulation else f"run {report.get('run_id') or _run_dir(report).name}"
+    what = f"formulation {formulation}" if formulation else f"run {report.run_dir.name}"
     ax.set_title(f"{_curve_result(final, finals)}\n{what}", fontsize="medium")
     if ax.get_legend_handles_labels()[0]:
         ax.legend(
@@ -545,13 +550,13 @@ def _curve_result(final: float | None, finals: Mapping[str, float]) -> str:
     return result
 
 
-def learning_curve_png(report: Mapping[str, Any], path: Path) -> Path:
+def learning_curve_png(report: RunReport, path: Path) -> Path:
     """The learning curve as a 1000 x 480 PNG."""
     learning_curve_figure(report).savefig(path, dpi=100)
     return path
 
 
-def write_run_report(report: Mapping[str, Any], run_dir: Path) -> tuple[Path, Path]:
+def write_run_report(report: RunReport, run_dir: Path) -> tuple[Path, Path]:
     """Write ``report.md`` and ``learning_curve.png`` into ``run_dir``; their paths."""
     png = learning_curve_png(report, run_dir / LEARNING_CURVE_PNG)
     markdown = run_dir / REPORT_MD
@@ -563,16 +568,17 @@ def emit_run_report(report: LearnerReport, summary: RunSummary, as_json: bool) -
     """The learner's report completed with the launcher's ``summary`` and the policy's figure, written as
     ``report.json``, ``report.md`` and ``learning_curve.png``, and printed (``up`` and a SLURM job alike)."""
     run_dir = summary.run_dir
-    out = report.with_extra(**summary.figures(report), **_policy_figure(report, run_dir)).to_dict()
-    markdown, png = write_run_report(out, run_dir)
-    out.update(report_md=str(markdown), learning_curve=str(png))
+    run = RunReport(report, summary.figures(report), _policy_figure(report, run_dir))
+    markdown, png = write_run_report(run, run_dir)
+    run = dataclasses.replace(run, report_md=str(markdown), learning_curve=str(png))
+    out = run.to_dict()
     write_atomic(run_dir / "report.json", json.dumps(out, indent=2).encode())
-    emit(out, as_json, terminal_summary(out))
+    emit(out, as_json, terminal_summary(run))
 
 
-def _policy_figure(report: LearnerReport, run_dir: Path) -> dict[str, str]:
+def _policy_figure(report: LearnerReport, run_dir: Path) -> str | None:
     """``policy.png`` of the learned policy, if one was learned."""
     if not report.policy_file:
-        return {}
+        return None
     policy, header = load_policy(report.policy_file)
-    return {"policy_figure": str(policy_figure(policy, scenario_from_header(header), run_dir / "policy.png"))}
+    return str(policy_figure(policy, scenario_from_header(header), run_dir / "policy.png"))

@@ -23,7 +23,7 @@ from ennc_ql.command import configure, emit, fail, refuse_run, writable_dir
 from ennc_ql.parser import CommandHelp, add_command, add_commands
 from ennc_ql.report import emit_run_report
 from protocol import check_id
-from tools.cluster import SET_BY_UP, UP_PRESETS, LaunchError, RunSummary, UpConfig
+from tools.cluster import SET_BY_UP, UP_PRESETS, LaunchError, RunSummary, SlurmFigures, UpConfig
 from tools.config import ConfigError, add_config_flags, folder, load_config
 from tools.slurm.array import run_task
 from tools.slurm.job import JOB_SCRIPT, SlurmJob, run_training_job, write_training_job
@@ -36,7 +36,7 @@ SLURM = CommandHelp(
     "Trains on a SLURM allocation: slurm train writes a run folder and its job script (router and learner on the "
     "first node, actors round-robin on the others as job steps), and slurm run is what the script runs inside the "
     "allocation. Sweeps (ablate and reproduce --slurm) run their learning processes as one job array of slurm task. "
-    "See each subcommand's help, and docs/slurm.md.",
+    "See each subcommand's help, and docs/guide/slurm.md.",
     (
         ("ennc-ql slurm train --actors 4 --nodes 3 --submit", "a training job on 3 nodes"),
         ("ennc-ql ablate --slurm ennc-ql-local --set budget.phase2.alpha=0.1,0.3", "a sweep as one job array"),
@@ -174,12 +174,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     except (SlurmError, LaunchError, ConfigError) as exc:
         fail("slurm run", str(exc))
     alloc = done.allocation
-    slurm = {
-        "job_id": alloc.job_id,
-        "requeued": alloc.restarts,
-        "nodes": list(alloc.nodes),
-        "placement": dict(done.placement.node_of),
-    }
+    slurm = SlurmFigures(alloc.job_id, alloc.restarts, tuple(alloc.nodes), dict(done.placement.node_of))
     wall_seconds = time.monotonic() - started
     command = f"sbatch {run_dir / JOB_SCRIPT}"
     summary = RunSummary(

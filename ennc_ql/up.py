@@ -49,9 +49,12 @@ from tools.cluster import (
     SET_BY_UP,
     UP_PRESETS,
     Finished,
+    Interruption,
     LaunchError,
     Monitoring,
     ProcessRun,
+    RecordingFigures,
+    RunReport,
     RunSummary,
     UpConfig,
     child_configs,
@@ -162,7 +165,8 @@ def _run(args: argparse.Namespace, run_dir: Path, config: UpConfig, *, resume: b
         report = run_serial(learner, actors, run_dir, stop=interrupts.stop)
         summary = _summary(config, run_dir, started, None, secure=False, serial=True, earlier=earlier)
         if interrupts.first is not None:
-            summary = dataclasses.replace(summary, interrupted=_interruption(interrupts, report, config, run_dir))
+            stopped = _interruption(interrupts, report, config, run_dir, learner_finished=True)
+            summary = dataclasses.replace(summary, interrupted=stopped)
         emit_run_report(report, summary, args.json)
         return interrupts.exit_code
 
@@ -171,17 +175,20 @@ def _interrupt_now() -> str:
     raise KeyboardInterrupt
 
 
-def _interruption(interrupts: Interrupts, report: LearnerReport, config: UpConfig, run_dir: Path) -> dict[str, Any]:
-    """How a stopped run ended, for its report: the signal, the training time, and the command that continues."""
+def _interruption(
+    interrupts: Interrupts, report: LearnerReport, config: UpConfig, run_dir: Path, *, learner_finished: bool
+) -> Interruption:
+    """How a stopped run ended, for its report: the signal, the training time, whether the learner wrote its report
+    (else ``up`` made it from the last checkpoint), and the command that continues."""
     assert interrupts.first is not None
-    return {
-        "signal": interrupts.first.name,
-        "signals": len(interrupts.received),
-        "at_s": round(report.seconds, 1),
-        "duration_s": config.duration,
-        "learner": "finished" if report.extra.get("saved_by") != "up" else "killed",
-        "resume": f"ennc-ql up --resume {run_dir}",
-    }
+    return Interruption(
+        signal=interrupts.first.name,
+        at_s=round(report.seconds, 1),
+        duration_s=config.duration,
+        learner="finished" if learner_finished else "killed",
+        resume=f"ennc-ql up --resume {run_dir}",
+        signals=len(interrupts.received),
+    )
 
 
 def _processes_and_report(
@@ -191,7 +198,7 @@ def _processes_and_report(
     resume: bool,
     interrupts: Interrupts,
     started: float,
-    earlier: tuple[dict[str, Any], ...],
+    earlier: tuple[Interruption, ...],
 ) -> int:
     """The run as OS processes, then its report from what the learner saved, however it ended; ``earlier``: the
     run's interruptions before this resume."""
@@ -209,7 +216,9 @@ def _processes_and_report(
     secure = _secure(args, run_dir)
     summary = _summary(config, run_dir, started, done.recording, secure=secure, run=done.run, earlier=earlier)
     if signum is not None:
-        summary = dataclasses.replace(summary, interrupted=_interruption(interrupts, report, config, run_dir))
+        finished = done.report is not None  # else up made the report from the learner's last checkpoint
+        stopped = _interruption(interrupts, report, config, run_dir, learner_finished=finished)
+        summary = dataclasses.replace(summary, interrupted=stopped)
     emit_run_report(report, summary, args.json)
     return interrupts.exit_code
 
@@ -227,12 +236,12 @@ def _summary(
     config: UpConfig,
     run_dir: Path,
     started: float,
-    recording: dict[str, Any] | None,
+    recording: RecordingFigures | None,
     secure: bool,
     *,
     serial: bool = False,
     run: ProcessRun | None = None,
-    earlier: tuple[dict[str, Any], ...] = (),
+    earlier: tuple[Interruption, ...] = (),
 ) -> RunSummary:
     command = f"ennc-ql up --config {run_dir / 'up.toml'}"
     wall_seconds = time.monotonic() - started
@@ -241,17 +250,16 @@ def _summary(
     )
 
 
-def _earlier_interruptions(run_dir: Path) -> tuple[dict[str, Any], ...]:
+def _earlier_interruptions(run_dir: Path) -> tuple[Interruption, ...]:
     """The interruptions the run folder's report holds (a resumed run's, from before this resume): the new report
-    keeps them, so that a run stopped and resumed says so."""
+    keeps them, so that a run stopped and resumed says so. A report that cannot be read holds none."""
     try:
-        old = json.loads((run_dir / "report.json").read_text())
-    except (OSError, ValueError):
+        old = RunReport.from_dict(json.loads((run_dir / "report.json").read_text())).launch
+    except (OSError, ValueError, TypeError, KeyError, AttributeError):
         return ()
-    if not isinstance(old, dict):
+    if old is None:
         return ()
-    earlier = old.get("interruptions") or ([old["interrupted"]] if old.get("interrupted") else [])
-    return tuple(i for i in earlier if isinstance(i, dict))
+    return old.interruptions or (() if old.interrupted is None else (old.interrupted,))
 
 
 def _processes(
@@ -304,7 +312,7 @@ def saved_report(learner: LearnerConfig, run_dir: Path) -> LearnerReport | None:
         except CheckpointError as exc:
             log.error("%s", exc)
             return None
-        return service.saved_report().with_extra(saved_by="up")
+        return service.saved_report()
 
 
 def check_resume(args: argparse.Namespace) -> tuple[Path, UpConfig]:

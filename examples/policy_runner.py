@@ -1,4 +1,4 @@
-"""Reference runner for an ``ennc-ql-policy`` file, written from ``docs/policy-file.md`` alone.
+"""Reference runner for an ``ennc-ql-policy`` file, written from ``docs/reference/policy-file.md`` alone.
 
 Only numpy and the standard library: nothing of the project is imported. It loads a policy file, simulates the
 scenario its header names (all trials side by side, one seeded generator), drives every robot with the policy and
@@ -10,7 +10,10 @@ prints the mean coverage (metric A: % of targets in view of at least one robot, 
 
 ``--violate`` exists to show that the rules matter: ``still-start`` gives robots no search heading (lost robots
 stand still), ``no-reflect`` never reflects the search heading off the wall (wandering robots stick to the rim).
-Section names in the comments refer to docs/policy-file.md.
+Section names in the comments refer to docs/reference/policy-file.md.
+
+Over 400 lines: the whole of the document's rules (scenario, state, frames, moves, trials) in one file of plain
+numpy, as a client in another language would write it; it imports nothing of the project, by design.
 """
 
 from __future__ import annotations

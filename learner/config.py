@@ -16,11 +16,12 @@ from sim import SCENARIOS
 from sim.formulation import DEFAULT_FORMULATION, Formulation, resolve_formulation
 
 LEARNER_PHASE1 = dataclasses.replace(CMOMMT_PHASE1, max_iterations=2, n_cycles=60, seed_prototypes=512, cells="union")
-"""The learner's phase 1 [beyond the paper, README "Learning quality"]: ENNC starts from 512 of each action's
+"""The learner's phase 1 [beyond the paper; docs/concepts/learning.md]: ENNC starts from 512 of each action's
 training states and runs 60 cycles (one prototype and 250 cycles [paper] leave a per-decision reward's noisy classes
 in a few cells, and 250 cycles from 512 states grow thousands of prototypes the actors must search), two fitted
 iterations (a second one measured +1 to +3 points), and every action's cells are the union of all actions'
-prototypes (docs/learning-quality.md, "Eleventh round"). ``ennc-ql reproduce`` keeps the paper's."""
+prototypes (a rare situation otherwise fell into another situation's cells: docs/notebook.md, "2026-12-04: one set
+of cells for every action"). ``ennc-ql reproduce`` keeps the paper's."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -31,7 +32,7 @@ class LearnerConfig:
     """Scenario the policy is learned and evaluated on."""
     formulation: str = DEFAULT_FORMULATION
     """State, reward and action set of the experience, and how often the evaluated policy decides, by name (see
-    README "Formulation"; paper is the paper's). The actors' must be the same."""
+    docs/concepts/learning.md; paper is the paper's). The actors' must be the same."""
     featurizer: str | None = None
     """State definition instead of the formulation's (none: the formulation's)."""
     reward: str | None = None
@@ -55,7 +56,7 @@ class LearnerConfig:
     """Seconds between merges + policy broadcasts."""
     team_policy: bool = False
     """Save and score the policy with one table every robot uses, the actors' per-robot tables merged by their
-    visits (docs/learning-quality.md, "the learner's merge across robots"). Off (default): each robot acts on its own
+    visits (docs/concepts/saving.md). Off (default): each robot acts on its own
     row, the paper's option 2 [paper], and the final report scores the merged team table beside it; the broadcast
     keeps each robot's own table, so the actors learn on option 2 either way."""
     eval_interval: float = 20.0

@@ -60,7 +60,7 @@ class IntakeFigures:
     out_of_order: int
     """Arrivals past the next expected sequence number, filled later or not (see ``gaps``)."""
     rejected_by_type: dict[str, int]
-    """Messages refused over the run (resumes included), by error class of docs/protocol.md §6, each once."""
+    """Messages refused over the run (resumes included), by error class of docs/reference/protocol.md §6, each once."""
     refused: int
     """Of those, the ones rejected explicitly by sequence number (a Reject sent)."""
     tuples_per_s: float

@@ -8,9 +8,8 @@ Usage (``on_join``/``on_leave`` run on the transport's liveliness thread; every 
     meta = members.to_meta()                # for a checkpoint: the actors seen survive a resume
     members.restore(meta)
 
-A token's key names its actor in its last chunk. A chunk that is not a protocol identifier (docs/protocol.md §1) is
-no actor: the token is refused, logged and counted once (``refused``) while it is present, and never listed.
-"""
+A token's key names its actor in its last chunk. A chunk that is not a protocol identifier (docs/reference/protocol.md
+§1) is no actor: the token is refused, logged and counted once (``refused``) while it is present, and never listed."""
 
 from __future__ import annotations
 

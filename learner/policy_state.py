@@ -65,7 +65,8 @@ class PolicyState:
         self.increments = 0
         """Increments received (each sequence number once)."""
         self.stale_increments = 0
-        """Of those, increments over another discretization than the current one: not merged (docs/protocol.md §5)."""
+        """Of those, increments over another discretization than the current one: not merged
+        (docs/reference/protocol.md §5)."""
         self.dropped_visits = 0
         """Visits acknowledged but in no table: those of stale increments (over a discretization no longer held)."""
         self.carried_visits = 0

@@ -1,7 +1,7 @@
 """The learner's typed figures: the live status it publishes and the report it writes at the end.
 
-``LearnerStatus`` travels in a ``Status`` message's counters (names and meanings in docs/protocol.md); readers such
-as ``ennc-ql up`` turn the counters back into it instead of reading them by name. Both are built from the learner's
+``LearnerStatus`` travels in a ``Status`` message's counters (names and meanings in docs/reference/protocol.md); readers
+such as ``ennc-ql up`` turn the counters back into it instead of reading them by name. Both are built from the learner's
 parts, never field by field by the learner::
 
     status = LearnerStatus.of(intake.figures(), state, members, evaluator, fits=fitter.fits, elapsed=clock())
@@ -13,7 +13,6 @@ parts, never field by field by the learner::
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -120,7 +119,7 @@ class LearnerReport:
     never): usual, since experience and table increments travel on two subscriptions."""
     rejected: int
     rejected_by_type: dict[str, int]
-    """Messages refused, each once, by error class (docs/protocol.md §6) or ``StateDimension``."""
+    """Messages refused, each once, by error class (docs/reference/protocol.md §6) or ``StateDimension``."""
     refused_tokens: int
     """Liveliness tokens refused because their id is not an identifier (not listed among ``actors``)."""
     increments: int
@@ -163,8 +162,6 @@ class LearnerReport:
     resumes: list[dict[str, Any]] = field(default_factory=list)
     """Every time the run was resumed from its checkpoint: the run clock it resumed at (``at_s``), the policy version
     of its first broadcast, that broadcast's wall time and the seconds from the process's start to it."""
-    extra: dict[str, Any] = field(default_factory=dict)
-    """Figures added by whoever ran the learner (``ennc-ql up``: run id, command, configuration, recording)."""
 
     @classmethod
     def of(
@@ -222,22 +219,27 @@ class LearnerReport:
         )
 
     def to_dict(self) -> dict[str, Any]:
-        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "extra"}
-        return {**out, **self.extra}
+        return {f.name: getattr(self, f.name) for f in fields(self)}
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> LearnerReport:
-        names = {f.name for f in fields(cls)} - {"extra"}
+        """The learner's figures of ``data`` (``report.json``); the launcher's keys beside them are
+        ``tools.cluster.report.RunReport``'s to read."""
+        names = {f.name for f in fields(cls)}
         # Reports written before these figures existed lack them.
-        given = {k: v for k, v in data.items() if k in names}
         known = {
             "reference_coverage": {},
             "final_reference_coverage": {},
             "final_comparison": {},
             "out_of_order": 0,
-            **given,
+            "refused_tokens": 0,
+            **{k: v for k, v in data.items() if k in names},
         }
-        return cls(**known, extra={k: v for k, v in data.items() if k not in names})
+        return cls(**known)
 
-    def with_extra(self, **extra: Any) -> LearnerReport:
-        return dataclasses.replace(self, extra={**self.extra, **extra})
+    @property
+    def saved_policy(self) -> SavedPolicy | None:
+        """``saved`` as the typed record it was written from."""
+        from algorithm.selection import SavedPolicy  # readers of the status alone (up's progress) need none of it
+
+        return None if self.saved is None else SavedPolicy.from_dict(self.saved)

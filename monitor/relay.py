@@ -1,7 +1,7 @@
 """The monitor of an actor whose viewer rows the learner logs (``--rerun learner``, what ``ennc-ql up`` gives its
 actors): the actor opens no recording and loads no Rerun, which would cost it ≈ 70 MB of its memory
 (docs/performance.md); its figures and sampled arena frames travel to the learner as ``ActorView`` messages
-(docs/protocol.md), best effort, and the learner logs them on the actor's own timelines.
+(docs/reference/protocol.md), best effort, and the learner logs them on the actor's own timelines.
 
 Usage (an actor process)::
 

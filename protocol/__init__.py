@@ -1,7 +1,7 @@
 """The ENNC-QL wire protocol: typed messages, the msgpack codec, key expressions + QoS, and transports.
 
 This package owns everything that crosses a process boundary; the format is specified for other
-languages in docs/protocol.md. Typical use::
+languages in docs/reference/protocol.md. Typical use::
 
     from protocol import ExperienceBatch, ZenohTransport, zenoh_config
 

@@ -1,4 +1,4 @@
-"""The one msgpack codec of the ENNC-QL wire protocol (layout specified in docs/protocol.md).
+"""The one msgpack codec of the ENNC-QL wire protocol (layout specified in docs/reference/protocol.md).
 
 Envelope: a msgpack array ``[schema_version, type_tag, fields]`` where ``fields`` maps each field name
 to its value; a numpy array travels as ``[dtype_name, shape, raw_little_endian_bytes]``. No pickle, no

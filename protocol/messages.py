@@ -16,7 +16,7 @@ Symbols in shapes: N tuples in a batch, d state dimension, P = Σ_a P_a prototyp
 L = N_ACTIONS actions, R robots. Arrays decoded from the wire are read-only (see ``protocol.codec``).
 
 Over 400 lines: every wire message with its validation, so that the schema reads in one file beside
-docs/protocol.md.
+docs/reference/protocol.md.
 """
 
 from __future__ import annotations
@@ -263,7 +263,7 @@ class Header:
         header = Header(actor_id="actor-0", incarnation=0x1234, seq=5, policy_version=3)
         batch = experience_message(header, transitions)
 
-    A header is never sent as such: on the wire its fields stay flat in the message's body (docs/protocol.md).
+    A header is never sent as such: on the wire its fields stay flat in the message's body (docs/reference/protocol.md).
     """
 
     actor_id: str

@@ -14,7 +14,7 @@ Zenoh's callback never runs Python code of ours, so it cannot block or raise in 
 FifoChannel blocks zenoh's receive path, which pushes back through TCP to BLOCK publishers: delivery is
 lossless and the publisher slows to the consumer's pace (measured: a callback that drops into a bounded
 ``queue.Queue`` instead lost 95 % of a fast BLOCK stream). Two limits remain, both covered by the
-ack/outbox contract of docs/protocol.md:
+ack/outbox contract of docs/reference/protocol.md:
 
 * a handler stalled for longer than zenoh's ``transport/link/tx/queue/congestion_control/block/
   wait_before_close`` (5 s by default) makes the publisher's zenoh close the link: what was in flight is
@@ -22,6 +22,10 @@ ack/outbox contract of docs/protocol.md:
 * messages published while no subscriber is connected are not stored anywhere.
 
 Memory held per subscription is bounded by ``channel_capacity`` × the largest payload.
+
+Over 400 lines: everything that touches a zenoh session (declaring, the bounded channels and their workers, the
+watchdog that reopens a broken session, closing) in one class, so that no other module holds zenoh's objects and
+the session's life is read in one place.
 """
 
 from __future__ import annotations

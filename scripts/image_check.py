@@ -27,6 +27,9 @@ Needs root, podman, runc and debootstrap (``apt-get install -y podman runc deboo
 
     .venv/bin/python scripts/image_check.py            # the figures as lines of text
     .venv/bin/python scripts/image_check.py --json     # one JSON object
+
+Over 400 lines: one script that a root machine runs alone, from the base image to the checks of both topologies
+(the three steps above and their checks share the temporary folder, podman's storage and the secrets' files).
 """
 
 from __future__ import annotations

@@ -1,5 +1,6 @@
 """The learner's silences, as a client outside it sees them: the gaps between its policy broadcasts and between its
-status messages, measured on the wire (written from docs/protocol.md: the keys, and nothing of the project's code).
+status messages, measured on the wire (written from docs/reference/protocol.md: the keys, and nothing of the project's
+code).
 
 Started beside a running ``ennc-ql up`` (it finds that run's learner among the processes and joins its loopback
 endpoint as a peer), it listens until the learner has been silent for ``--quiet`` seconds after its first message,

@@ -1,6 +1,7 @@
-"""The figures of docs/slurm.md, measured on a local SLURM of three emulated nodes (tests/e2e/slurm.py), printed as
-one JSON object: a training job's start to its first policy, a learner SIGKILLed inside the job and under ``up``
-(kill to the resumed learner's first broadcast), and a tiny sweep as a job array against the local ``--jobs`` path.
+"""The SLURM figures of docs/performance.md, measured on a local SLURM of three emulated nodes (tests/e2e/slurm.py),
+printed as one JSON object: a training job's start to its first policy, a learner SIGKILLed inside the job and under
+``up`` (kill to the resumed learner's first broadcast), and a tiny sweep as a job array against the local ``--jobs``
+path.
 
     .venv/bin/python scripts/slurm_figures.py [--duration 60] [--kills 2]
 

@@ -11,7 +11,8 @@ the chosen parameters as JSON::
 
 The chosen values are :data:`sim.controllers.ACMOMMT_LAW` (``a-cmommt``) and, on the first, coarser robot-repulsion
 grid, :data:`sim.controllers.STATE_FORCE_LAW` (``force-6d-shared``, which is also the learned moves' law and is kept
-as the formulation was made with it); docs/learning-quality.md gives the figures.
+as the formulation was made with it); docs/notebook.md, "2026-12-02: the honest A-CMOMMT, tuned on training
+trials", gives the figures.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 20 MB (plain TCP) after every client session that published a few messages of 10 kB or more has closed, even when
 nobody subscribes to them. In a run the router and the actors grow by that much at every learner restart (the
 learner's new session publishes policies), and by nothing else: not with time, traffic, router restarts or stopped
-actors. Run it again on a new zenoh release before removing the note in README.md::
+actors. Run it again on a new zenoh release before removing the note in docs/performance.md::
 
     .venv/bin/python scripts/zenoh_session_leak.py            # RSS after each of 8 short-lived publishing sessions
     .venv/bin/python scripts/zenoh_session_leak.py --size 1000  # small messages: flat

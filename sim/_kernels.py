@@ -1,8 +1,8 @@
 """Fused per-arena loops of the simulator, compiled with numba.
 
-numpy alone measured about 1 M robot-steps/s for sensing + moving (10x short of the 10 M target, see README):
-the (arena, robot, target) broadcasts allocate several temporaries per step. These kernels do one pass per arena
-and write into caller-allocated outputs, so the public functions in :mod:`sim.world` stay pure.
+numpy alone measured about 1 M robot-steps/s for sensing + moving (10x short of the 10 M target, docs/performance.md):
+the (arena, robot, target) broadcasts allocate several temporaries per step. These kernels do one pass per arena and
+write into caller-allocated outputs, so the public functions in :mod:`sim.world` stay pure.
 
 They run on one thread: numba's OpenMP workers spin between the many short kernel calls and slowed the whole step
 by up to 50x on 2 cores, and a single thread measured as fast. Parallelism comes from actor processes instead.

@@ -45,7 +45,8 @@ class ForceLawConfig:
     range; the horizon is a choice]."""
     reported_weight: float = 0.0
     """Weight, in the (do3, do4] band, of a target another robot reports seeing now; 0 ignores reports there
-    [choice: measured below own predictions alone, README]."""
+    [choice: measured below own predictions alone, docs/notebook.md, "2026-12-02: the honest A-CMOMMT, tuned on
+    training trials"]."""
 
     def __post_init__(self) -> None:
         if not 0.0 < self.do1 < self.do2 <= self.do3 < self.do4:
@@ -65,6 +66,7 @@ class ScenarioConfig:
     """One CMOMMT scenario; all lengths in arena units, all times in simulation steps."""
 
     name: str = "cmommt-v1"
+    """The scenario's versioned name (``sim.SCENARIOS``), as a policy file's header and the wire carry it."""
     arena_radius: float = 1000.0
     """Radius R of the disk-shaped arena centred at the origin [choice]."""
     n_robots: int = 10
@@ -104,8 +106,9 @@ class ScenarioConfig:
     teammate-watched targets, d the nearest one's distance (0 otherwise) [choice]."""
     recall_steps: int = 120
     """How long a robot of a remembering state (``frame11d-recall``, :mod:`sim.recall`) keeps a target it lost as
-    its remembered target, in steps [choice: the tuned A-CMOMMT's prediction horizon when the state was made, 120 steps;
-    the finer grid of the twenty-seventh session chose 240 for the law, and the state keeps its own]."""
+    its remembered target, in steps [choice: the tuned A-CMOMMT's prediction horizon when the state was made, 120
+    steps; the law's finer grid of 2026-12-06 chose 240 for the law, and the state keeps its own, which every policy
+    file of this state was learned with]."""
     local_target: LocalTarget = "furthest"
     """Target the 2-D local state points at [paper: furthest; once 'nearest']."""
 

@@ -34,16 +34,17 @@ weight 0.25, do1 20, do2 40, do4 180, dr1 62.5, dr2 100, prediction 60 steps) [p
 ACMOMMT_LAW = ForceLawConfig(
     do1=10.0, do2=150.0, do4=1000.0, dr1=0.0, dr2=50.0, shared_target_weight=0.0, predict_steps=240
 )
-"""A-CMOMMT's parameters chosen by ``scripts/tune_references.py`` on training seeds 100–103 (50 trials each), never
-on the reported test trials [choice: tuned here, docs/learning-quality.md; the robot repulsion on the script's finer
-grid since the twenty-seventh session]: ``a-cmommt``. The oracle keeps the public law: with this do4 it would read
-the true position of nearly every target in the arena."""
+"""A-CMOMMT's parameters chosen by ``scripts/tune_references.py`` on training seeds 100–103 (50 trials each), never on
+the reported test trials [choice: tuned here, the robot repulsion on the script's finer grid; docs/notebook.md,
+"2026-12-02: the honest A-CMOMMT, tuned on training trials"]: ``a-cmommt``. The oracle keeps the public law: with this
+do4 it would read the true position of nearly every target in the arena."""
 STATE_FORCE_LAW = ForceLawConfig(do1=10.0, do2=150.0, do4=ACMOMMT_LAW.do4, shared_target_weight=0.0)
 """The force law on the learned state's information (``force-6d-shared``), tuned by the same script on the same
 training seeds over the parameters that act on sensed targets, on its first grids [choice: the finer robot-repulsion
 grid picks dr1 0, dr2 50 (+0.25 on the training trials); kept, since this law is also the learned moves' (``law``
-action sets) and the exploration guide's, and a policy file names its action set, not the law's parameters,
-docs/learning-quality.md "Twenty-fifth round"]. The band beyond sensing range acts only on a remembered target (a
+action sets) and the exploration guide's, and a policy file names its action set, not the law's parameters;
+the learning on the finer law measured level: docs/notebook.md, "2026-12-06: the crowding measured from four sides,
+and a finer grid for the reference"]. The band beyond sensing range acts only on a remembered target (a
 guide reading a remembering state's view, :mod:`sim.guide`), and takes the tuned ``a-cmommt``'s reach."""
 
 
@@ -203,9 +204,9 @@ class ForceController:
 
 @dataclass(frozen=True, slots=True)
 class StateForceController:
-    """A-CMOMMT's force law fed only what the ``collab6d`` state holds: the nearest and the furthest target in view
-    and the nearest robot in view, read from the observation's features [choice: the state-limited reference of
-    the learning-quality issue, so that a learned policy is shown beside what its own state allows a hand-made law].
+    """A-CMOMMT's force law fed only what the ``collab6d`` state holds: the nearest and the furthest target in view and
+    the nearest robot in view, read from the observation's features [choice: a state-limited reference, so that a
+    learned policy is shown beside what its own state allows a hand-made law].
 
     ``shared=True`` adds, for those two targets, whether another robot observes them, and weighs such a target
     ``shared_target_weight`` as A-CMOMMT does: the communication A-CMOMMT assumes, which the 6-D state lacks. Unlike

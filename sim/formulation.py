@@ -242,23 +242,26 @@ FORMULATIONS: dict[str, Formulation] = {
         "frame11d-recall", "coverage-split", "law-track", act_every=1, trial_rules="guided-search"
     ),
 }
-"""Every formulation by name: ``paper`` is the paper's collaborative formulation [paper §4, Eq. 2];
-``shared-difference`` the best with the world-frame state and compass moves that the README's ablations found;
-``frame-difference`` the state and the moves in the frame of the nearest target, the difference reward paid per
-decision; ``frame-cooperative`` the same with a redundant step charged (``difference-redundancy``) and learning
-trials in which a learner that loses every target searches and goes on learning (``lost-searches``) [beyond the
-paper, docs/learning-quality.md "Learning cooperation"]; ``frame-guided`` the same with exploration guided by the
-force law on the state's information (``guided-search``) [beyond the paper, the same document's "Seventh round"];
+"""Every formulation by name; each one's measurements are the entry of docs/notebook.md named after it: ``paper``
+is the paper's collaborative formulation [paper §4, Eq. 2]; ``shared-difference`` the best with the world-frame
+state and compass moves that the ablations found ("2026-12-02: learning beyond the paper: the shared state and the
+difference reward"); ``frame-difference`` the state and the moves in the frame of the nearest target, the difference
+reward paid per decision ("2026-12-02: the frame-difference formulation"); ``frame-cooperative`` the same with a
+redundant step charged (``difference-redundancy``) and learning trials in which a learner that loses every target
+searches and goes on learning (``lost-searches``) [beyond the paper; "2026-12-03: lost learners search, and a charge
+for redundant robots"]; ``frame-guided`` the same with exploration guided by the force law on the state's
+information (``guided-search``) [beyond the paper; "2026-12-04: exploration guided by the force law"];
 ``frame-recall`` ``frame-guided`` on a state that remembers the targets a robot lost (:mod:`sim.recall`) [beyond
-the paper; the same document's "Ninth round"]; ``frame-law`` and ``frame-recall-law`` the same two with the moves
-named from the pull of the force law on the state's information (``law`` moves), so that following the law is one
-of the learned choices [beyond the paper; the same document's "Tenth round"]; ``frame-recall-search``
-``frame-recall-law`` with ``law-search`` moves: where the law pulls nowhere they are named from the robot's search
-heading, so that leaving a crowd to search along it is the move ``law`` [beyond the paper; the same document's
-"Twelfth round"]; ``frame-recall-track`` the same with ``law-track`` moves, whose search heading follows the law's
-pull, so that ``law`` is the hand-made law's own move everywhere, its search included [beyond the paper; the same
-document's "Seventeenth round"]; ``frame-recall-split`` the same paid ``coverage-split``, whose team total is metric A's
-summand at every step (docs/learning-quality.md, "2026-12-07") [beyond the paper]."""
+the paper; "2026-12-04: a memory of every target the robot lost"]; ``frame-law`` and ``frame-recall-law`` the same
+two with the moves named from the pull of the force law on the state's information (``law`` moves), so that
+following the law is one of the learned choices [beyond the paper; "2026-12-04: the law's move as one of the learned
+choices"]; ``frame-recall-search`` ``frame-recall-law`` with ``law-search`` moves: where the law pulls nowhere they
+are named from the robot's search heading, so that leaving a crowd to search along it is the move ``law`` [beyond
+the paper; "2026-12-04: leaving a crowd along the search heading"]; ``frame-recall-track`` the same with
+``law-track`` moves, whose search heading follows the law's pull, so that ``law`` is the hand-made law's own move
+everywhere, its search included [beyond the paper; "2026-12-05: the law's own search as a learned move"];
+``frame-recall-split`` the same paid ``coverage-split``, whose team total is metric A's summand at every step [beyond
+the paper; "2026-12-07: one saved policy, the reward that misranks, the split reward"]."""
 DEFAULT_FORMULATION = "frame-recall-track"
 """The formulation of every process (``up``, ``learner``, ``actor``, compose's) unless another is named."""
 

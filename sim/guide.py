@@ -43,7 +43,7 @@ class Guide:
     The tuples stay the robots' own, s, a, r, s′, and the tables learn from them as from any other exploration.
     Uniform moves alone rarely leave a target a teammate already watches to search for another, the behaviour that
     covers more targets; mixed with the law's moves, phase 1's cells and the tables meet it
-    (docs/learning-quality.md, "Seventh round").
+    (docs/notebook.md, "2026-12-04: exploration guided by the force law").
     """
 
     law: str = "force-6d-shared"

@@ -1,11 +1,11 @@
 """A robot's own tracks of the targets it saw, for the states that remember (``Featurizer.recalls``).
 
-The honest A-CMOMMT keeps tracking a target after it leaves view, from its own sightings predicted forward, and
-leaves one to a teammate who reports seeing it [Parker; docs/learning-quality.md]; the learned states of
+The honest A-CMOMMT keeps tracking a target after it leaves view, from its own sightings predicted forward, and leaves
+one to a teammate who reports seeing it [Parker; docs/concepts/learning.md, "The references"]; the learned states of
 :mod:`sim.features` forget it the step it leaves. A :class:`Recall` keeps, per robot and target, the robot's last
-sighting of the target, the target's velocity estimated from its sightings, and the steps since (A-CMOMMT's own
-tracks). Its *remembered target* is, of the targets it saw at most ``cfg.recall_steps`` steps ago that neither it
-nor any teammate sees now, the one whose predicted position (beyond its sensing range) lies nearest.
+sighting of the target, the target's velocity estimated from its sightings, and the steps since (A-CMOMMT's own tracks).
+Its *remembered target* is, of the targets it saw at most ``cfg.recall_steps`` steps ago that neither it nor any
+teammate sees now, the one whose predicted position (beyond its sensing range) lies nearest.
 
 :func:`recall` turns an observation into the *view* a remembering state reads:
 
@@ -19,7 +19,8 @@ rewards and metric A keep reading what is sensed.
 It reads only what the robot knows: its own position (odometry, as the honest law's prediction needs), its own
 sightings, and which targets its teammates see now (the reports A-CMOMMT assumes). A target a teammate sees is left
 to it: returning to a watched target piles robots onto it (a force law fed a memory without this rule scored 4.7
-points less on training trials, docs/learning-quality.md "Eighth round"). Usage::
+points less on training trials: docs/notebook.md, "2026-12-04: a memory that leaves a watched target to its
+teammate"). Usage::
 
     memory = forget_all(cfg, obs.n_seen.shape)
     view, memory = recall(cfg, world, obs, memory)      # every step, after sense()

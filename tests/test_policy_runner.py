@@ -1,5 +1,6 @@
-"""docs/policy-file.md is complete: a runner written from it alone (examples/policy_runner.py, plain numpy) gives the
-coverage `ennc-ql eval` gives on the same policy file, trials and seed, and breaking one documented rule does not.
+"""docs/reference/policy-file.md is complete: a runner written from it alone (examples/policy_runner.py, plain numpy)
+gives the coverage `ennc-ql eval` gives on the same policy file, trials and seed, and breaking one documented rule does
+not.
 
 Seven small policies cover both decision modes and every frame of the moves: ENNC-QL option 2 on the shared8d state
 (collab6d's six numbers and the two shared flags; per-robot tables, a `scale`, `fixed` shared clock, compass moves),
@@ -109,9 +110,10 @@ def tolerance(a: np.ndarray, b: np.ndarray) -> float:
     The runner does not promise the project's random streams, so the two runs are treated as independent samples
     of TRIALS trials each: SE(mean_a − mean_b) = sqrt(s_a²/N + s_b²/N) with the sample standard deviations. Two
     correct simulators then differ by more than 3 SE with probability ≈ 0.3%; a run that shares the streams (as the
-    runner does: its trials start step for step as the project's, then may drift by float rounding, docs/policy-file.md;
-    0.1 point in the mean of 20 trials on make run's policy, 2026-12-04) only makes the check easier to pass. One
-    point is the floor, so that near-identical per-trial figures cannot make the bound vanish.
+    runner does: its trials start step for step as the project's, then may drift by float rounding,
+    docs/reference/policy-file.md; 0.1 point in the mean of 20 trials on make run's policy, 2026-12-04) only makes the
+    check easier to pass. One point is the floor, so that near-identical per-trial figures cannot make the bound
+    vanish.
     """
     se = float(np.sqrt(a.var(ddof=1) / a.size + b.var(ddof=1) / b.size))
     return max(3.0 * se, 1.0)

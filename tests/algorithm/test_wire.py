@@ -153,8 +153,9 @@ def test_the_protocols_constants_are_the_simulators() -> None:
 
 
 def test_the_formulation_names_docs_protocol_lists_are_the_registries() -> None:
-    """docs/protocol.md §4 lists the names a formulation may carry: exactly sim's registries, dimensions and moves."""
-    text = (Path(__file__).parents[2] / "docs" / "protocol.md").read_text()
+    """docs/reference/protocol.md §4 lists the names a formulation may carry: exactly sim's registries, dimensions and
+    moves."""
+    text = (Path(__file__).parents[2] / "docs" / "reference" / "protocol.md").read_text()
     table = text[text.index("### Formulation") : text.index("### `ack`")]
     rows = dict(re.findall(r"^\| `(\w+)`\s+\| (.+?) \|$", table, re.M))
     documented = {

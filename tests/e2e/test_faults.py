@@ -1,5 +1,5 @@
 """Faults at the worst moment, from outside: the learner SIGKILLed just after a checkpoint landed (the moment with
-the most unsaved state), then resumed; a poisoned message from a client written from docs/protocol.md alone.
+the most unsaved state), then resumed; a poisoned message from a client written from docs/reference/protocol.md alone.
 (Spoofing, router restarts, stopped and killed actors, unauthenticated peers and oversize messages are
 ``ennc-ql chaos``'s, tested in test_chaos.py.)
 
@@ -105,10 +105,10 @@ def test_learner_killed_just_after_a_checkpoint_resumes_exactly(cluster: Cluster
 
 
 def test_a_poisoned_message_is_rejected_and_its_stream_flows_on(cluster: Cluster, tmp_path: Path) -> None:
-    """A client written from docs/protocol.md alone (plain msgpack and zenoh, none of the project's protocol code)
-    sends seq 0, a batch with NaN rewards at seq 1 twice (a re-send), then seq 2, and reads the learner's Reject and
-    Ack; it also holds a liveliness token under an id that is not an identifier. One count per message: the
-    poisoned one rejected once and its copy a duplicate; the token refused and logged once, and never listed."""
+    """A client written from docs/reference/protocol.md alone (plain msgpack and zenoh, none of the project's protocol
+    code) sends seq 0, a batch with NaN rewards at seq 1 twice (a re-send), then seq 2, and reads the learner's Reject
+    and Ack; it also holds a liveliness token under an id that is not an identifier. One count per message: the poisoned
+    one rejected once and its copy a duplicate; the token refused and logged once, and never listed."""
     import msgpack
     import zenoh
 

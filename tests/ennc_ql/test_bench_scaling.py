@@ -23,7 +23,7 @@ def test_bench_broadcast_measures_each_size_and_its_bytes_grow_as_the_message_la
     small, large = out["rows"]
     assert (small["prototypes_per_action"], large["prototypes_per_action"]) == (10, 60)
     # Per prototype: its d float32 coordinates and float32 label, and a float32 Q value and uint32 visit count per
-    # robot (docs/protocol.md, PolicyUpdate); msgpack's bin headers may grow by a few bytes between the sizes.
+    # robot (docs/reference/protocol.md, PolicyUpdate); msgpack's bin headers may grow by a few bytes between the sizes.
     per_prototype = DIM * 4 + 4 + robots * (4 + 4)
     assert abs(large["bytes"] - small["bytes"] - 50 * N_ACTIONS * per_prototype) <= 4 * 6
     for row in out["rows"]:

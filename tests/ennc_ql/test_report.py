@@ -4,6 +4,7 @@ measured on the same trials and end with the next commands; ``learning_curve.png
 from __future__ import annotations
 
 import dataclasses
+import json
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -13,11 +14,23 @@ import pytest
 from matplotlib.image import imread
 
 from actors.config import ActorConfig
+from ennc_ql import report as written
 from ennc_ql.cli import build_parser
-from ennc_ql.report import learning_curve_figure, markdown_report, next_commands, terminal_summary, write_run_report
 from learner.config import LearnerConfig
+from learner.report import LearnerReport
 from sim.formulation import DEFAULT_FORMULATION, FORMULATIONS
-from tools.cluster import UP_PRESETS, UpConfig, child_configs, write_configs
+from tools.cluster import (
+    UP_PRESETS,
+    Interruption,
+    ProcessRun,
+    RecordingFigures,
+    Restart,
+    RunReport,
+    RunSummary,
+    UpConfig,
+    child_configs,
+    write_configs,
+)
 from tools.config import ConfigError, load_config
 
 # Levels no constant holds: the charts and tables must take them from the report.
@@ -55,6 +68,27 @@ FINAL_COMPARISON = {
         "learned_minus_se": 0.5,
     },
 }
+
+
+# The reports below are report.json as a launcher writes it; each is read back typed, as up's resume reads one.
+def write_run_report(report: dict[str, Any], run_dir: Path) -> tuple[Path, Path]:
+    return written.write_run_report(RunReport.from_dict(report), run_dir)
+
+
+def terminal_summary(report: dict[str, Any]) -> str:
+    return written.terminal_summary(RunReport.from_dict(report))
+
+
+def markdown_report(report: dict[str, Any]) -> str:
+    return written.markdown_report(RunReport.from_dict(report))
+
+
+def learning_curve_figure(report: dict[str, Any]) -> Any:
+    return written.learning_curve_figure(RunReport.from_dict(report))
+
+
+def next_commands(report: dict[str, Any]) -> list[tuple[str, str]]:
+    return written.next_commands(RunReport.from_dict(report))
 
 
 def run_report(run_dir: Path) -> dict[str, Any]:
@@ -428,7 +462,13 @@ def test_without_a_display_the_recording_is_served_to_a_browser_on_loopback(
 
 
 def test_a_resumed_run_keeps_its_interruptions_in_the_report_and_its_resumes_on_the_curve(tmp_path: Path) -> None:
-    first = {"signal": "SIGINT", "at_s": 27.4, "duration_s": 60.0, "resume": "ennc-ql up --resume x"}
+    first = {
+        "signal": "SIGINT",
+        "at_s": 27.4,
+        "duration_s": 60.0,
+        "learner": "finished",
+        "resume": "ennc-ql up --resume x",
+    }
     report = {
         **run_report(tmp_path),
         "interruptions": [first],
@@ -442,6 +482,46 @@ def test_a_resumed_run_keeps_its_interruptions_in_the_report_and_its_resumes_on_
     assert labels["resumed from the checkpoint"].get_xdata()[0] == 27.4
     assert "saved: the last policy, margin 0.5: 61.23 % (50 trials)" in labels
     # Stopped again after the resume: both stops, the last one not resumed (yet).
-    second = {"signal": "SIGTERM", "at_s": 50.0, "duration_s": 60.0, "resume": "ennc-ql up --resume x"}
+    second = {**first, "signal": "SIGTERM", "at_s": 50.0}
     text = write_run_report({**report, "interruptions": [first, second], "interrupted": second}, tmp_path)[0]
     assert "| interruptions | SIGINT at 27/60 s, then resumed; SIGTERM at 50/60 s |" in text.read_text()
+
+
+def test_the_launchers_figures_reach_report_json_typed_and_read_back_the_same(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """The learner's report and the launcher's summary become one typed RunReport on their way to report.json,
+    report.md and the terminal: what is printed is what is written, and it reads back to the same records."""
+    learner = LearnerReport.from_dict({**run_report(tmp_path), "policy_file": None})
+    run = ProcessRun(
+        "tcp/127.0.0.1:7447",
+        started=0.0,
+        restarts={"learner": 1, "actor-0": 2},
+        events=[Restart("learner", -9, ran_s=30.0, noticed_at=100.0, delay_s=1.0)],
+        actors_sent={"actor-0": {"incarnations": 3, "reported": 3, "tuples_sent": 10, "tuples_acked": 10}},
+        first_policy_s=12.5,
+        versions=[1, 2, 5],
+    )
+    stopped = Interruption("SIGTERM", 215.4, 480.0, "finished", "ennc-ql up --resume x", signals=1)
+    recording = RecordingFigures(str(tmp_path / "recording.rrd"), 10, ("x",), ("learner/coverage",), 5)
+    summary = RunSummary(
+        tmp_path, "ennc-ql up --config x", UpConfig(), True, 500.0, recording, run=run, interrupted=stopped
+    )
+    written.emit_run_report(learner, summary, as_json=True)
+    on_disk = json.loads((tmp_path / "report.json").read_text())
+    assert json.loads(capsys.readouterr().out) == on_disk
+    back = RunReport.from_dict(on_disk)
+    assert back.learner == learner and back.launch == summary.figures(learner)
+    assert back.report_md == str(tmp_path / "report.md") and back.policy_figure is None
+    assert on_disk["learner_restarts"] == [{"status": -9, "ran_s": 30.0, "delay_s": 1.0, "back_in_s": None}]
+    assert on_disk["actor_restarts"] == {"actor-0": 2} and on_disk["interruptions"] == [on_disk["interrupted"]]
+    assert on_disk["policy_versions"] == {"seen": 3, "first": 1, "last": 5, "increasing": True}
+    assert on_disk["config"] == {
+        "actors": 2,
+        "duration": 480.0,
+        "seed": 0,
+        "formulation": DEFAULT_FORMULATION,
+        "serial": False,
+        "secure": True,
+    }
+    assert "**Interrupted by SIGTERM at 215/480 s of training" in (tmp_path / "report.md").read_text()

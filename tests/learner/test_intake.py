@@ -32,7 +32,7 @@ def batch(seq: int, dim: int = 6, actor: str = "a") -> ExperienceBatch:
 
 
 def poisoned(seq: int, actor: str = "a") -> bytes:
-    """A batch with a NaN reward, as a client written from docs/protocol.md would send it: valid msgpack."""
+    """A batch with a NaN reward, as a client written from docs/reference/protocol.md would send it: valid msgpack."""
     envelope = msgpack.unpackb(encode(batch(seq)), raw=False)
     envelope[2]["reward"] = ["float32", [4], np.array([0, np.nan, 0, 0], np.float32).tobytes()]
     envelope[2]["actor_id"] = actor

@@ -1,5 +1,5 @@
-"""docs/protocol.md states the processes' defaults and the learner's status counters: each is checked against the
-code that owns it, so the document cannot drift from ``--help`` again."""
+"""docs/reference/protocol.md states the processes' defaults and the learner's status counters: each is checked against
+the code that owns it, so the document cannot drift from ``--help`` again."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from actors.config import ActorConfig
 from learner.config import LearnerConfig
 from learner.report import LearnerStatus
 
-DOC = (Path(__file__).parents[2] / "docs" / "protocol.md").read_text()
+DOC = (Path(__file__).parents[2] / "docs" / "reference" / "protocol.md").read_text()
 
 
 def defaults(config: type) -> dict[str, object]:
@@ -27,7 +27,8 @@ def test_every_flag_default_the_document_states_is_the_configuration_default() -
         owners = {owner: fields[name] for owner, fields in configs.items() if name in fields}
         assert owners, f"--{flag} is no field of {', '.join(configs)}"
         for owner, default in owners.items():
-            assert float(value) == default, f"docs/protocol.md says --{flag} = {value}, {owner} says {default}"
+            said = f"docs/reference/protocol.md says --{flag} = {value}, {owner} says {default}"
+            assert float(value) == default, said
         checked.add(flag)
     # What §5 states today; a rewording that stops matching the pattern would otherwise check nothing.
     assert {"checkpoint-interval", "broadcast-interval", "outbox-limit", "resend-after", "flush-timeout"} <= checked

@@ -335,7 +335,7 @@ def test_zenoh_drops_a_message_over_the_protocol_limit_while_reassembling_it() -
 def test_a_client_configured_from_docs_protocol_section_8_alone_delivers(
     secure_set: SecureSet, cluster: dict[str, zenoh.Session]
 ) -> None:
-    """The settings docs/protocol.md §8 lists for a client, written by hand (not secure init's file): its own
+    """The settings docs/reference/protocol.md §8 lists for a client, written by hand (not secure init's file): its own
     certificate, key and password, the CA, the router's TLS endpoint."""
     folder = secure_set.folder
     password = dict(line.split(":", 1) for line in (folder / "credentials.txt").read_text().splitlines())["actor-1"]

@@ -28,7 +28,7 @@ def test_random_is_far_below_a_cmommt(results: dict[str, float]) -> None:
 
 
 def test_local_lies_between_random_and_a_cmommt(results: dict[str, float]) -> None:
-    # The paper reports local below 50%; in cmommt-v1 it measures ≈56% (README discusses why).
+    # The paper reports local below 50%; in cmommt-v1 it measures ≈56% (docs/results.md discusses why).
     assert results["random"] + 20.0 <= results["local"] <= results["a-cmommt"]
 
 

@@ -32,7 +32,7 @@ def bench_policy(cfg: ScenarioConfig, arenas: int = 500, explore_trials: int = 2
     """A realistic phase-2 policy: ENNC-QL phase 1 (option 2, the learner's defaults) on random-exploration tuples.
 
     Two trials in 500 arenas give ≈ 180 k tuples and ≈ 150–300 prototypes per action, the size a ``make run``
-    policy has (see the README), so the nearest-prototype search costs what it costs in a real run.
+    policy has (docs/performance.md), so the nearest-prototype search costs what it costs in a real run.
     """
     paper = FORMULATIONS["paper"]
     explorer = ExperienceSlice(cfg, SliceConfig(paper, n_arenas=arenas), seed)

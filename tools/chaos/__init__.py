@@ -1,5 +1,6 @@
-"""The fault suite of ``ennc-ql chaos`` (:mod:`ennc_ql.chaos`). A real cluster of OS processes trains while faults
-are injected; the reliability contract of docs/protocol.md is then checked from outside and the figures are printed.
+"""The fault suite of ``ennc-ql chaos`` (:mod:`ennc_ql.chaos`). A real cluster of OS processes trains while faults are
+injected; the reliability contract of docs/reference/protocol.md is then checked from outside and the figures are
+printed.
 
 The cluster: ``ennc-ql router`` on a free loopback port, and the learner and N actors as its clients (so the router
 can be restarted under them). With ``--secure`` (the default) every process has its own certificate, password and

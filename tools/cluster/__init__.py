@@ -15,7 +15,8 @@ Usage::
 # The package, by role: config (UpConfig, up's presets, each child's configuration), serial (the serial topology),
 # processes (the process topology, its placement and its progress bar), children (child processes, their supervision),
 # endpoints (how each process joins a run: peer-to-peer or through a router, plain or secure), recording (Rerun),
-# launch (the processes to the learner's report, and the launcher's summary beside it: up and a SLURM job alike).
+# launch (the processes to the learner's report, and the launcher's summary beside it: up and a SLURM job alike),
+# report (report.json typed: the learner's report and the launcher's figures as one RunReport).
 
 from tools.cluster.children import ACTOR_NICENESS, Children, Restart, Supervisor, ennc_ql_argv, log_tail
 from tools.cluster.config import SET_BY_UP, UP_PRESETS, UpConfig, child_configs, write_configs
@@ -23,6 +24,7 @@ from tools.cluster.endpoints import Endpoints, make_endpoints
 from tools.cluster.launch import Finished, RunSummary, run_to_report
 from tools.cluster.processes import LaunchError, Placement, ProcessRun, cluster_status, run_processes
 from tools.cluster.recording import Monitoring
+from tools.cluster.report import Interruption, LaunchFigures, RecordingFigures, RunReport, SlurmFigures
 from tools.cluster.serial import run_serial
 
 __all__ = [
@@ -32,12 +34,17 @@ __all__ = [
     "Children",
     "Endpoints",
     "Finished",
+    "Interruption",
     "LaunchError",
+    "LaunchFigures",
     "Monitoring",
     "Placement",
     "ProcessRun",
+    "RecordingFigures",
     "Restart",
+    "RunReport",
     "RunSummary",
+    "SlurmFigures",
     "Supervisor",
     "UpConfig",
     "child_configs",

@@ -33,8 +33,8 @@ class UpConfig:
     seed: int = 0
     """Run seed, given to the learner and to every actor (each derives its own stream from it and its id)."""
     formulation: str = DEFAULT_FORMULATION
-    """State, reward, action set and test-time decision period of every process, by name (README "Formulation"):
-    the default is the best formulation of docs/learning-quality.md, paper the paper's. The actors' learning-trial
+    """State, reward, action set and test-time decision period of every process, by name: the
+    default is make run's (docs/concepts/learning.md says why), paper the paper's. The actors' learning-trial
     rules are the formulation's unless --actor-trial-rules names others."""
     max_restarts: int = 3
     """Times in a row a child that dies (the learner, an actor, the router) is started again, after 1, 2, 4 ... s,

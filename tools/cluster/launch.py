@@ -4,7 +4,7 @@ SLURM job's own side (``ennc-ql slurm run``)::
     done = run_to_report(learner, actors, run_dir, monitoring, namespace=f"run-{run_dir.name}", secure=True)
     summary = RunSummary(run_dir, "ennc-ql up --config runs/x/up.toml", config, secure=True, wall_seconds=480.2,
                          recording=done.recording, run=done.run)
-    report = done.report.with_extra(**summary.figures(done.report))    # report.json's launcher figures
+    report = RunReport(done.report, summary.figures(done.report))     # report.json, typed
 """
 
 from __future__ import annotations
@@ -14,7 +14,6 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from actors.config import ActorConfig
 from learner.config import LearnerConfig
@@ -22,6 +21,7 @@ from learner.report import LearnerReport
 from tools.cluster.config import UpConfig
 from tools.cluster.processes import Placement, ProcessRun, run_processes
 from tools.cluster.recording import Monitoring
+from tools.cluster.report import Interruption, LaunchFigures, RecordingFigures, RunSettings, SlurmFigures
 from tools.system import Interrupts
 
 REPORT = "report.json"
@@ -35,8 +35,8 @@ class Finished:
     """The report the learner wrote (None if it wrote none: killed, or stopped before it saved anything)."""
     run: ProcessRun
     """What the supervision saw."""
-    recording: dict[str, Any] | None
-    """The summary of the merged recording."""
+    recording: RecordingFigures | None
+    """The figures of the merged recording."""
 
 
 def run_to_report(
@@ -91,40 +91,31 @@ class RunSummary:
     config: UpConfig
     secure: bool
     wall_seconds: float
-    recording: dict[str, Any] | None
+    recording: RecordingFigures | None
     serial: bool = False
     run: ProcessRun | None = None
     """The supervision of the processes (none: one process, ``up --serial``)."""
-    slurm: dict[str, Any] | None = None
+    slurm: SlurmFigures | None = None
     """The job: its id, times requeued, nodes and where each process ran."""
-    interrupted: dict[str, Any] | None = None
+    interrupted: Interruption | None = None
     """The signal that stopped the run, when, and the command that continues it."""
-    earlier: tuple[dict[str, Any], ...] = ()
+    earlier: tuple[Interruption, ...] = ()
     """The interruptions of the run before this resume (from the report it replaces), oldest first."""
 
-    def figures(self, report: LearnerReport) -> dict[str, Any]:
-        """The summary as the report carries it (``report.json``'s keys beside the learner's)."""
-        out: dict[str, Any] = {
-            "run_id": self.run_dir.name,
-            "run_dir": str(self.run_dir),
-            "command": self.command,
-            "config": {
-                "actors": self.config.actors,
-                "duration": self.config.duration,
-                "seed": self.config.seed,
-                "formulation": self.config.formulation,
-                "serial": self.serial,
-                "secure": self.secure,
-            },
-            "wall_seconds": round(self.wall_seconds, 1),
-            "recording": self.recording,
-        }
-        if self.run is not None:
-            out.update(self.run.report_extra(report))
-        if self.slurm is not None:
-            out["slurm"] = self.slurm
-        if self.interrupted is not None:
-            out["interrupted"] = self.interrupted
-        if self.earlier or self.interrupted is not None:
-            out["interruptions"] = [*self.earlier, *([] if self.interrupted is None else [self.interrupted])]
-        return out
+    def figures(self, report: LearnerReport) -> LaunchFigures:
+        """The summary as the run report carries it, beside the learner's ``report``."""
+        config = self.config
+        return LaunchFigures(
+            run_id=self.run_dir.name,
+            run_dir=str(self.run_dir),
+            command=self.command,
+            config=RunSettings(
+                config.actors, config.duration, config.seed, config.formulation, self.serial, self.secure
+            ),
+            wall_seconds=round(self.wall_seconds, 1),
+            recording=self.recording,
+            supervision=None if self.run is None else self.run.supervision(report),
+            slurm=self.slurm,
+            interrupted=self.interrupted,
+            interruptions=(*self.earlier, *([] if self.interrupted is None else [self.interrupted])),
+        )

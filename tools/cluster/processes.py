@@ -2,7 +2,7 @@
 started from their configuration files in the run folder, watched and supervised until the learner is done::
 
     run = run_processes(learner, actors, run_dir, monitoring, namespace="run-x", secure=False)
-    report = report.with_extra(**run.report_extra(report))   # endpoint, restarts, what the actors sent, ...
+    run.supervision(report)                                   # endpoint, restarts, what the actors sent, ...
 
 Every child is supervised: an actor or the router that dies is started again, and so is the learner, with
 ``--resume auto`` (it continues from its checkpoint); a child failing ``max_restarts`` times in a row is given up,
@@ -16,6 +16,7 @@ Where each child runs is a :class:`Placement`: this machine (``up``), or a node 
 
 from __future__ import annotations
 
+import itertools
 import json
 import logging
 import signal
@@ -33,6 +34,7 @@ from protocol.security import OBSERVER, ROUTER
 from tools.cluster.children import ACTOR_NICENESS, Children, Restart, Supervisor, ennc_ql_argv, log_tail
 from tools.cluster.endpoints import LOOPBACK, Endpoints, make_endpoints
 from tools.cluster.recording import Monitoring
+from tools.cluster.report import LearnerRestart, PolicyVersions, Supervision
 from tools.progress import ProgressBar
 from tools.system import Interrupts
 
@@ -85,35 +87,30 @@ class ProcessRun:
     versions: list[int]
     """Every policy version seen on the wire, in arrival order."""
 
-    def report_extra(self, report: LearnerReport) -> dict[str, Any]:
-        """The figures a launcher adds to the learner's report: the restarts of the learner (each with the seconds
-        from its end being noticed to the resumed learner's first broadcast) and of the other children, what each
-        actor sent, when the first policy came and whether the versions seen only increased."""
-        resumes = [r for r in report.resumes if r.get("wall_time", 0.0) >= self.started]
-        learner: list[dict[str, Any]] = []
+    def supervision(self, report: LearnerReport) -> Supervision:
+        """What the supervision adds to the learner's report: the restarts of the learner (each with the seconds from
+        its end being noticed to the resumed learner's first broadcast) and of the other children, what each actor
+        sent, when the first policy came and whether the versions seen only increased."""
+        resumes: list[dict[str, Any]] = [r for r in report.resumes if r.get("wall_time", 0.0) >= self.started]
+        learner: list[LearnerRestart] = []
         for i, event in enumerate(e for e in self.events if e.name == LEARNER):
             back = resumes[i]["wall_time"] - event.noticed_at if i < len(resumes) else None
-            learner.append(
-                {
-                    "status": event.status,
-                    "ran_s": event.ran_s,
-                    "delay_s": event.delay_s,
-                    "back_in_s": None if back is None else round(back, 2),
-                }
-            )
-        return {
-            "endpoint": self.endpoint,
-            "actor_restarts": {name: n for name, n in self.restarts.items() if name != LEARNER},
-            "learner_restarts": learner,
-            "actors_sent": self.actors_sent,
-            "first_policy_s": self.first_policy_s,
-            "policy_versions": {
-                "seen": len(self.versions),
-                "first": self.versions[0] if self.versions else None,
-                "last": self.versions[-1] if self.versions else None,
-                "increasing": all(a < b for a, b in zip(self.versions, self.versions[1:], strict=False)),
-            },
-        }
+            back_in = None if back is None else round(back, 2)
+            learner.append(LearnerRestart(event.status, event.ran_s, event.delay_s, back_in))
+        versions = self.versions
+        return Supervision(
+            endpoint=self.endpoint,
+            actor_restarts={name: n for name, n in self.restarts.items() if name != LEARNER},
+            learner_restarts=tuple(learner),
+            actors_sent=self.actors_sent,
+            first_policy_s=self.first_policy_s,
+            policy_versions=PolicyVersions(
+                seen=len(versions),
+                first=versions[0] if versions else None,
+                last=versions[-1] if versions else None,
+                increasing=all(a < b for a, b in itertools.pairwise(versions)),
+            ),
+        )
 
 
 def run_processes(

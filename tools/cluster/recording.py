@@ -5,7 +5,7 @@ from the children's part files at the end::
     argv += monitoring.child_args("learner-0")    # --rerun save runs/x/rerun/learner-0.rrd --recording-id x
     argv += monitoring.child_args("actor-0", relay=True)   # --rerun learner: the learner logs its rows
     monitoring.start()                            # a viewer (spawn) or a proxy (serve), if asked for
-    summary = monitoring.finish()                 # save: the parts merged into recording.rrd, summarised
+    figures = monitoring.finish()                 # save: the parts merged into recording.rrd, its figures
 """
 
 from __future__ import annotations
@@ -13,10 +13,10 @@ from __future__ import annotations
 import logging
 import subprocess
 from pathlib import Path
-from typing import Any
 
 from monitor import Monitor, RecordingError, Sink, merge_recordings, open_monitor, paths, summarize_recording
 from monitor.recordings import rerun_cli
+from tools.cluster.report import RecordingFigures
 
 log = logging.getLogger(__name__)
 
@@ -64,7 +64,7 @@ class Monitoring:
             target = str(self.sink.target) if kind == "connect" else VIEWER_URL
         return ["--rerun", "save" if kind == "save" else "connect", target, "--recording-id", self.run_id]
 
-    def finish(self) -> dict[str, Any] | None:
+    def finish(self) -> RecordingFigures | None:
         """Merge the part files (``save``) and summarise the recording; stop what ``start`` started."""
         if self.viewer is not None:
             self.viewer.close()
@@ -89,4 +89,10 @@ class Monitoring:
         for part in parts:  # all of it is in the merged recording now
             part.unlink()
         (self.run_dir / "rerun").rmdir()
-        return {k: summary[k] for k in ("path", "size_bytes", "recording_ids", "entity_paths", "rows")}
+        return RecordingFigures(
+            str(summary["path"]),
+            int(summary["size_bytes"]),
+            tuple(summary["recording_ids"]),
+            tuple(summary["entity_paths"]),
+            int(summary["rows"]),
+        )

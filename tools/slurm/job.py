@@ -23,11 +23,19 @@ import sys
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from learner.report import LearnerReport
 from monitor import Sink, paths
-from tools.cluster import LaunchError, Monitoring, ProcessRun, UpConfig, child_configs, run_to_report, write_configs
+from tools.cluster import (
+    LaunchError,
+    Monitoring,
+    ProcessRun,
+    RecordingFigures,
+    UpConfig,
+    child_configs,
+    run_to_report,
+    write_configs,
+)
 from tools.config import dump_config, load_config
 from tools.slurm.allocation import Allocation, SlurmPlacement
 from tools.slurm.sbatch import SBATCH_FIELD
@@ -132,7 +140,7 @@ class JobRun:
     run: ProcessRun
     allocation: Allocation
     placement: SlurmPlacement
-    recording: dict[str, Any] | None
+    recording: RecordingFigures | None
 
 
 def run_training_job(run_dir: Path, stop: threading.Event) -> JobRun:
