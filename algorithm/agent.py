@@ -15,7 +15,6 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 
@@ -46,20 +45,6 @@ class Phase2Config:
     carry a payoff that comes decisions later (a search's) back to the move that started it without bootstrapping
     through every aliased cell between]."""
 
-    consistent: bool = False
-    """Where s′ falls in the cell of (s, a) itself (a robot still in the situation it acted in), the target
-    bootstraps from that cell's own value, Q(s′, a), instead of max_b Q(s′, b): the action is taken to persist while
-    the robot stays in its cell, as a policy that decides every step on a cell does [beyond the paper: Bellemare et
-    al. 2016's consistent Bellman operator, whose fixed point ranks the actions of an aggregated state correctly where
-    the max through the same cell lets an inferior action borrow the best one's value]."""
-
-    targets: Literal["max", "law"] = "max"
-    """``max``: Eq. 1, Q-learning of the greedy policy [paper]. ``law`` (a law action set's): the target bootstraps
-    from the move ``law``'s value at s′, Q(s′, law), and a learner's greedy choice is ``law`` (ε-exploration departs
-    from it): phase 2 then evaluates the hand-made law, each departure's value being that of one departure followed
-    by the law, a fixed point that more experience only estimates better, and a policy that departs where a
-    departure beats ``law`` is one step of policy improvement over the law [beyond the paper]."""
-
     def __post_init__(self) -> None:
         if not 0.0 < self.alpha <= 1.0:
             raise ValueError(f"alpha must lie in (0, 1], got {self.alpha}")
@@ -71,20 +56,12 @@ class Phase2Config:
             raise ValueError(f"epsilon must lie in [0, 1], got {self.epsilon}")
         if self.n_step < 1:
             raise ValueError(f"n_step must be at least 1, got {self.n_step}")
-        if self.consistent and self.n_step > 1:
-            raise ValueError("consistent targets are one-step targets: n_step must be 1")
-        if self.targets not in ("max", "law"):
-            raise ValueError(f"targets must be max or law, got {self.targets!r}")
-        if self.consistent and self.targets == "law":
-            raise ValueError("consistent targets bootstrap from a max: targets must be max")
 
 
 class TabularAgent:
     """Owns mutable Q tables (R, Σ P_a) and visit counts; robot i reads and writes row ``robot_table[i]``."""
 
     def __init__(self, policy: Policy, config: Phase2Config) -> None:
-        if config.targets == "law" and policy.formulation.actions.law is None:
-            raise ValueError(f"law targets need a law action set, not {policy.formulation.actions.name!r}")
         self.template = policy
         self.config = config
         self.tables = policy.tables.astype(np.float64, copy=True)
@@ -101,10 +78,7 @@ class TabularAgent:
 
     def act(self, robots: np.ndarray, cells: np.ndarray, rng: np.random.Generator, explore: bool) -> np.ndarray:
         """(N,) greedy actions on each robot's table; with ``explore`` a fraction ε is replaced by random ones."""
-        if self.config.targets == "law":
-            actions = np.zeros(robots.size, np.int64)
-        else:
-            actions = row_best(self.tables, self.template.rows(robots), cells)[1]
+        actions = row_best(self.tables, self.template.rows(robots), cells)[1]
         return self.explore(actions, rng) if explore else actions
 
     def explore(
@@ -148,11 +122,7 @@ class TabularAgent:
             return
         rows = self.template.rows(robots)
         size = self.tables.shape[1]
-        bootstrap = self.bootstrap(rows, next_cells)
-        if self.config.consistent:
-            same = (np.asarray(next_cells) == np.asarray(cell_sa)[:, None]).any(axis=1)
-            bootstrap = np.where(same, self.tables[rows, cell_sa], bootstrap)
-        targets = q_targets(bootstrap, rewards, dones, self.config.gamma)
+        targets = q_targets(row_best(self.tables, rows, next_cells)[0], rewards, dones, self.config.gamma)
         q_update(
             self.tables.reshape(-1),
             self.visits.reshape(-1),
@@ -161,12 +131,6 @@ class TabularAgent:
             self.config.alpha,
             self.config.alpha_floor,
         )
-
-    def bootstrap(self, rows: np.ndarray, next_cells: np.ndarray) -> np.ndarray:
-        """(N,) the value a target bootstraps from at s′: max_b Q(s′, b), or with law targets Q(s′, law)."""
-        if self.config.targets == "law":
-            return self.tables[rows, np.asarray(next_cells)[:, 0]]
-        return row_best(self.tables, rows, next_cells)[0]
 
     def returns(self, n_rows: int) -> NStepReturns | None:
         """The unfinished n-step targets of a learning trial of ``n_rows`` robots (arenas × robots); None with
@@ -226,7 +190,7 @@ class NStepReturns:
             np.asarray(trial_rows, np.int64),
             rows * size + np.asarray(cell_sa, np.int64),
             np.asarray(rewards, np.float64),
-            agent.bootstrap(rows, next_cells).astype(np.float64),
+            row_best(agent.tables, rows, next_cells)[0].astype(np.float64),
             np.asarray(ends, bool),
             np.asarray(dones, bool),
             agent.config.gamma,

@@ -241,9 +241,6 @@ FORMULATIONS: dict[str, Formulation] = {
     "frame-recall-split": Formulation.of(
         "frame11d-recall", "coverage-split", "law-track", act_every=1, trial_rules="guided-search"
     ),
-    "frame-recall-difference": Formulation.of(
-        "frame11d-recall", "difference-decision", "law-track", act_every=1, trial_rules="guided-search"
-    ),
 }
 """Every formulation by name; each one's measurements are the entry of docs/notebook.md named after it: ``paper``
 is the paper's collaborative formulation [paper §4, Eq. 2]; ``shared-difference`` the best with the world-frame
@@ -264,10 +261,7 @@ the paper; "2026-12-04: leaving a crowd along the search heading"]; ``frame-reca
 ``law-track`` moves, whose search heading follows the law's pull, so that ``law`` is the hand-made law's own move
 everywhere, its search included [beyond the paper; "2026-12-05: the law's own search as a learned move"];
 ``frame-recall-split`` the same paid ``coverage-split``, whose team total is metric A's summand at every step [beyond
-the paper; "2026-12-07: one saved policy, the reward that misranks, the split reward"]; ``frame-recall-difference``
-the same paid ``difference-decision``, the targets only this robot sees with no charge for redundancy: a robot's own
-change of move changes it exactly as it changes the team's coverage [beyond the paper; the notebook's "2026-12-07:
-experience that does not pay"]."""
+the paper; "2026-12-07: one saved policy, the reward that misranks, the split reward"]."""
 DEFAULT_FORMULATION = "frame-recall-track"
 """The formulation of every process (``up``, ``learner``, ``actor``, compose's) unless another is named."""
 

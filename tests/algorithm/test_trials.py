@@ -101,61 +101,6 @@ def test_phase2_learns_that_moving_away_from_a_lone_target_loses_it() -> None:
     assert agent.visits.sum() > 0
 
 
-@pytest.mark.parametrize("consistent", [False, True])
-def test_consistent_targets_bootstrap_from_the_cell_itself_where_the_robot_stays_in_it(consistent: bool) -> None:
-    # One cell per action; action 1's is worth 10. A tuple of action 0 whose s' falls in action 0's own cell: the max
-    # would lend it action 1's 10, the consistent target keeps its own value (0); a tuple whose s' leaves the cell
-    # (another cell of action 0's) bootstraps from the max either way.
-    protos = [np.array([[0.0, 0.0], [140.0, 0.0]])] * 8
-    disc = Discretization.from_per_action(protos)
-    tables = np.zeros((1, disc.size), np.float32)
-    stay, leave = disc.offsets[:-1], disc.offsets[:-1] + 1  # each action's first and second cell
-    tables[0, stay[1]] = 10.0
-    agent = TabularAgent(
-        Policy(LOCAL, disc, tables, np.zeros(1, np.int64)), Phase2Config(alpha=1.0, gamma=0.5, consistent=consistent)
-    )
-    robots = np.zeros(2, np.int64)
-    agent.update(robots[:1], np.array([stay[0]]), stay[None, :], np.array([1.0]), np.array([False]))
-    assert agent.tables[0, stay[0]] == (1.0 if consistent else 1.0 + 0.5 * 10.0)
-    agent.update(robots[:1], np.array([leave[0]]), stay[None, :], np.array([1.0]), np.array([False]))
-    assert agent.tables[0, leave[0]] == 1.0 + 0.5 * 10.0
-
-
-def test_consistent_targets_are_one_step_targets() -> None:
-    with pytest.raises(ValueError, match="n_step must be 1"):
-        Phase2Config(consistent=True, n_step=3)
-
-
-def test_law_targets_evaluate_the_law_and_learners_take_it_unless_they_explore() -> None:
-    # One cell per action on the law moves; action 3's is worth 10, the law's 2. A law target bootstraps from the
-    # law's value at s' (2), never from the best (10); greedy learners take the law whatever the values say.
-    law_set = FORMULATIONS["frame-recall-split"]
-    dim = law_set.dim
-    disc = Discretization.from_per_action([np.zeros((1, dim))] * 8)
-    tables = np.zeros((1, disc.size), np.float32)
-    cell = disc.offsets[:-1]
-    tables[0, cell[3]], tables[0, cell[0]] = 10.0, 2.0
-    policy = Policy(law_set, disc, tables, np.zeros(1, np.int64))
-    agent = TabularAgent(policy, Phase2Config(alpha=1.0, gamma=0.5, epsilon=0.5, targets="law"))
-    agent.update(np.zeros(1, np.int64), np.array([cell[5]]), cell[None, :], np.array([1.0]), np.array([False]))
-    assert agent.tables[0, cell[5]] == 1.0 + 0.5 * 2.0
-    robots, cells = np.zeros(400, np.int64), np.broadcast_to(cell, (400, 8))
-    rng = np.random.default_rng(0)
-    assert not agent.act(robots, cells, rng, explore=False).any()
-    explored = agent.act(robots, cells, rng, explore=True)
-    assert 0.3 < (explored != 0).mean() < 0.6  # ε = 0.5 of uniform moves, 1/8 of them the law again
-    with pytest.raises(ValueError, match="law action set"):
-        TabularAgent(
-            Policy(
-                LOCAL,
-                Discretization.from_per_action([np.zeros((1, 2))] * 8),
-                np.zeros((1, 8), np.float32),
-                np.zeros(1, np.int64),
-            ),
-            Phase2Config(targets="law"),
-        )
-
-
 def test_n_step_targets_apply_every_tuple_by_the_trials_end_and_learn_other_values() -> None:
     cfg = scenario(n_robots=2)
     protos = [np.array([[0.0, 0.0], [140.0, 0.0], [-140.0, 0.0]])] * 8
