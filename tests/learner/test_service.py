@@ -59,9 +59,9 @@ def test_serial_learner_and_actor_exchange_experience_and_policies(tmp_path: Pat
         # The wind-down (here a final evaluation made 3 s slower) is no training: the run clock stops with training.
         final, stopped_at = service.evaluator.final, []
 
-        def slow_final(policy: Any) -> float:
+        def slow_final(policy: Any, *args: Any) -> float:
             time.sleep(3.0)
-            return final(policy)
+            return final(policy, *args)
 
         def done() -> bool:
             if service.state.increments >= 3 and len(versions) >= 2:
