@@ -12,9 +12,10 @@ import socket
 from dataclasses import dataclass, field
 
 from algorithm.agent import Phase2Config
-from algorithm.checks import require_at_least, require_id, require_known, require_positive
+from algorithm.checks import require_at_least, require_at_most, require_id, require_known, require_positive
 from sim import SCENARIOS
 from sim.formulation import DEFAULT_FORMULATION, Formulation, resolve_formulation
+from sim.world import MAX_ARENAS
 
 
 def parse_robots(text: str) -> tuple[int, ...]:
@@ -75,7 +76,7 @@ class ActorConfig:
     learn: tuple[int, ...] | None = field(default=None, metadata={"parse": parse_robots})
     """Robot ids whose tables this actor learns (and whose tuples it streams), e.g. 0-4,7; None = every robot."""
     arenas: int = 256
-    """Arenas simulated side by side; every arena holds all m robots."""
+    """Arenas simulated side by side, at most 100 000 (sim.world.MAX_ARENAS); every arena holds all m robots."""
     seed: int = 0
     """Run seed; the actor's random stream is derived from (seed, actor id), so no two actors share one."""
     batch_size: int = 16384
@@ -117,6 +118,7 @@ class ActorConfig:
             outbox_limit=self.outbox_limit,
             draw_every=self.draw_every,
         )
+        require_at_most(MAX_ARENAS, arenas=self.arenas)
         require_positive(
             learning_steps=self.learning_steps,
             resend_after=self.resend_after,

@@ -33,6 +33,12 @@ def require_at_least(lo: int, **values: int) -> None:
             raise ValueError(f"{name} must be at least {lo}, got {value}")
 
 
+def require_at_most(hi: int, **values: int) -> None:
+    for name, value in values.items():
+        if value > hi:
+            raise ValueError(f"{name} must be at most {hi}, got {value}")
+
+
 def require_positive(**values: float | None) -> None:
     """Every value > 0 (None, where a field allows it, is not checked)."""
     for name, value in values.items():

@@ -10,10 +10,11 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 
-from algorithm.checks import require_at_least, require_id, require_known, require_positive
+from algorithm.checks import require_at_least, require_at_most, require_id, require_known, require_positive
 from algorithm.phase1 import CMOMMT_PHASE1, Phase1Config
 from sim import SCENARIOS
 from sim.formulation import DEFAULT_FORMULATION, Formulation, resolve_formulation
+from sim.world import MAX_ARENAS
 
 LEARNER_PHASE1 = dataclasses.replace(CMOMMT_PHASE1, max_iterations=2, n_cycles=60, seed_prototypes=512, cells="union")
 """The learner's phase 1 [beyond the paper; docs/concepts/learning.md]: ENNC starts from 512 of each action's
@@ -116,6 +117,13 @@ class LearnerConfig:
             duration=self.duration,
         )
         require_at_least(0, threads=self.threads, seed=self.seed)
+        # Each figure's trials run side by side, as arenas of one batch.
+        require_at_most(
+            MAX_ARENAS,
+            eval_trials=self.eval_trials,
+            final_eval_trials=self.final_eval_trials,
+            margin_trials=self.margin_trials,
+        )
         if self.law_margin is not None and not (math.isfinite(self.law_margin) and self.law_margin >= 0):
             raise ValueError(f"law_margin must be none or a finite number >= 0, got {self.law_margin}")
         if self.refit_growth != 0 and not self.refit_growth > 1:
