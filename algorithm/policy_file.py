@@ -173,7 +173,45 @@ def load_policy(path: str | os.PathLike[str]) -> tuple[Policy, dict[str, Any]]:
         )
     except (KeyError, TypeError, ValueError) as exc:
         raise PolicyFileError(f"{path}: inconsistent policy file ({exc})") from exc
+    problem = non_finite(arrays, policy.robot_table)
+    if problem:
+        raise PolicyFileError(f"{path}: {problem}; a policy acts on finite values only")
     return policy, header
+
+
+FLOATS = ("tables", "prototypes", "labels", "scale")
+"""A policy's arrays of real numbers, in a policy file and in a learner's checkpoint."""
+
+
+def non_finite(arrays: dict[str, np.ndarray], robot_table: np.ndarray | None = None) -> str | None:
+    """What holds a NaN or an infinite value among a policy's real arrays (:data:`FLOATS`), or None. A Q table names
+    its robots where ``robot_table`` (robot -> table row) is known: an argmax over a NaN picks a move at random.
+
+    >>> non_finite({"tables": np.array([[0.0, 1.0], [np.nan, 2.0]])}, robot_table=np.array([0, 1, 1]))
+    'the Q table of robots 1-2 holds NaN (1 of 2 values)'
+    """
+    for name in FLOATS:
+        values = arrays.get(name)
+        if values is None or np.isfinite(values).all():
+            continue
+        bad = ~np.isfinite(values)
+        what = "NaN" if np.isnan(values).any() else "infinity"
+        if name != "tables":
+            return f"its array {name} holds {what} ({int(bad.sum())} of {values.size} values)"
+        row = int(np.flatnonzero(bad.any(axis=1))[0])
+        robots = [] if robot_table is None else np.flatnonzero(robot_table == row).tolist()
+        table = f"the Q table of {_robots(robots)}" if robots else f"Q table {row}"
+        return f"{table} holds {what} ({int(bad[row].sum())} of {values.shape[1]} values)"
+    return None
+
+
+def _robots(robots: list[int]) -> str:
+    """``robot 3``, ``robots 0-9`` or ``robots 1, 4``."""
+    if len(robots) == 1:
+        return f"robot {robots[0]}"
+    if robots == list(range(robots[0], robots[-1] + 1)):
+        return f"robots {robots[0]}-{robots[-1]}"
+    return f"robots {', '.join(map(str, robots))}"
 
 
 def scenario_from_header(header: dict[str, Any]) -> ScenarioConfig:

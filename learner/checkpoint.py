@@ -7,7 +7,8 @@ Usage::
 
     checkpointer = Checkpointer(run_dir)
     checkpointer.save(arrays, meta)          # arrays of the intake and policy state, JSON-able meta
-    arrays, meta = checkpointer.load()       # raises CheckpointError if there is none or it is unreadable
+    arrays, meta = checkpointer.load()       # raises CheckpointError if there is none, it is unreadable or not finite
+    policy_problem(run_dir / "checkpoint.npz")  # None, or what makes its policy unusable (a NaN in a Q table)
     mark = VersionMark(run_dir)
     mark.record(7)                           # before version 7 goes out
     mark.load()                              # 7 (0 when no version was ever broadcast)
@@ -24,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from algorithm.files import save_npz_atomic, write_atomic
+from algorithm.policy_file import FLOATS, non_finite
 
 CHECKPOINT = "checkpoint.npz"
 VERSION_MARK = "policy-version.json"
@@ -50,7 +52,21 @@ class Checkpointer:
             meta: dict[str, Any] = json.loads(arrays.pop("meta").tobytes().decode())
         except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
             raise CheckpointError(f"--resume: unreadable checkpoint {self.path}: {exc}") from None
+        problem = non_finite(arrays)
+        if problem:
+            raise CheckpointError(f"--resume: {self.path}: {problem}; a run cannot continue from it")
         return arrays, meta
+
+
+def policy_problem(path: Path) -> str | None:
+    """What makes the policy a checkpoint holds unusable (:func:`~algorithm.policy_file.non_finite`), or None; read
+    without the rest of the checkpoint (its store of experience may take hundreds of MB). A checkpoint that cannot be
+    read at all is :meth:`Checkpointer.load`'s to report."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return non_finite({name: data[name] for name in FLOATS if name in data.files})
+    except (OSError, ValueError, zipfile.BadZipFile):
+        return None
 
 
 def kept_visits(path: Path) -> tuple[int, int]:

@@ -10,7 +10,15 @@ import pytest
 
 @pytest.mark.parametrize(
     "module",
-    ["algorithm.qtable", "algorithm.checks", "actors.config", "protocol.zenoh_transport", "tools.chaos.options"],
+    [
+        "algorithm.qtable",
+        "algorithm.checks",
+        "algorithm.policy_file",
+        "actors.config",
+        "protocol.zenoh_transport",
+        "tools.chaos.options",
+        "tools.config",
+    ],
 )
 def test_documentation_examples_run(module: str) -> None:
     result = doctest.testmod(importlib.import_module(module))

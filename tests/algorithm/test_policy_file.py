@@ -141,6 +141,35 @@ def test_bad_files_get_a_clear_error(tmp_path: Path) -> None:
         load_policy(tmp_path / "partial.npz")
 
 
+@pytest.mark.parametrize(
+    ("array", "value", "message"),
+    [
+        (
+            "tables",
+            np.nan,
+            r": the Q table of robot 4 holds NaN \(1 of \d+ values\); a policy acts on finite values only$",
+        ),
+        ("tables", -np.inf, r": the Q table of robot 4 holds infinity \(1 of \d+ values\)"),
+        # The discretization refuses its own as it is built.
+        ("prototypes", np.inf, r": inconsistent policy file \(prototypes and labels must be finite\)$"),
+        ("labels", np.nan, r": inconsistent policy file \(prototypes and labels must be finite\)$"),
+        ("scale", np.nan, r": inconsistent policy file \(scale must be a positive finite \(6,\) array\)$"),
+    ],
+)
+def test_a_file_whose_arrays_are_not_finite_is_refused_naming_them(
+    tmp_path: Path, array: str, value: float, message: str
+) -> None:
+    """An argmax over a NaN picks a move at random, and a distance to an infinite prototype is no distance: a file
+    holding one is refused as it is read, wherever it is read (eval, bench actor, a sweep's task)."""
+    path = save_policy(make_policy(np.random.default_rng(0)), scenario(), tmp_path / "p.npz")
+    with np.load(path) as data:
+        arrays = {k: data[k] for k in data.files}
+    arrays[array][(4, 1) if array == "tables" else 0] = value  # robot 4's own table: one row per robot
+    np.savez(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(PolicyFileError, match=message):
+        load_policy(tmp_path / "bad.npz")
+
+
 def test_greedy_uses_each_robots_own_table() -> None:
     disc = Discretization.from_per_action([np.zeros((1, 2))] * 8)
     tables = np.zeros((2, 8), np.float32)
