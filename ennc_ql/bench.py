@@ -15,7 +15,8 @@ from ennc_ql.command import emit, fail
 from ennc_ql.parser import CommandHelp, add_command, add_commands
 from monitor import add_rerun_args, open_monitor, sink_from_args
 from sim import FORMULATIONS, SCENARIOS
-from tools.config import non_negative, positive
+from sim.world import MAX_ARENAS
+from tools.config import file_path, non_negative, positive
 
 Figures = tuple[dict[str, Any], str]
 """A benchmark's figures and the table that shows them."""
@@ -208,9 +209,14 @@ def add_bench_parser(sub: Any) -> None:
     parsers["actor"].add_argument(
         "--seconds", type=positive(float), default=1.5, help="measuring time of each phase of a round"
     )
-    parsers["actor"].add_argument("--arenas", type=positive(int), default=500, help="arenas of the slice, as up's")
     parsers["actor"].add_argument(
-        "--policy", help="a policy file to act on (default: learn one by phase 1 on exploration)"
+        "--arenas",
+        type=positive(int, most=MAX_ARENAS, why=" (arenas run side by side, about 12 KB each)"),
+        default=500,
+        help="arenas of the slice, as up's",
+    )
+    parsers["actor"].add_argument(
+        "--policy", type=file_path, help="a policy file to act on (default: learn one by phase 1 on exploration)"
     )
     parsers["actor"].add_argument(
         "--formulation",

@@ -14,7 +14,7 @@ from types import FrameType
 from typing import Any
 
 from ennc_ql.command import configure, fail, registry_choices, writable_dir
-from ennc_ql.parser import CommandHelp, add_command
+from ennc_ql.parser import CommandHelp, add_command, say
 from protocol import check_id
 from tools.chaos.checks import results_table
 from tools.chaos.network import NetworkError, unavailable
@@ -32,7 +32,7 @@ from tools.chaos.options import (
 )
 from tools.chaos.run import Chaos
 from tools.cluster import SET_BY_UP, UP_PRESETS, UpConfig
-from tools.config import add_config_flags, folder, positive
+from tools.config import add_config_flags, file_path, folder, positive
 
 LEARNER_EXTRA_S = 3600.0
 """The learner's own duration is chaos's plus this: chaos ends it by SIGTERM once the actors drained, never the
@@ -88,7 +88,7 @@ def cmd_chaos(args: argparse.Namespace) -> int:
         print(f"ennc-ql chaos: the cluster did not start: {exc}; see the logs in {run_dir}", file=sys.stderr)
         return 1
     (run_dir / "chaos.json").write_text(json.dumps(out, indent=2))
-    print(json.dumps(out) if args.json else results_table(out))
+    say(json.dumps(out) if args.json else results_table(out))
     return 0 if out["passed"] else 1
 
 
@@ -166,6 +166,7 @@ def add_chaos_parser(sub: Any) -> None:
     p.add_argument("--run-id", metavar="ID", help="run folder name (default: chaos-<start time>)")
     p.add_argument(
         "--config",
+        type=file_path,
         metavar="FILE",
         help="TOML file of the cluster's configuration, e.g. a run's up.toml (default: none)",
     )

@@ -17,7 +17,7 @@ from collections.abc import Sequence
 from importlib.metadata import PackageNotFoundError, version
 
 from ennc_ql.command import check_recording
-from ennc_ql.parser import PROG, CommandParser, add_commands, wrap
+from ennc_ql.parser import PROG, CommandParser, OutputError, add_commands, flush_out, wrap
 from ennc_ql.router import add_router_parser
 from tools.allocator import keep_freed_memory
 from tools.system import die_with_parent
@@ -107,12 +107,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             return _main(argv)
         finally:
-            sys.stdout.flush()  # here, where a closed pipe can still be answered, not at the interpreter's exit
+            flush_out()  # here, where a closed pipe or a full disk can still be answered, not at the interpreter's exit
     except BrokenPipeError:
         # The reader is gone (ennc-ql eval ... | head -1): nothing more to say to it. The shell's status of a
         # process ended by SIGPIPE, and nothing left for the interpreter to flush at exit.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 128 + signal.SIGPIPE
+    except OutputError as exc:  # before a command ran (a help page, the version) or at the last flush
+        return _output_failed(exc.prog or PROG, exc)
+
+
+def _output_failed(prog: str, exc: OutputError) -> int:
+    # Exit status 1, as coreutils answer ``> /dev/full``: the command's input was fine, the machine refused.
+    print(f"{prog}: error: cannot write to standard output ({exc})", file=sys.stderr)
+    return 1
 
 
 def _main(argv: Sequence[str] | None) -> int:
@@ -136,6 +144,8 @@ def _main(argv: Sequence[str] | None) -> int:
         return 130
     except BrokenPipeError:
         raise
+    except OutputError as exc:
+        return _output_failed(prog, exc)
     except Exception as exc:
         if args.verbose:
             raise

@@ -17,10 +17,11 @@ from typing import Any, NoReturn
 
 import zenoh
 
+from ennc_ql.parser import say
 from monitor import Sink, add_rerun_args
 from monitor.sinks import serve_problem, spawn_problem
 from protocol import ZenohTransport, add_connection_args, config_from_args, keys_from_args
-from tools.config import ConfigError, add_config_flags, load_config
+from tools.config import ConfigError, add_config_flags, file_path, load_config, too_long
 from tools.config_fields import UnknownKey, nested_fields
 
 _RUST_SOURCE = re.compile(r"\s+at /\S+\.rs:\d+\.?")
@@ -38,7 +39,7 @@ def fail(command: str, message: str) -> NoReturn:
 
 def emit(result: dict[str, Any], as_json: bool, table: str) -> None:
     """The command's result: ``table`` for a person, or exactly one JSON object (``--json``)."""
-    print(json.dumps(result) if as_json else table)
+    say(json.dumps(result) if as_json else table)
 
 
 def configure(cls: type[Any], args: argparse.Namespace, command: str, defaults: dict[str, Any] | None = None) -> Any:
@@ -94,6 +95,19 @@ def wrong_role(cls: type[Any], file: Path, exc: UnknownKey) -> str:
     return str(exc)
 
 
+def check_file(path: str, command: str, flag: str) -> None:
+    """Fail unless ``path`` names a file that exists (not a folder)."""
+    if not path.strip():
+        fail(command, f"{flag}: expected a file, got an empty value")
+    problem = too_long(path)
+    if problem:
+        fail(command, f"{flag}: {problem}")
+    if os.path.isdir(path):
+        fail(command, f"{flag} {path}: a folder, not a file")
+    if not os.path.isfile(path):
+        fail(command, f"{flag} {path}: no such file")
+
+
 def check_folder(path: Path, command: str, flag: str, *, empty: bool = False) -> None:
     """Fail unless ``path`` is a folder, or could be created as one, where this process can write; with ``empty``,
     also if it holds anything. Creates nothing: a check that fails must leave nothing behind."""
@@ -127,14 +141,22 @@ def run_files(path: Path, names: Collection[str] = RUN_FILES) -> list[str]:
     return [name for name in names if (path / name).exists()]
 
 
-def refuse_run(path: Path, command: str, named: str, resume: str | None, *, names: Collection[str] = RUN_FILES) -> None:
+def refuse_run(
+    path: Path,
+    command: str,
+    named: str,
+    resume: str | None,
+    *,
+    another: str = "give another folder",
+    names: Collection[str] = RUN_FILES,
+) -> None:
     """Fail if folder ``path`` holds a run (:data:`RUN_FILES`): its checkpoint, report and policy are the user's data,
     and only a resume may add to them. ``named`` names the folder in the message (the flag that gave it), ``resume``
-    says how this command continues that run (None: it cannot, the user chooses another folder); ``names``: the files
-    that make a run for this command."""
+    says how this command continues that run (None: it cannot), ``another`` how the user chooses another folder with
+    this command's flags; ``names``: the files that make a run for this command."""
     held = run_files(path, names)
     if held:
-        advice = "give another folder" if resume is None else f"continue it with {resume}, or give a fresh --run-id"
+        advice = another if resume is None else f"continue it with {resume}, or {another}"
         fail(command, f"{named} holds a run already ({', '.join(held)}), which this would overwrite: {advice}")
 
 
@@ -172,6 +194,9 @@ def check_recording(sink: Sink | None, command: str, *, resuming: bool = False) 
             fail(command, f"--rerun spawn: {problem}")
     if sink is None or sink.kind != "save":
         return
+    problem = too_long(str(sink.target))
+    if problem:
+        fail(command, f"--rerun save: {problem}")
     target = Path(str(sink.target))
     if target.is_dir():
         fail(command, f"--rerun save {target}: a folder, not a file (give e.g. {target / 'run.rrd'})")
@@ -251,8 +276,8 @@ def check_endpoints(args: argparse.Namespace, command: str) -> None:
 def zenoh_conf(args: argparse.Namespace, command: str) -> zenoh.Config:
     """The Zenoh configuration the shared connection flags select, or a one-line error."""
     check_endpoints(args, command)
-    if args.zenoh_config and not os.path.isfile(args.zenoh_config):
-        fail(command, f"--zenoh-config {args.zenoh_config}: no such file")
+    if args.zenoh_config is not None:
+        check_file(args.zenoh_config, command, "--zenoh-config")
     try:
         return config_from_args(args)
     except (ValueError, OSError, zenoh.ZError) as exc:
@@ -266,6 +291,7 @@ def add_process_args(
     """The flags of a process command (``learner``, ``actor``): its configuration's, the Zenoh and the Rerun ones."""
     p.add_argument(
         "--config",
+        type=file_path,
         metavar="FILE",
         help="TOML file with the configuration fields; flags given override it (default: none)",
     )

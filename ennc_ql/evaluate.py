@@ -18,12 +18,13 @@ from algorithm.policy import TALLY, PolicyController
 from algorithm.policy_file import PolicyFileError, load_policy, scenario_from_header
 from algorithm.selection import TEST_SEED
 from ennc_ql.command import emit, fail
-from ennc_ql.parser import CommandHelp, add_command
+from ennc_ql.parser import CommandHelp, add_command, suggestion
 from monitor import add_rerun_args, open_monitor, sink_from_args
 from monitor.trial import trial_hook
 from sim import CONTROLLERS, HAND_MADE, ORACLES, SCENARIOS, Controller, ScenarioConfig, evaluate, scenario
 from sim.rollout import WITHIN_NOISE, EvalResult, within_noise
-from tools.config import non_negative, positive
+from sim.world import MAX_ARENAS
+from tools.config import non_negative, positive, too_long
 
 HELP = CommandHelp(
     "eval",
@@ -55,7 +56,12 @@ def add_eval_parser(sub: Any) -> None:
         "file (.npz)",
     )
     p.add_argument("--scenario", default="cmommt-v1", choices=sorted(SCENARIOS), help="the simulated world")
-    p.add_argument("--trials", type=positive(int), default=10, help="independent test trials")
+    p.add_argument(
+        "--trials",
+        type=positive(int, most=MAX_ARENAS, why=" (all trials run side by side, about 12 KB each)"),
+        default=10,
+        help=f"independent test trials (at most {MAX_ARENAS})",
+    )
     p.add_argument("--steps", type=positive(int), default=1000, help="steps per trial")
     p.add_argument(
         "--seed",
@@ -177,14 +183,21 @@ def _controller(
         if law_margin is not None:
             fail("eval", f"--law-margin: {policy} is a hand-made controller, not a learned policy file")
         return CONTROLLERS[policy], scenario(scenario_name), {}
+    if not policy.strip():
+        fail("eval", f"{flag}: expected a hand-made controller or a policy file, got an empty value")
+    problem = too_long(policy)
+    if problem:
+        fail("eval", f"{flag}: {problem}")
     path = Path(policy)
     if path.is_dir():
         inside = path / "policy.npz"
         hint = f"; its policy is {inside}" if inside.is_file() else ""
         fail("eval", f"{flag} {policy}: a folder, not a policy file{hint}")
     if not path.exists():
-        names = ", ".join(CONTROLLERS)
-        fail("eval", f"{flag} {policy}: neither a hand-made controller ({names}) nor an existing policy file")
+        if path.suffix or len(path.parts) > 1:  # a path, not a name
+            fail("eval", f"{flag} {policy}: no such policy file")
+        close = suggestion(policy, list(CONTROLLERS))
+        fail("eval", f"{flag}: unknown policy {policy!r}{close} (one of {', '.join(CONTROLLERS)}, or a policy file)")
     try:
         learned, header = load_policy(path)
         cfg = scenario_from_header(header)

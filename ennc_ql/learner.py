@@ -31,7 +31,7 @@ from ennc_ql.command import (
     registry_choices,
 )
 from ennc_ql.parser import CommandHelp, add_command
-from learner.checkpoint import Checkpointer, CheckpointError
+from learner.checkpoint import Checkpointer, CheckpointError, policy_problem
 from learner.config import LearnerConfig
 from learner.service import LearnerService
 from learner.wiring import connect
@@ -88,7 +88,14 @@ def cmd_learner(args: argparse.Namespace) -> int:
     check_folder(args.run_dir, "learner", "--run-dir")
     if not resume:
         # Only what a learner writes: a SLURM job's learner starts in a folder holding its job script.
-        refuse_run(args.run_dir, "learner", f"--run-dir {args.run_dir}", "--resume", names=TRAINED)
+        refuse_run(
+            args.run_dir,
+            "learner",
+            f"--run-dir {args.run_dir}",
+            "--resume",
+            another="give another --run-dir",
+            names=TRAINED,
+        )
     check_device(config.phase1.device, "learner", "--phase1-device")
     conf = checked_zenoh(args, "learner", config.learner_id)
     stop = stop_on_signals()
@@ -124,3 +131,6 @@ def check_checkpoint(run_dir: Path) -> None:
         fail("learner", f"--resume: no checkpoint in {run_dir} (a learner writes {path.name} every few seconds)")
     if not zipfile.is_zipfile(path):
         fail("learner", f"--resume: {path} is not a checkpoint (not an .npz archive)")
+    problem = policy_problem(path)
+    if problem:
+        fail("learner", f"--resume: {path}: {problem}; a run cannot continue from it")

@@ -14,16 +14,21 @@ two examples and its typical run time (:class:`CommandHelp`). Usage::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import difflib
+import os
 import re
 import shutil
 import sys
 import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 from tools.config_fields import plain
+
+if TYPE_CHECKING:
+    from _typeshed import SupportsWrite
 
 PROG = "ennc-ql"
 
@@ -42,6 +47,47 @@ def suggestion(word: str, known: Sequence[str]) -> str:
     """
     close = difflib.get_close_matches(word, list(known), n=1, cutoff=0.6)
     return f"; did you mean {close[0]!r}?" if close else ""
+
+
+class OutputError(Exception):
+    """Standard output refused what a command printed (a full disk, ``> /dev/full``, an I/O error): the command line
+    answers it with one line on stderr and exit status 1."""
+
+    prog: str | None = None
+    """The command whose help page could not be printed, where it was one."""
+
+
+def flush_out() -> None:
+    """Standard output flushed; a failure is an :class:`OutputError`, except a reader that went away
+    (``BrokenPipeError``), which ends the command quietly."""
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        raise _refused(exc) from exc
+
+
+def say(text: str, end: str = "\n") -> None:
+    """``text`` on standard output, flushed at once (:func:`flush_out`): a failure to write it is never taken for
+    one of the command's own."""
+    try:
+        sys.stdout.write(text + end)
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        raise _refused(exc) from exc
+    flush_out()
+
+
+def _refused(exc: OSError) -> OutputError:
+    """The :class:`OutputError` of ``exc``, with standard output moved onto /dev/null: what it refused stays in its
+    buffer, and no later flush (the command line's last, the interpreter's at exit) may fail on it again."""
+    with contextlib.suppress(OSError, ValueError):  # not a file (a test's captured output): nothing to move
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    return OutputError(exc.strerror or str(exc))
 
 
 @dataclass(frozen=True, slots=True)
@@ -94,12 +140,36 @@ class CommandParser(argparse.ArgumentParser):
     def parse_known_args(  # type: ignore[override]
         self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None
     ) -> tuple[argparse.Namespace, list[str]]:
+        if self._subparsers is not None:
+            # Before the command, only this parser's flags: argparse would miss the command first, and answer
+            # ``ennc-ql --bogus`` with "which command?" instead of naming the flag.
+            for word in sys.argv[1:] if args is None else args:
+                if not word.startswith("-") or word == "--":
+                    break
+                if not self._knows(word):
+                    self.error(self._unrecognized([word]))
         parsed, extras = super().parse_known_args(args, namespace)
         if extras and self._subparsers is None:
             # A command without subcommands answers for words it does not know; argparse would leave them to the
             # top-level parser, which knows neither the command nor its flags.
             self.error(self._unrecognized(extras))
         return parsed, extras
+
+    def _knows(self, word: str) -> bool:
+        """Whether ``word`` is one of this parser's flags (``--flag=value`` and ``-vh`` as argparse reads them)."""
+        flags = self._option_string_actions
+        return word.split("=", 1)[0] in flags or (not word.startswith("--") and word[:2] in flags)
+
+    def _print_message(self, message: str, file: SupportsWrite[str] | None = None) -> None:
+        # argparse drops a failed write in silence: ``ennc-ql --help > /dev/full`` would print nothing and exit 0.
+        if message and file is sys.stdout:
+            try:
+                say(message, end="")
+            except OutputError as exc:
+                exc.prog = self.prog
+                raise
+        else:
+            super()._print_message(message, file)
 
     def error(self, message: str) -> NoReturn:
         sys.stderr.write(f"{self.prog}: error: {self._reword(message)}\n{self.short_usage()}\n")
@@ -150,7 +220,10 @@ class CommandParser(argparse.ArgumentParser):
         word = extras[0]
         if word.startswith("-"):
             flag = word.split("=", 1)[0]
-            return f"unknown option {flag!r}{suggestion(flag, list(self._option_string_actions))}"
+            # Matched without their dashes, which every flag shares: '--bogus' is then nothing like '--verbose'.
+            names = {known.lstrip("-"): known for known in self._option_string_actions}
+            close = difflib.get_close_matches(flag.lstrip("-"), list(names), n=1, cutoff=0.6)
+            return f"unknown option {flag!r}" + (f"; did you mean {names[close[0]]!r}?" if close else "")
         if self._subparsers is not None:
             return f"unknown command {word!r}{suggestion(word, self._commands())}"
         return f"unexpected argument {word!r}"

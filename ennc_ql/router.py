@@ -86,7 +86,8 @@ HELP = CommandHelp(
     "join it with --mode client --connect tcp/HOST:7447 instead of reaching each other directly. Without --listen "
     f"or --zenoh-config it listens on {DEFAULT_LISTEN} (7447 is Zenoh's registered port). With the "
     "--zenoh-config that ennc-ql secure init writes it accepts only mutual-TLS sessions with a password, and lets "
-    "each actor publish only under its own key. It runs until SIGTERM or Ctrl-C.",
+    "each actor publish only under its own key. It runs until SIGTERM or Ctrl-C, then exits with status 0, as "
+    "learner and actor do: a signal is how these processes are meant to stop.",
     (
         ("ennc-ql router", f"listen on {DEFAULT_LISTEN}"),
         ("ennc-ql router --zenoh-config secrets/router.json5", "the secure router of ennc-ql secure init"),

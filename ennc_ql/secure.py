@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from ennc_ql.command import check_folder, fail
-from ennc_ql.parser import CommandHelp, add_command, add_commands
+from ennc_ql.parser import CommandHelp, add_command, add_commands, say
 from protocol import check_id
 from protocol.keys import KeySpace
 from protocol.security import OBSERVER, ROUTER
@@ -81,9 +81,9 @@ def cmd_secure_init(args: argparse.Namespace) -> int:
         written = write_secure_set(spec)
     except (OSError, ValueError) as exc:
         fail("secure init", str(exc))
-    print(f"wrote {len(written)} files into {spec.folder} (keys and configurations 0600):")
+    say(f"wrote {len(written)} files into {spec.folder} (keys and configurations 0600):")
     for ident in (ROUTER, *spec.identities):
-        print(f"  {ident:<10} --zenoh-config {spec.mount or spec.folder}/{ident}.json5")
+        say(f"  {ident:<10} --zenoh-config {spec.mount or spec.folder}/{ident}.json5")
     return 0
 
 

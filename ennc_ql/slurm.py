@@ -20,11 +20,11 @@ from pathlib import Path
 from typing import Any
 
 from ennc_ql.command import configure, emit, fail, refuse_run, writable_dir
-from ennc_ql.parser import CommandHelp, add_command, add_commands
+from ennc_ql.parser import CommandHelp, add_command, add_commands, say
 from ennc_ql.report import emit_run_report
 from protocol import check_id
 from tools.cluster import SET_BY_UP, UP_PRESETS, LaunchError, RunSummary, SlurmFigures, UpConfig
-from tools.config import ConfigError, add_config_flags, folder, load_config
+from tools.config import ConfigError, add_config_flags, file_path, folder, load_config
 from tools.slurm.array import run_task
 from tools.slurm.job import JOB_SCRIPT, SlurmJob, run_training_job, write_training_job
 from tools.slurm.sbatch import SlurmError, submit
@@ -93,7 +93,10 @@ def add_slurm_parser(sub: Any) -> None:
 
     train = add_command(inner, TRAIN)
     train.add_argument(
-        "--config", metavar="FILE", help="TOML file of the run's configuration, e.g. a run's up.toml (default: none)"
+        "--config",
+        type=file_path,
+        metavar="FILE",
+        help="TOML file of the run's configuration, e.g. a run's up.toml (default: none)",
     )
     train.add_argument("--runs", type=folder, default=Path("runs"), help="parent folder of the run folder")
     train.add_argument("--run-id", help="run folder name (default: a timestamp)")
@@ -133,7 +136,9 @@ def cmd_train(args: argparse.Namespace) -> int:
         fail("slurm train", str(exc))
     folder = args.runs / run_id
     # A job script alone is a run too: written, perhaps submitted, not started yet.
-    refuse_run(folder, "slurm train", f"--run-id {run_id}: {folder}", f"sbatch {folder / JOB_SCRIPT}")
+    job_script = folder / JOB_SCRIPT
+    resume = f"sbatch {job_script}" if job_script.is_file() else None  # another command's run has no job script
+    refuse_run(folder, "slurm train", f"--run-id {run_id}: {folder}", resume, another="give a fresh --run-id")
     before = set(folder.iterdir()) if folder.is_dir() else None
     run_dir = writable_dir(folder, "slurm train", "--runs")
     script = write_training_job(config, job, run_dir)
@@ -195,5 +200,5 @@ def cmd_task(args: argparse.Namespace) -> int:
         outcome = run_task(args.folder.resolve(), int(task))
     except (ConfigError, OSError) as exc:
         fail("slurm task", f"task {task} of {args.folder}: {exc}")
-    print(f"task {task}: {outcome.method}[{outcome.seed}] {outcome.coverage_mean:.2f}% in {outcome.seconds:.0f} s")
+    say(f"task {task}: {outcome.method}[{outcome.seed}] {outcome.coverage_mean:.2f}% in {outcome.seconds:.0f} s")
     return 0

@@ -39,7 +39,7 @@ from ennc_ql.command import (
 )
 from ennc_ql.parser import CommandHelp, add_command
 from ennc_ql.report import emit_run_report
-from learner.checkpoint import Checkpointer, CheckpointError
+from learner.checkpoint import Checkpointer, CheckpointError, policy_problem
 from learner.config import LearnerConfig
 from learner.report import LearnerReport
 from learner.service import LearnerService
@@ -62,11 +62,15 @@ from tools.cluster import (
     run_to_report,
     write_configs,
 )
-from tools.config import ConfigError, add_config_flags, folder, load_config
+from tools.config import ConfigError, add_config_flags, file_path, folder, load_config
 from tools.config_fields import config_leaves, flag_name
 from tools.system import Interrupts
 
 log = logging.getLogger(__name__)
+
+ACTORS_PER_CORE = 4
+"""The most actors up runs per core of this machine: two actors of 500 arenas keep two cores busy, so four to a core
+leave each a quarter of one, and each holds up to 300 MB (docs/performance.md, "Memory of the processes")."""
 
 HELP = CommandHelp(
     "up",
@@ -97,7 +101,10 @@ HELP = CommandHelp(
 def add_up_parser(sub: Any) -> None:
     p = add_command(sub, HELP)
     p.add_argument(
-        "--config", metavar="FILE", help="TOML file of up's configuration, e.g. a run's up.toml (default: none)"
+        "--config",
+        type=file_path,
+        metavar="FILE",
+        help="TOML file of up's configuration, e.g. a run's up.toml (default: none)",
     )
     p.add_argument("--serial", action="store_true", help="learner and actors as objects in this one process")
     p.add_argument(
@@ -132,6 +139,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     if args.resume is not None:
         return _run(args, *check_resume(args), resume=True)
     config: UpConfig = configure(UpConfig, args, "up", defaults=UP_PRESETS)
+    check_actors(config.actors)
     if args.serial and args.secure:
         fail("up", "--serial runs on the in-memory bus, which has no network to secure; drop one of them")
     run_id = args.run_id if args.run_id is not None else time.strftime("%Y%m%d-%H%M%S")
@@ -140,10 +148,13 @@ def cmd_up(args: argparse.Namespace) -> int:
     except ValueError as exc:
         fail("up", str(exc))
     runs = args.runs or Path("runs")
-    refuse_run(runs / run_id, "up", f"--run-id {run_id}: {runs / run_id}", f"ennc-ql up --resume {runs / run_id}")
-    check_folder(runs / run_id, "up", "--runs", empty=True)
+    run_folder = runs / run_id
+    # Only a folder up wrote can be resumed by up: it holds the run's own configuration.
+    resume = f"ennc-ql up --resume {run_folder}" if (run_folder / "up.toml").is_file() else None
+    refuse_run(run_folder, "up", f"--run-id {run_id}: {run_folder}", resume, another="give a fresh --run-id")
+    check_folder(run_folder, "up", "--runs", empty=True)
     check_device(config.learner.phase1.device, "up", "--learner-phase1-device")
-    run_dir = make_folder(runs / run_id, "up", "--runs")
+    run_dir = make_folder(run_folder, "up", "--runs")
     learner, actors = child_configs(config)
     write_configs(config, learner, actors, run_dir)
     return _run(args, run_dir, config, resume=False)
@@ -315,6 +326,19 @@ def saved_report(learner: LearnerConfig, run_dir: Path) -> LearnerReport | None:
         return service.saved_report()
 
 
+def check_actors(actors: int) -> None:
+    """A number of actors this machine can run (:data:`ACTORS_PER_CORE`), or a one-line error that names the cap."""
+    cores = len(os.sched_getaffinity(0))
+    most = ACTORS_PER_CORE * cores
+    if actors > most:
+        fail(
+            "up",
+            f"--actors {actors}: up runs at most {most} actors on this machine ({ACTORS_PER_CORE} per core, {cores} "
+            f"core{'s' if cores > 1 else ''}); for more, spread them over several machines (ennc-ql slurm train, or "
+            "ennc-ql actor on each)",
+        )
+
+
 def check_resume(args: argparse.Namespace) -> tuple[Path, UpConfig]:
     """The run folder of ``--resume`` and its configuration, or a one-line error: no flag may change the
     configuration, and there must be a checkpoint with training time left."""
@@ -336,6 +360,7 @@ def check_resume(args: argparse.Namespace) -> tuple[Path, UpConfig]:
         config: UpConfig = load_config(UpConfig, file=toml)
     except ConfigError as exc:
         fail("up", f"--resume {run_dir}: {exc}")
+    check_actors(config.actors)
     checkpoint = Checkpointer(run_dir).path
     if not checkpoint.is_file():
         fail(
@@ -346,6 +371,9 @@ def check_resume(args: argparse.Namespace) -> tuple[Path, UpConfig]:
     elapsed = checkpoint_elapsed(checkpoint)
     if elapsed is None:
         fail("up", f"--resume {run_dir}: {checkpoint} is not a checkpoint (not an .npz archive with its figures)")
+    problem = policy_problem(checkpoint)
+    if problem:
+        fail("up", f"--resume {run_dir}: {checkpoint}: {problem}; a run cannot continue from it")
     if elapsed >= config.duration:
         fail(
             "up",

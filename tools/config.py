@@ -41,6 +41,7 @@ Flags store under the field path (``args.store_capacity``, ``getattr(args, "fit.
 import argparse
 import dataclasses
 import math
+import os
 import typing
 from collections.abc import Callable, Collection, Iterable, Mapping
 from pathlib import Path
@@ -69,11 +70,13 @@ __all__ = [
     "add_config_flags",
     "dump_config",
     "field_docs",
+    "file_path",
     "load_config",
     "non_negative",
     "parse_setting",
     "positive",
     "replace_setting",
+    "too_long",
 ]
 
 T = TypeVar("T")
@@ -84,32 +87,79 @@ class _AddsArguments(Protocol):  # an ArgumentParser or an argument group
     def add_argument(self, *args: Any, **kwargs: Any) -> Any: ...
 
 
+def _limit(name: str, fallback: int) -> int:
+    # The root's file system stands for the others: Linux's common ones (ext4, xfs, btrfs, tmpfs) all take 255.
+    try:
+        return os.pathconf("/", name)
+    except (OSError, ValueError):
+        return fallback
+
+
+def too_long(text: str) -> str | None:
+    """Why no file can have the path ``text``, or None: it, or a name in it, is longer than the system takes. Every
+    call on such a path fails with ENAMETOOLONG, even one that only asks whether it exists.
+
+    >>> too_long("runs/" + "x" * 300)
+    "a name in it is 300 bytes long, more than the 255 a file name may have ('xxxxxxxxxxxxxxxxxxxx...')"
+    """
+    raw = os.fsencode(text)
+    longest = max(raw.split(b"/"), key=len)
+    most = _limit("PC_NAME_MAX", 255)
+    if len(longest) > most:
+        start = os.fsdecode(longest[:20]) + "..."
+        return f"a name in it is {len(longest)} bytes long, more than the {most} a file name may have ({start!r})"
+    most = _limit("PC_PATH_MAX", 4096) - 1  # the limit counts the terminating NUL
+    if len(raw) > most:
+        return f"it is {len(raw)} bytes long, more than the {most} a path may have"
+    return None
+
+
+def _path(text: str, noun: str) -> Path:
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"expected {noun}, got an empty value")
+    problem = too_long(text)
+    if problem:
+        raise argparse.ArgumentTypeError(problem)
+    return Path(text)
+
+
 def folder(text: str) -> Path:
-    """The argparse ``type`` of a folder: an empty value is an error, not the current folder (which ``Path("")`` is).
+    """The argparse ``type`` of a folder: an empty value is an error, not the current folder (which ``Path("")`` is),
+    and so is a path no folder can have (:func:`too_long`).
 
     >>> folder("runs/x")
     PosixPath('runs/x')
     """
-    if not text.strip():
-        raise argparse.ArgumentTypeError("expected a folder, got an empty value")
-    return Path(text)
+    return _path(text, "a folder")
 
 
-def positive(kind: type[N]) -> Callable[[str], N]:
-    """The argparse ``type`` of a positive number: ``positive(int)`` or ``positive(float)``.
+def file_path(text: str) -> Path:
+    """The argparse ``type`` of a file to read: an empty value is an error (``Path("")`` is the current folder), and
+    so is a path no file can have (:func:`too_long`).
 
-    >>> positive(int)("3"), positive(float)("0.5")
-    (3, 0.5)
+    >>> file_path("runs/x/up.toml")
+    PosixPath('runs/x/up.toml')
+    """
+    return _path(text, "a file")
+
+
+def positive(kind: type[N], most: N | None = None, why: str = "") -> Callable[[str], N]:
+    """The argparse ``type`` of a positive number: ``positive(int)`` or ``positive(float)``; with ``most``, one of at
+    most that (``why`` says why, in the message).
+
+    >>> positive(int)("3"), positive(float)("0.5"), positive(int, most=10)("10")
+    (3, 0.5, 10)
     """
     noun = "integer" if kind is int else "finite number"
+    bound = "" if most is None else f" of at most {most}{why}"
 
     def parse(text: str) -> N:
         try:
             value = kind(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a positive {noun}, got {text!r}") from None
-        if not 0 < value < math.inf:  # also rejects nan
-            raise argparse.ArgumentTypeError(f"expected a positive {noun}, got {text!r}")
+            raise argparse.ArgumentTypeError(f"expected a positive {noun}{bound}, got {text!r}") from None
+        if not 0 < value < math.inf or (most is not None and value > most):  # also rejects nan
+            raise argparse.ArgumentTypeError(f"expected a positive {noun}{bound}, got {text!r}")
         return value
 
     parse.__name__ = f"positive_{kind.__name__}"

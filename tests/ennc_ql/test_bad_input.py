@@ -5,16 +5,17 @@ behind (no run folder, no created directory, no recording), before anything star
 Each row is a command line and the words its error must carry. Every row runs ``ennc-ql`` in a fresh working
 folder that holds the fixtures below; the folder must hold exactly those afterwards.
 
-The rows run twice (once with the optional programs hidden from PATH), 274 command lines: as new processes, each
-would spend 0.7-3 s importing the command line, numba, zenoh and torch (314 s in all). They run instead in forks of
-one process that imported the command line once (:mod:`tests.ennc_ql._forkserver`), each in its own session, folder
-and environment, with the script's ``sys.argv``, entry point and exit status: ~0.12 s a row, most of it the
+The rows run twice (once with the optional programs hidden from PATH), 356 command lines: as new processes, each
+would spend 0.7-3 s importing the command line, numba, zenoh and torch (314 s for 274 of them). They run instead in
+forks of one process that imported the command line once (:mod:`tests.ennc_ql._forkserver`), each in its own session,
+folder and environment, with the script's ``sys.argv``, entry point and exit status: ~0.12 s a row, most of it the
 command's own parser (it reads its configurations' docstrings from their source). The tests at the end run the real
 console script: three rows both ways, which must answer alike byte for byte, an ASCII terminal (an encoding a fork
-can't change), a reader that goes away, a port in use."""
+can't change), a reader that goes away, an output that refuses what is written, a port in use."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
@@ -26,12 +27,16 @@ from collections.abc import Callable, Iterator
 from functools import partial
 from importlib.metadata import entry_points
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
 
 from tests.ennc_ql._forkserver import ForkServer, text
 from tools.config import dump_config
+
+if TYPE_CHECKING:
+    from tools.cluster import UpConfig
 
 ENNC_QL = Path(sys.executable).with_name("ennc-ql")
 PRELOAD = tuple(
@@ -43,6 +48,9 @@ Not torch, which the device checks import (3 rows, twice): it doubles the memory
 more than its import costs those rows (1.2 s)."""
 TIMEOUT_S = 90.0
 """A row that started something it should not have is stopped here (and fails): none takes a second to answer."""
+
+LONG = "x" * 300
+"""A file name longer than any file system's 255 bytes."""
 
 ROWS: list[tuple[list[str], str]] = [
     # The command line itself.
@@ -57,10 +65,10 @@ ROWS: list[tuple[list[str], str]] = [
     (["eval", "--trials"], "ennc-ql eval: error: --trials: needs a value"),
     # eval
     (["eval", "--seed", "-1"], "ennc-ql eval: error: --seed: expected an integer of 0 or more, got '-1'"),
-    (["eval", "--trials", "0"], "ennc-ql eval: error: --trials: expected a positive integer, got '0'"),
+    (["eval", "--trials", "0"], "ennc-ql eval: error: --trials: expected a positive integer of at most 100000"),
     (["eval", "--steps", "x"], "ennc-ql eval: error: --steps: expected a positive integer, got 'x'"),
     (["eval", "--scenario", "cmommt-v2"], "--scenario: unknown value 'cmommt-v2'; did you mean 'cmommt-v1'?"),
-    (["eval", "--policy", "greedy"], "ennc-ql eval: error: --policy greedy: neither a hand-made controller"),
+    (["eval", "--policy", "greedy"], "ennc-ql eval: error: --policy: unknown policy 'greedy' (one of random, local,"),
     (["eval", "--policy", "text.npz"], "--policy text.npz: not a policy file (not an .npz archive of plain arrays)"),
     (["eval", "--policy", "pickled.npy"], "--policy pickled.npy: not a policy file (not an .npz archive"),
     (["eval", "--policy", "run"], "ennc-ql eval: error: --policy run: a folder, not a policy file"),
@@ -204,6 +212,61 @@ ROWS: list[tuple[list[str], str]] = [
     (["up", "--resume", "unsaved"], "ennc-ql up: error: --resume unsaved: no checkpoint, the run was stopped before"),
     (["up", "--resume", "finished"], "ennc-ql up: error: --resume finished: the run trained its whole 10 s already"),
     (["learner", "--run-dir", "paper", "--resume"], "holds a run of formulation paper, and this learner's formulation"),
+    # The edges (issue 55). Paths no file can have: every call on them fails with ENAMETOOLONG.
+    (["up", "--runs", LONG], "ennc-ql up: error: --runs: a name in it is 300 bytes long, more than the"),
+    (["up", "--config", LONG], "ennc-ql up: error: --config: a name in it is 300 bytes long"),
+    (["up", "--resume", f"runs/{LONG}"], "ennc-ql up: error: --resume: a name in it is 300 bytes long"),
+    (["eval", "--policy", f"{LONG}.npz"], "ennc-ql eval: error: --policy: a name in it is 304 bytes long"),
+    (["eval", "--against", LONG], "ennc-ql eval: error: --against: a name in it is 300 bytes long"),
+    (["eval", "--rerun", "save", f"{LONG}.rrd"], "ennc-ql eval: error: --rerun save: a name in it is 304 bytes long"),
+    (["learner", "--run-dir", LONG], "ennc-ql learner: error: --run-dir: a name in it is 300 bytes long"),
+    (["learner", "--run-dir", "r", "--zenoh-config", LONG], "error: --zenoh-config: a name in it is 300 bytes long"),
+    (["reproduce", "--quick", "--out", LONG], "ennc-ql reproduce: error: --out: a name in it is 300 bytes long"),
+    (["secure", "init", LONG], "ennc-ql secure init: error: DIR: a name in it is 300 bytes long"),
+    (["bench", "actor", "--policy", LONG], "ennc-ql bench actor: error: --policy: a name in it is 300 bytes long"),
+    # Counts past what one machine holds: refused with the bound, before a MemoryError or a machine full of processes.
+    (["eval", "--trials", str(10**12)], "--trials: expected a positive integer of at most 100000 (all trials run side"),
+    (["actor", "--arenas", "100001"], "ennc-ql actor: error: arenas must be at most 100000, got 100001"),
+    (["up", "--actor-arenas", str(10**8)], "ennc-ql up: error: actor: arenas must be at most 100000, got 100000000"),
+    (["learner", "--run-dir", "r", "--final-eval-trials", str(10**6)], "final_eval_trials must be at most 100000"),
+    (
+        ["bench", "actor", "--arenas", str(10**9)],
+        "bench actor: error: --arenas: expected a positive integer of at most",
+    ),
+    (["up", "--actors", "100000"], "ennc-ql up: error: --actors 100000: up runs at most"),
+    (["up", "--serial", "--actors", "100000"], "ennc-ql up: error: --actors 100000: up runs at most"),
+    # Policies whose tables hold a value no argmax can read, wherever a policy is loaded.
+    (["eval", "--policy", "nan.npz"], "error: --policy nan.npz: the Q table of robot 3 holds NaN (1 of 8 values)"),
+    (["eval", "--against", "inf.npz"], "error: --against inf.npz: the Q table of robot 3 holds infinity (1 of 8"),
+    (["bench", "actor", "--policy", "nan.npz"], "ennc-ql bench actor: error: --policy nan.npz: the Q table of robot 3"),
+    (["learner", "--run-dir", "poisoned", "--resume"], "--resume: poisoned/checkpoint.npz: Q table 3 holds NaN"),
+    (["up", "--resume", "poisoned"], "--resume poisoned: poisoned/checkpoint.npz: Q table 3 holds NaN (1 of 8 values)"),
+    # Names and empty values: the flag named, the closest choice, the command's own flags in the advice.
+    (["--bogus"], "ennc-ql: error: unknown option '--bogus'"),
+    (["-v", "--bogus", "eval"], "ennc-ql: error: unknown option '--bogus'"),
+    (["eval", "--policy", ""], "ennc-ql eval: error: --policy: expected a hand-made controller or a policy file, got"),
+    (["eval", "--against", ""], "ennc-ql eval: error: --against: expected a hand-made controller or a policy file"),
+    (["up", "--config", ""], "ennc-ql up: error: --config: expected a file, got an empty value"),
+    (["actor", "--zenoh-config", ""], "ennc-ql actor: error: --zenoh-config: expected a file, got an empty value"),
+    (["router", "--zenoh-config", "empty"], "ennc-ql router: error: --zenoh-config empty: a folder, not a file"),
+    (["learner", "--run-dir", "r", "--zenoh-config", "empty"], "--zenoh-config empty: a folder, not a file"),
+    (
+        ["learner", "--run-dir", "paper"],
+        "--run-dir paper holds a run already (checkpoint.npz), which this would overwrite: continue it with --resume, "
+        "or give another --run-dir",
+    ),
+    (
+        ["up", "--runs", ".", "--run-id", "stopped"],
+        "continue it with ennc-ql up --resume stopped, or give a fresh",
+    ),
+    (
+        ["up", "--runs", ".", "--run-id", "done"],
+        "(results.json), which this would overwrite: give a fresh --run-id",
+    ),
+    (["slurm", "train", "--runs", ".", "--run-id", "stopped"], "(checkpoint.npz), which this would overwrite: give a"),
+    (["eval", "--policy", "a-cmomt"], "--policy: unknown policy 'a-cmomt'; did you mean 'a-cmommt'? (one of random,"),
+    (["eval", "--against", "forcerecall"], "--against: unknown policy 'forcerecall'; did you mean 'force-recall'?"),
+    (["eval", "--policy", "missing.npz"], "ennc-ql eval: error: --policy missing.npz: no such policy file"),
 ]
 
 
@@ -254,6 +317,30 @@ def edge_fixtures(folder: Path) -> None:
     np.savez(folder / "paper" / "checkpoint.npz", meta=np.frombuffer(json.dumps(meta).encode(), np.uint8))
     (folder / "done").mkdir()
     (folder / "done" / "results.json").write_text("{}\n")
+    poisoned_fixtures(folder, short)
+
+
+def poisoned_fixtures(folder: Path, config: UpConfig) -> None:
+    """Policy files and a stopped run whose Q tables hold a NaN or an infinity (robot 3's table, its cell 1)."""
+    from algorithm.policy_file import save_policy
+    from sim import scenario
+    from tests.algorithm.test_selection import constant
+    from tools.cluster import child_configs, write_configs
+
+    policy = constant(0, version=1)
+    for name, bad in (("nan", np.nan), ("inf", np.inf)):
+        tables = np.zeros((10, policy.tables.shape[1]), np.float32)
+        tables[3, 1] = bad
+        per_robot = dataclasses.replace(policy, tables=tables, robot_table=np.arange(10))
+        save_policy(per_robot, scenario(), folder / f"{name}.npz")
+    (folder / "poisoned").mkdir()
+    write_configs(config, *child_configs(config), folder / "poisoned")
+    meta = {"elapsed": 4.0, "config": {"formulation": config.formulation}}
+    tables = np.zeros((10, 8))
+    tables[3, 1] = np.nan
+    np.savez(
+        folder / "poisoned" / "checkpoint.npz", meta=np.frombuffer(json.dumps(meta).encode(), np.uint8), tables=tables
+    )
 
 
 COMMAND_WORDS = {"eval", "up", "learner", "actor", "router", "secure", "init", "chaos", "reproduce", "ablate", "bench"}
@@ -475,6 +562,41 @@ def test_closed_standard_streams_are_no_traceback(closed: str, tmp_path: Path) -
     if ">&-" not in closed.replace("2>&-", ""):  # stdout open: the result is printed there
         assert '"coverage_mean"' in done.stdout
     assert sorted(p.name for p in tmp_path.iterdir()) == ["err"]
+
+
+FULL_ROWS = [
+    (["eval", "--trials", "2", "--steps", "20"], "ennc-ql eval"),
+    (["eval", "--help"], "ennc-ql eval"),
+    (["--version"], "ennc-ql"),
+]
+"""A command's result, a command's help page and the top-level parser's own output."""
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full on this machine")
+@pytest.mark.parametrize("buffered", [True, False], ids=["buffered", "PYTHONUNBUFFERED"])
+@pytest.mark.parametrize(("argv", "command"), FULL_ROWS, ids=[" ".join(argv) for argv, _ in FULL_ROWS])
+def test_an_output_that_refuses_what_is_written_is_one_line_and_status_1(
+    argv: list[str], command: str, buffered: bool, tmp_path: Path
+) -> None:
+    """``> /dev/full``: every write fails (ENOSPC), at the last flush or, unbuffered, at once. The command says so in
+    one line, as coreutils do, never in a traceback, in the catch-all's words, or not at all (argparse drops a failed
+    write of a help page and exits 0)."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"} | {"COLUMNS": "120"}
+    if not buffered:
+        env["PYTHONUNBUFFERED"] = "1"
+    with open("/dev/full", "w") as full:
+        done = subprocess.run(
+            [str(ENNC_QL), *argv],
+            stdout=full,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=env,
+            cwd=tmp_path,
+            timeout=TIMEOUT_S,
+        )
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.splitlines() == [f"{command}: error: cannot write to standard output (No space left on device)"]
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_rerun_serve_on_a_taken_port_is_one_line_before_anything_starts(tmp_path: Path) -> None:

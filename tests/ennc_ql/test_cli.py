@@ -4,8 +4,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import select
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -58,11 +62,25 @@ def test_bad_flags_get_a_clear_error(capsys: pytest.CaptureFixture[str], argv: l
     assert message in capsys.readouterr().err
 
 
-def test_unknown_policy_is_named_in_the_error(capsys: pytest.CaptureFixture[str]) -> None:
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["eval", "--policy", "greedy"], "--policy: unknown policy 'greedy' (one of random, local, a-cmommt,"),
+        (["eval", "--policy", "a-cmomt"], "--policy: unknown policy 'a-cmomt'; did you mean 'a-cmommt'? (one of"),
+        (["eval", "--against", "forcerecall"], "--against: unknown policy 'forcerecall'; did you mean 'force-recall'?"),
+        (["eval", "--policy", "runs/x/policy.npz"], "--policy runs/x/policy.npz: no such policy file"),
+    ],
+)
+def test_unknown_policy_is_named_with_the_closest_and_the_choices(
+    capsys: pytest.CaptureFixture[str], argv: list[str], message: str
+) -> None:
     with pytest.raises(SystemExit) as exc:
-        main(["eval", "--policy", "greedy"])
+        main(argv)
     assert exc.value.code == 2
-    assert capsys.readouterr().err.startswith("ennc-ql eval: error: --policy greedy: neither a hand-made controller")
+    [line] = capsys.readouterr().err.splitlines()
+    assert line.startswith(f"ennc-ql eval: error: {message}"), line
+    if "unknown policy" in message:  # every choice listed, and a file named as the other way
+        assert line.endswith("a-cmommt-oracle, or a policy file)"), line
 
 
 def test_bench_sim_reports_measured_rates(capsys: pytest.CaptureFixture[str]) -> None:
@@ -209,3 +227,61 @@ def test_eval_reads_a_policy_with_the_law_margin_given_and_names_it(
             main(["eval", "--policy", bad, *extra])
         assert exc.value.code == 2
         assert (message or "expected a finite number of 0 or more") in capsys.readouterr().err
+
+
+def test_an_unknown_flag_before_the_command_is_named_with_where_the_flags_are(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Not "which command?": argparse misses the command before it looks at the flag."""
+    with pytest.raises(SystemExit) as exc:
+        main(["--bogus"])
+    assert exc.value.code == 2
+    assert capsys.readouterr().err.splitlines() == [
+        "ennc-ql: error: unknown option '--bogus'",  # nothing like --verbose once the dashes every flag has are off
+        "usage: ennc-ql [OPTIONS] COMMAND  (all options: ennc-ql --help)",
+    ]
+
+
+def test_up_runs_at_most_four_actors_per_core_and_says_so(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    from ennc_ql.up import check_actors
+
+    cores = len(os.sched_getaffinity(0))
+    check_actors(4 * cores)  # the cap itself is allowed
+    with pytest.raises(SystemExit) as exc:
+        main(["up", "--actors", str(4 * cores + 1), "--runs", str(tmp_path)])
+    assert exc.value.code == 2 and list(tmp_path.iterdir()) == []
+    [line] = capsys.readouterr().err.splitlines()
+    assert line.startswith(
+        f"ennc-ql up: error: --actors {4 * cores + 1}: up runs at most {4 * cores} actors on this machine (4 per core, "
+        f"{cores} core"
+    )
+    assert line.endswith("(ennc-ql slurm train, or ennc-ql actor on each)")
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_the_router_stopped_by_a_signal_closes_and_exits_0_as_learner_and_actor_do(signum: int) -> None:
+    """A signal is how the process commands (learner, actor, router) are stopped, by a person or by up: a clean stop,
+    status 0. Only up, which a signal keeps from finishing its run, exits 128 + the signal."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ennc_ql.cli", "router", "--listen", "tcp/127.0.0.1:0", "--no-multicast-scouting"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert proc.stderr is not None
+    try:
+        said, deadline = "", time.monotonic() + 60
+        while "listening on" not in said and time.monotonic() < deadline:
+            if select.select([proc.stderr], [], [], max(deadline - time.monotonic(), 0))[0]:
+                line = proc.stderr.readline()
+                if not line:  # the router ended already
+                    break
+                said += line
+        assert "listening on" in said, said
+        proc.send_signal(signum)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == 0, err
+    assert "zenoh router closed" in err and "Traceback" not in err and out == ""

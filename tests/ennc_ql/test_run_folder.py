@@ -63,11 +63,15 @@ ROWS: list[tuple[list[str], tuple[str, ...]]] = [
     (["up", "--run-id", "done"], ("--run-id done: runs/done holds a run already", "ennc-ql up --resume runs/done")),
     (["up", "--serial", "--run-id", "done"], ("holds a run already", "ennc-ql up --resume runs/done")),
     (["up", "--resume", "runs/done"], ("the run trained its whole 10 s already",)),
-    (["learner", "--run-dir", "runs/done"], ("--run-dir runs/done holds a run already", "--resume", "--run-id")),
+    (
+        ["learner", "--run-dir", "runs/done"],
+        ("--run-dir runs/done holds a run already", "--resume", "another --run-dir"),
+    ),
     (["learner", "--run-dir", "runs/new", "--rerun", "save", "runs/done/recording.rrd"], ("its folder holds a run",)),
     (["actor", "--rerun", "save", "runs/done/recording.rrd"], ("--rerun save runs/done/recording.rrd: its folder",)),
     (["eval", "--rerun", "save", "runs/done/recording.rrd"], ("holds a run already", "give another folder")),
-    (["slurm", "train", "--runs", "runs", "--run-id", "done"], ("holds a run already", "sbatch runs/done/job.sh")),
+    # up's run has no job script to submit again: a fresh --run-id is the one way on.
+    (["slurm", "train", "--runs", "runs", "--run-id", "done"], ("holds a run already", "overwrite: give a fresh")),
     (["slurm", "train", "--runs", "runs", "--run-id", "queued"], ("(job.sh)", "sbatch runs/queued/job.sh")),
     (["reproduce", "--quick", "--out", "runs/done"], ("--out runs/done holds a training run", "give another --out")),
     (["reproduce", "--quick", "--force", "--out", "runs/done"], ("holds a training run (checkpoint.npz",)),
