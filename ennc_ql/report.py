@@ -184,17 +184,12 @@ def next_commands(report: RunReport) -> list[tuple[str, str]]:
             commands.append((f"rerun {recording}", "open the recording in the Rerun viewer"))
         else:
             commands.append((f"{WEB_VIEWER} {recording}", WEB_VIEWER_WHY))
-    duration = None if launch is None else launch.config.duration
     if launch is not None and launch.command.startswith("sbatch "):
         # Submitting a job script again continues its run; another run is another folder, from the same settings.
         again = f"ennc-ql slurm train --config {run_dir / 'up.toml'} --run-id NEW-ID --submit"
         commands.append((again, "repeat the run as a new job"))
-        if duration:
-            commands.append((f"{again} --duration {2 * duration:g}", "train twice as long, as a new job"))
     elif launch is not None and launch.command:
         commands.append((launch.command, "repeat the run exactly"))
-        if duration:
-            commands.append((f"{launch.command} --duration {2 * duration:g}", "train twice as long"))
     else:
         commands.append(
             (f"ennc-ql learner --run-dir {run_dir} --resume ...", "continue from the checkpoint, with the same flags")

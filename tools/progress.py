@@ -62,6 +62,7 @@ class ProgressBar:
         self.n = 0.0
         self.status = ""
         self._last_line = -float("inf")
+        self._last_text: str | None = None
         self._stack = ExitStack()
         self._bar: tqdm | None = None
         if self.tty:
@@ -87,7 +88,8 @@ class ProgressBar:
         self._set(n, status)
         if self._bar is not None:
             self._bar.refresh()
-        elif time.monotonic() - self._last_line >= self.every:
+        elif time.monotonic() - self._last_line >= self.every and self.status != self._last_text:
+            # A log reader gains nothing from the same line again (a wind-down's phase holds its text for seconds).
             self._line(self.status)
 
     def mark(self, message: str, n: float | None = None) -> None:
@@ -110,4 +112,4 @@ class ProgressBar:
 
     def _line(self, text: str) -> None:
         print(plain_line(self.desc, self.n, self.total, self.unit, text), file=self.stream, flush=True)
-        self._last_line = time.monotonic()
+        self._last_line, self._last_text = time.monotonic(), text

@@ -84,6 +84,20 @@ def test_off_a_terminal_every_show_prints_once_the_interval_passed() -> None:
     ]
 
 
+def test_off_a_terminal_the_same_figures_are_not_printed_again() -> None:
+    stream = io.StringIO()
+    with ProgressBar("up", total=120, unit="s", every=0.0, stream=stream) as bar:
+        for _ in range(3):
+            bar.show(120, "training over: final evaluation and report")
+        bar.show(120, "training over: final evaluation (60%) and report")
+        bar.mark("training over: final evaluation and report")  # a milestone is printed whatever came before
+    assert stream.getvalue().splitlines() == [
+        "up [120/120 s] training over: final evaluation and report",
+        "up [120/120 s] training over: final evaluation (60%) and report",
+        "up [120/120 s] training over: final evaluation and report",
+    ]
+
+
 def test_on_a_terminal_it_is_a_tqdm_bar_with_the_figures_in_its_postfix() -> None:
     stream = io.StringIO()
     with ProgressBar("up", total=480, unit="s", stream=stream, tty=True) as bar:
