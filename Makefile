@@ -10,7 +10,7 @@ LIBS   := sim algorithm learner actors protocol monitor tools ennc_ql
 
 # The first target, so a bare `make` says what there is to make and creates nothing.
 help:
-	@echo "make run              set everything up, then train: ennc-ql up (480 s of training, about 8 min in all)"
+	@echo "make run              set everything up, then train: ennc-ql up (120 s of training, about 2.5 min in all)"
 	@echo "make test             set everything up, then lint, type check and the whole test suite"
 	@echo "make $(STAMP)  only create $(VENV) and install ennc-ql into it (make run and make test do it first)"
 	@echo "make lint, typecheck  ruff check and ruff format --check; mypy over the library packages"

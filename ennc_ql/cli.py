@@ -30,8 +30,8 @@ broadcasts policies back; training is watched in the Rerun viewer."""
 EPILOG = """\
 first steps:
   ennc-ql eval --policy a-cmommt        # the hand-made reference on 10 test trials (about 1 s)
-  ennc-ql up --duration 120             # a 2-minute training run on this machine (2 min 25 s in all)
-  ennc-ql up                            # the main job, as make run (about 8 min)
+  ennc-ql up                            # the main job, as make run: 2 minutes of training (2 min 27 s in all)
+  ennc-ql up --rerun spawn              # the same, watched live in the Rerun viewer
   ennc-ql COMMAND --help                # what a command does, with examples and its run time"""
 
 
