@@ -26,6 +26,10 @@ from sim.rollout import WITHIN_NOISE, EvalResult, within_noise
 from sim.world import MAX_ARENAS
 from tools.config import non_negative, positive, too_long
 
+MAX_STEPS = 100_000
+"""The longest trial eval runs: a trial's steps run one after another, so a mistyped count would run silently for
+days where a bound answers at once."""
+
 HELP = CommandHelp(
     "eval",
     "score a policy on seeded test trials: a hand-made controller or a learned policy file",
@@ -62,7 +66,12 @@ def add_eval_parser(sub: Any) -> None:
         default=10,
         help=f"independent test trials (at most {MAX_ARENAS})",
     )
-    p.add_argument("--steps", type=positive(int), default=1000, help="steps per trial")
+    p.add_argument(
+        "--steps",
+        type=positive(int, most=MAX_STEPS, why=" (a hundred times the paper's 1000)"),
+        default=1000,
+        help=f"steps per trial (at most {MAX_STEPS})",
+    )
     p.add_argument(
         "--seed",
         type=non_negative(int),

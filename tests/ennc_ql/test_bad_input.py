@@ -66,7 +66,7 @@ ROWS: list[tuple[list[str], str]] = [
     # eval
     (["eval", "--seed", "-1"], "ennc-ql eval: error: --seed: expected an integer of 0 or more, got '-1'"),
     (["eval", "--trials", "0"], "ennc-ql eval: error: --trials: expected a positive integer of at most 100000"),
-    (["eval", "--steps", "x"], "ennc-ql eval: error: --steps: expected a positive integer, got 'x'"),
+    (["eval", "--steps", "x"], "ennc-ql eval: error: --steps: expected a positive integer of at most 100000"),
     (["eval", "--scenario", "cmommt-v2"], "--scenario: unknown value 'cmommt-v2'; did you mean 'cmommt-v1'?"),
     (["eval", "--policy", "greedy"], "ennc-ql eval: error: --policy: unknown policy 'greedy' (one of random, local,"),
     (["eval", "--policy", "text.npz"], "--policy text.npz: not a policy file (not an .npz archive of plain arrays)"),
@@ -226,6 +226,7 @@ ROWS: list[tuple[list[str], str]] = [
     (["bench", "actor", "--policy", LONG], "ennc-ql bench actor: error: --policy: a name in it is 300 bytes long"),
     # Counts past what one machine holds: refused with the bound, before a MemoryError or a machine full of processes.
     (["eval", "--trials", str(10**12)], "--trials: expected a positive integer of at most 100000 (all trials run side"),
+    (["eval", "--steps", str(10**12)], "--steps: expected a positive integer of at most 100000 (a hundred times the"),
     (["actor", "--arenas", "100001"], "ennc-ql actor: error: arenas must be at most 100000, got 100001"),
     (["up", "--actor-arenas", str(10**8)], "ennc-ql up: error: actor: arenas must be at most 100000, got 100000000"),
     (["learner", "--run-dir", "r", "--final-eval-trials", str(10**6)], "final_eval_trials must be at most 100000"),
