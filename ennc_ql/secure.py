@@ -25,6 +25,10 @@ from tools.secure import CA_FILE, CA_KEY_FILE, CREDENTIALS_FILE, DEFAULT_HOSTS, 
 
 _HOST = re.compile(r"[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?(\.[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?)*")
 
+MAX_IDENTITIES = 10_000
+"""The most actor identities one ``secure init`` writes (four files each): far beyond a cluster's actors, short of a
+mistyped count that fills the disk."""
+
 
 def _port(text: str) -> int:
     if not text.isdigit() or not 1 <= int(text) <= 65535:
@@ -120,7 +124,12 @@ def add_secure_parser(sub: Any) -> None:
     p = add_command(sub, SECURE)
     init = add_command(add_commands(p, dest="secure_command"), INIT)
     init.add_argument("dir", type=folder, metavar="DIR", help="folder to write into (created 0700)")
-    init.add_argument("--actors", type=positive(int), default=2, help="actor identities actor-0, actor-1, ...")
+    init.add_argument(
+        "--actors",
+        type=positive(int, most=MAX_IDENTITIES, why=" (each a key, a certificate, a password and a configuration)"),
+        default=2,
+        help=f"actor identities actor-0, actor-1, ... (at most {MAX_IDENTITIES})",
+    )
     init.add_argument(
         "--host",
         action="append",

@@ -92,16 +92,25 @@ def add_reproduce_parser(sub: Any) -> None:
     p.set_defaults(func=cmd_reproduce)
 
 
+def take_back(out_dir: Path, fresh: bool) -> None:
+    """The output folder this command created, removed where a failure left it empty (a failed submission takes back
+    its own files; a folder holding task logs or results is kept: the same command resubmits from it)."""
+    if fresh and out_dir.is_dir() and not any(out_dir.iterdir()):
+        out_dir.rmdir()
+
+
 def cmd_reproduce(args: argparse.Namespace) -> int:
     budget = Budget.quick() if args.quick else Budget()
     processes = args.processes or (1 if args.quick else 5)
     out_dir = args.out or Path("runs") / ("reproduce-quick" if args.quick else "reproduce")
     check_folder(out_dir, "reproduce", "--out")
     check_unused(out_dir, "reproduce", args.force)
+    fresh = not out_dir.exists()
     try:
         backend = sweep_backend(load_config(ArrayConfig, args=args), args.jobs, out_dir)
         report = reproduce(budget, processes, out_dir, args.methods or None, backend)
     except (ConfigError, SlurmError) as exc:
+        take_back(out_dir, fresh)
         fail("reproduce", str(exc))
     report["output"] = str(out_dir)
     table = reproduce_table(report) + f"\nwritten to {out_dir}/ (results.md, results.json, figure5.png)"
@@ -166,9 +175,11 @@ def cmd_ablate(args: argparse.Namespace) -> int:
         fail("ablate", str(exc))
     check_folder(out_dir, "ablate", "--out")
     check_unused(out_dir, "ablate", args.force)
+    fresh = not out_dir.exists()
     try:
         report = ablate(args.method, sweep, base, args.processes, out_dir, sweep_backend(slurm, args.jobs, out_dir))
     except SlurmError as exc:
+        take_back(out_dir, fresh)
         fail("ablate", str(exc))
     report["output"] = str(out_dir)
     emit(

@@ -25,6 +25,11 @@ prototypes (a rare situation otherwise fell into another situation's cells: docs
 of cells for every action"). ``ennc-ql reproduce`` keeps the paper's."""
 
 
+MAX_STORE = 50_000_000
+"""The largest store a learner keeps: about 160 bytes of memory per tuple of capacity (the store, a checkpoint's copy
+and phase 1's pass over it; docs/performance.md), so about 8 GB; a mistyped capacity would fill memory and disk."""
+
+
 @dataclass(frozen=True, slots=True)
 class LearnerConfig:
     learner_id: str = "learner"
@@ -46,7 +51,7 @@ class LearnerConfig:
     resolved: Formulation = field(init=False, repr=False, compare=False)
     """The formulation this learner runs: ``formulation`` with the explicit fields over it (resolved here, once)."""
     store_capacity: int = 1_000_000
-    """Tuples kept; the oldest are overwritten beyond it (counted)."""
+    """Tuples kept; the oldest are overwritten beyond it (counted). At most MAX_STORE."""
     min_tuples: int = 150_000
     """Tuples stored before the first phase 1."""
     refit_growth: float = 0.0
@@ -117,6 +122,7 @@ class LearnerConfig:
             duration=self.duration,
         )
         require_at_least(0, threads=self.threads, seed=self.seed)
+        require_at_most(MAX_STORE, store_capacity=self.store_capacity)
         # Each figure's trials run side by side, as arenas of one batch.
         require_at_most(
             MAX_ARENAS,

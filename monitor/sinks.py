@@ -168,10 +168,18 @@ def add_rerun_args(
     )
     group.add_argument(
         "--recording-id",
+        type=_recording_id,
         default=None,
         metavar="ID",
         help="Rerun recording id shared by every process of a run (default: a fresh one)",
     )
+
+
+def _recording_id(text: str) -> str:
+    """A recording id is a name the viewer groups every process's rows by: an empty one would group nothing."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("expected a recording id, got an empty value")
+    return text
 
 
 def sink_from_args(args: argparse.Namespace) -> Sink:

@@ -129,3 +129,28 @@ def test_a_failing_sbatch_is_one_line_and_leaves_no_run_folder(tmp_path: Path) -
     assert "Batch job submission failed:; Invalid account; sbatch: error: line three; line four" in line
     assert line.endswith("nothing was submitted")
     assert list((tmp_path / "runs").iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["ablate", "ennc-ql-local", "--slurm", "--quick", "--processes", "1", "--out", "sweep"],
+        ["reproduce", "--slurm", "--quick", "--methods", "ennc-ql-local", "--out", "sweep"],
+    ],
+    ids=["ablate", "reproduce"],
+)
+def test_a_sweep_whose_sbatch_fails_takes_back_what_it_wrote(tmp_path: Path, argv: list[str]) -> None:
+    """A sweep on SLURM whose first submission fails: one line, exit 2, and no output folder left (nothing was
+    submitted, so nothing there could be resubmitted)."""
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    sbatch = bin_dir / "sbatch"
+    sbatch.write_text("#!/bin/sh\necho 'sbatch: error: Batch job submission failed: Invalid account' >&2\nexit 1\n")
+    sbatch.chmod(0o755)
+    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}", "COLUMNS": "120"}
+    done = subprocess.run([str(ENNC_QL), *argv], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done.stderr
+    [line] = [line for line in done.stderr.splitlines() if "error:" in line]
+    assert f"ennc-ql {argv[0]}: error: sbatch --parsable" in line and "Invalid account" in line, line
+    assert line.endswith("nothing was submitted"), line
+    assert not (tmp_path / "sweep").exists()

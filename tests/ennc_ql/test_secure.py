@@ -17,7 +17,7 @@ from ennc_ql.cli import main
 @pytest.mark.parametrize(
     ("flags", "message"),
     [
-        (["--actors", "0"], "--actors: expected a positive integer, got '0'"),
+        (["--actors", "0"], "--actors: expected a positive integer of at most 10000"),
         (["--namespace", "a b"], "namespace chunk"),
     ],
 )

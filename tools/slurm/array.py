@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import logging
 import shlex
+import shutil
 import sys
 import time
 from collections.abc import Sequence
@@ -174,12 +175,18 @@ def learn_on_slurm(
     :meth:`tools.sweeps.jobs.Backend.learn` returns them. Raises :class:`SlurmError` naming the tasks that ended
     without a result, with the end of their logs."""
     folder = folder.resolve()
+    fresh = not folder.exists()
     missing = write_tasks(todo, folder)
     done = [i for i in range(len(todo)) if i not in missing]
     for i in done:
         progress.finished(f"{todo[i].label}: {read_outcome(folder, i).coverage_mean:.2f}% (an earlier result)")
     if missing:
-        job_id = submit_array(folder, missing, config)
+        try:
+            job_id = submit_array(folder, missing, config)
+        except SlurmError as exc:
+            if fresh:  # nothing was submitted from it: the files written for the array are taken back
+                shutil.rmtree(folder, ignore_errors=True)
+            raise SlurmError(f"{exc}; nothing was submitted") from None
         progress.running(f"{len(missing)} learning processes as SLURM array {job_id}")
         waiting = list(missing)
         while waiting:

@@ -57,7 +57,8 @@ class SlurmJob:
     account: str | None = None
     """SLURM account to charge (none: your default)."""
     sbatch: tuple[str, ...] = field(default=(), metadata=SBATCH_FIELD)
-    """More sbatch options, as one string, each written as an #SBATCH line: '--exclusive --mem=16G'."""
+    """More sbatch options, as one string, each written as an #SBATCH line; given with = since they start with a
+    dash: --sbatch='--exclusive --mem=16G'."""
     secure: bool = True
     """Mutual TLS, a password and an access-control identity per process, written into RUN/secure when the job
     starts (--no-secure: plain TCP, for a trusted network only)."""
