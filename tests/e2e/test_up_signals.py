@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import threading
@@ -160,6 +161,9 @@ def assert_stopped(up: Up, run_dir: Path, sig: int, learner: str) -> dict[str, A
     line = f"interrupted by {signal.Signals(sig).name} at {stop['at_s']:.0f}/{stop['duration_s']:g} s of training"
     assert line in up.stdout() and stop["resume"] in up.stdout(), up.stdout()
     assert line[0].upper() + line[1:] in (run_dir / "report.md").read_text()
+    # One clock: the progress line's last time (it never runs back) is the report's, to a second.
+    shown = [int(n) for n in re.findall(r"^up \[(\d+)/", up.stderr(), re.MULTILINE)]
+    assert shown == sorted(shown) and abs(shown[-1] - stop["at_s"]) <= 1.0, (shown[-5:], stop["at_s"])
     assert (run_dir / "learning_curve.png").stat().st_size > 0
     return out
 

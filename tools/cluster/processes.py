@@ -22,6 +22,7 @@ import logging
 import signal
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -306,9 +307,20 @@ def _watch(
         coverage: float | None = None
         actors_running = True
         shown = 0.0  # the clock as shown: a status that arrives late carries it back, and a clock never runs back
+
+        def clock(carry: bool = True) -> float:
+            """The learner's training clock as shown: its last status, carried forward by the status's age while the
+            learner trains (``carry``), never back."""
+            nonlocal shown
+            status, age = latest.get()
+            if status is not None:
+                fresh = carry and age <= 2 * learner.status_interval
+                shown = max(shown, min(status.elapsed + (age if fresh else 0.0), duration))
+            return shown
+
         while LEARNER not in supervisor.finished and LEARNER not in supervisor.given_up:
             if stop.wait(1.0):
-                _wind_down(bar, latest, supervisor, actors if actors_running else [], actor_stop_s)
+                _wind_down(bar, latest, supervisor, actors if actors_running else [], actor_stop_s, clock)
                 return
             for message in supervisor.check():
                 bar.mark(message)
@@ -316,7 +328,7 @@ def _watch(
             if status is None:
                 continue
             fresh = age <= 2 * learner.status_interval
-            shown = n = max(shown, min(status.elapsed + (age if fresh else 0.0), duration))
+            n = clock()
             if actors_running and fresh and n >= duration - lead:
                 bar.mark("training ends: the actors stop and hand in their outboxes", n)
                 supervisor.stop(actors, actor_stop_s)
@@ -341,19 +353,32 @@ def _scoring(status: LearnerStatus) -> str:
 
 
 def _wind_down(
-    bar: ProgressBar, latest: _LatestStatus, supervisor: Supervisor, actors: list[str], actor_stop_s: float
+    bar: ProgressBar,
+    latest: _LatestStatus,
+    supervisor: Supervisor,
+    actors: list[str],
+    actor_stop_s: float,
+    clock: Callable[[bool], float],
 ) -> None:
     """Stop the actors (they hand in their outboxes), then the learner (its checkpoint, its scoring, its report), the
-    bar showing each phase's seconds and the scoring's progress from the learner's statuses."""
-    bar.mark("stopping: the actors hand in their outboxes, then the learner checkpoints, scores and reports")
+    bar showing each phase's seconds and the scoring's progress from the learner's statuses. The learner trains on
+    while the actors hand in, so the bar's clock runs on with it until the learner is stopped: the time the report
+    gives for the interruption."""
+    bar.mark(
+        "stopping: the actors hand in their outboxes, then the learner checkpoints, scores and reports", clock(True)
+    )
     if actors:
-        _phase(bar, "the actors hand in their outboxes", lambda: supervisor.stop(actors, actor_stop_s), None)
+        hand_in = "the actors hand in their outboxes"
+        _phase(bar, hand_in, lambda: supervisor.stop(actors, actor_stop_s), None, lambda: clock(True))
     learner = "the learner checkpoints, scores and reports"
-    _phase(bar, learner, lambda: supervisor.stop([LEARNER], LEARNER_STOP_S), latest)
+    _phase(bar, learner, lambda: supervisor.stop([LEARNER], LEARNER_STOP_S), latest, lambda: clock(False))
+    # Off a terminal the phases' lines are rate-limited: the last line says when training stopped, as the report will.
+    bar.mark("wound down: the report follows", clock(False))
 
 
-def _phase(bar: ProgressBar, what: str, work: Any, latest: _LatestStatus | None) -> None:
-    """``work`` (a blocking stop) on a thread of its own while the bar ticks every half second; its error raised."""
+def _phase(bar: ProgressBar, what: str, work: Any, latest: _LatestStatus | None, clock: Callable[[], float]) -> None:
+    """``work`` (a blocking stop) on a thread of its own while the bar ticks every half second on ``clock``; its
+    error raised."""
     done = threading.Event()
     errors: list[BaseException] = []
 
@@ -370,7 +395,7 @@ def _phase(bar: ProgressBar, what: str, work: Any, latest: _LatestStatus | None)
     while not done.wait(0.5):
         status, _ = latest.get() if latest is not None else (None, 0.0)
         scoring = "" if status is None or status.scoring is None else f", scoring {status.scoring:.0%}"
-        bar.show(status=f"stopping: {what} ({time.monotonic() - began:.0f} s{scoring})")
+        bar.show(clock(), f"stopping: {what} ({time.monotonic() - began:.0f} s{scoring})")
     if errors:
         raise errors[0]
 
