@@ -19,12 +19,13 @@ one rule of ``algorithm.selection.SaveRule`` and scores it on the reported test 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -99,6 +100,8 @@ class LearnerService:
         self._ending = threading.Event()
         """Set once training stops: an evaluation under way gives up."""
         self._stopped_at: float | None = None
+        self._scoring: float | None = None
+        """The final evaluation's share done, once it started (the end's statuses carry it)."""
         """The run clock when training stopped: the wind-down (a fit finishing, the final evaluation) is no training,
         and a stopped run resumed must train for what was left when it stopped."""
         self.resumes: list[dict[str, Any]] = []
@@ -164,7 +167,27 @@ class LearnerService:
                 stop.wait(0.05)
             self._stopped_at = self.elapsed()
             self._ending.set()
-        return self._finish(stopped=stop.is_set(), urgent=getattr(stop, "urgent", None))
+        with self._heartbeat():
+            return self._finish(stopped=stop.is_set(), urgent=getattr(stop, "urgent", None))
+
+    @contextlib.contextmanager
+    def _heartbeat(self) -> Iterator[None]:
+        """A status every ``status_interval`` on a thread of its own while the end's work (the margin choice, the
+        checkpoint, the scoring) holds the loop: a peer sees the learner alive, and the scoring's progress, throughout
+        (one part of the scoring or the margin choice can take ten seconds and more)."""
+        done = threading.Event()
+
+        def beat() -> None:
+            while not done.wait(self.config.status_interval):
+                self._publish_status(self._scoring)
+
+        thread = threading.Thread(target=beat, name="end-status", daemon=True)
+        thread.start()
+        try:
+            yield
+        finally:
+            done.set()
+            thread.join()
 
     def _adopt(self, disc: Discretization) -> None:
         """A fit's new discretization (on the fit's thread): on disk before its first broadcast, so a resumed
@@ -289,9 +312,15 @@ class LearnerService:
     def _score(self, policy: Policy, urgent: threading.Event | None) -> float | None:
         """The saved policy's final figure, with a status after each part of the scoring; None once ``urgent`` is
         set (stopped again)."""
-        self._publish_status(scoring=0.0)
+        self._scoring = 0.0
+        self._publish_status(self._scoring)
+
+        def progress(done: int, total: int) -> None:
+            self._scoring = done / total
+            self._publish_status(self._scoring)
+
         try:
-            final = self.evaluator.final(policy, lambda done, total: self._publish_status(done / total), urgent)
+            final = self.evaluator.final(policy, progress, urgent)
         except EvaluationStopped:
             log.warning("stopped again: the final evaluation skipped, the policy is saved unscored")
             return None

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import threading
 import time
 from pathlib import Path
@@ -511,7 +512,46 @@ def test_the_final_evaluation_reports_its_progress_and_a_second_stop_skips_it_af
         else:
             parts = 1 + len(CONTROLLERS)  # the policy (one row), then every reference on the same trials
             assert report.final_coverage_mean is not None
-            assert shares == [0.0, *(k / parts for k in range(1, parts + 1))]
+            # Each part's share once it is done; the statuses between parts repeat the share reached.
+            assert shares == sorted(shares) and list(dict.fromkeys(shares)) == [
+                0.0,
+                *(k / parts for k in range(1, parts + 1)),
+            ]
+
+
+def test_the_learner_keeps_its_status_going_while_it_scores_at_the_end(tmp_path: Path) -> None:
+    # The end's work (the margin choice, the scoring) holds the learner's loop for seconds: a peer must still hear a
+    # status every interval, or it takes the learner for dead.
+    from learner.report import LearnerStatus
+    from protocol import Status
+    from tests.algorithm.test_selection import law_or_back
+    from tools.system import Stop
+
+    config = dataclasses.replace(FAST, final_eval_trials=3, law_margin=0.5, status_interval=0.1)
+    heard: list[tuple[float, float | None]] = []
+    stop = Stop()
+    stop.set()
+    with InMemoryTransport(InMemoryBus()) as t:
+        t.subscribe(
+            t.keys.status(),
+            Status,
+            lambda m: heard.append((time.monotonic(), LearnerStatus.from_counters(m.counters).scoring)),
+        )
+        service = LearnerService(t, config, tmp_path)
+        service.state.adopt(one_cell_per_action(DIM))
+        policy = law_or_back(0.25)
+        service.state.policy = lambda: policy  # type: ignore[method-assign]
+        final = service.evaluator.final
+
+        def slow_final(policy: Any, *args: Any) -> float:
+            time.sleep(1.5)
+            return final(policy, *args)
+
+        service.evaluator.final = slow_final  # type: ignore[method-assign]
+        service.run(stop)
+    scoring = [at for at, share in heard if share is not None]
+    gaps = [b - a for a, b in itertools.pairwise(scoring)]
+    assert len(scoring) >= 10 and max(gaps) < 0.5, (len(scoring), max(gaps))
 
 
 def test_acks_policies_and_status_go_out_while_an_evaluation_is_under_way(tmp_path: Path) -> None:
