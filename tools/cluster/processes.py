@@ -289,7 +289,7 @@ def _watch(
     and stop the actors a few seconds before its training time is over.
 
     The bar runs on the learner's own training clock, carried forward between status messages (every 2 s) so it
-    moves each second; past the duration the learner evaluates and writes its report and sends no more status. A
+    moves each second; past the duration its clock stands still while it scores (its statuses carry the share done). A
     status older than two of its intervals is not carried forward: the learner is down (or restarting), its clock
     stands still.
     """
